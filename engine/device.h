@@ -1,0 +1,96 @@
+// The Vulkan instance, the chosen physical device, its queue and what it can do.
+#pragma once
+#include <vulkan/vulkan.h>
+
+#include <cstdint>
+#include <mutex>
+#include <string>
+#include <vector>
+
+namespace spar {
+
+struct DeviceOptions {
+  // Which device: an index from listDevices() or a case-insensitive part of its name.
+  // Empty: the SPAR_DEVICE environment variable, else the first discrete, integrated,
+  // virtual, then CPU device.
+  std::string select;
+  // Enable VK_LAYER_KHRONOS_validation and count its messages (tests always do).
+  bool validation = false;
+  // Print the chosen device and the features used to stderr.
+  bool verbose = false;
+};
+
+// What the engine reads off the device to choose kernels, tile sizes and binding ranges.
+struct DeviceCaps {
+  std::string name;
+  VkPhysicalDeviceType type = VK_PHYSICAL_DEVICE_TYPE_OTHER;
+  uint32_t apiVersion = 0;
+  uint32_t subgroupSize = 1;
+  uint64_t maxStorageBufferRange = 0;
+  uint64_t maxTexelBufferElements = 0;
+  uint64_t minStorageBufferOffsetAlignment = 1;
+  uint64_t minTexelBufferOffsetAlignment = 1;
+  uint64_t maxMemoryAllocationSize = 0;
+  uint32_t maxPushConstantsSize = 0;
+  uint32_t maxWorkGroupCount[3] = {0, 0, 0};
+  uint32_t maxWorkGroupInvocations = 0;
+  uint32_t maxSharedMemory = 0;
+  float timestampPeriodNs = 0;
+  bool timestamps = false;
+  bool shaderFloat16 = false;
+  bool storageBuffer16BitAccess = false;
+  bool fp16TexelBuffers = false;     // R16G16B16A16_SFLOAT / R16_SFLOAT as uniform texel buffers
+  bool hostVisibleDeviceLocal = false;  // a memory type both device-local and mappable
+  bool isCpu() const { return type == VK_PHYSICAL_DEVICE_TYPE_CPU; }
+  bool supportsFp16Storage() const { return storageBuffer16BitAccess && fp16TexelBuffers; }
+};
+
+class Device {
+ public:
+  explicit Device(const DeviceOptions& options = {});
+  ~Device();
+  Device(const Device&) = delete;
+  Device& operator=(const Device&) = delete;
+
+  // "index: name (type)" for every Vulkan device on this machine.
+  static std::vector<std::string> listDevices();
+
+  VkInstance instance() const { return instance_; }
+  VkPhysicalDevice physical() const { return physical_; }
+  VkDevice handle() const { return device_; }
+  VkQueue queue() const { return queue_; }
+  uint32_t queueFamily() const { return queueFamily_; }
+  const DeviceCaps& caps() const { return caps_; }
+  const VkPhysicalDeviceMemoryProperties& memoryProperties() const { return memory_; }
+
+  // Largest range one storage-buffer binding may cover. Tests lower it to exercise the
+  // split paths that tensors above 128 MiB take on lavapipe without allocating that much.
+  uint64_t bindingRangeLimit() const { return bindingRangeLimit_; }
+  void setBindingRangeLimitForTesting(uint64_t bytes) { bindingRangeLimit_ = bytes; }
+
+  // Validation-layer messages of severity warning or error seen so far.
+  size_t validationMessageCount() const;
+  std::vector<std::string> validationMessages() const;
+  void recordValidationMessage(const std::string& message);
+  bool validationEnabled() const { return messenger_ != VK_NULL_HANDLE; }
+
+ private:
+  void createInstance(bool validation);
+  void pickPhysicalDevice(const std::string& select);
+  void readCaps();
+  void createLogicalDevice();
+
+  VkInstance instance_ = VK_NULL_HANDLE;
+  VkDebugUtilsMessengerEXT messenger_ = VK_NULL_HANDLE;
+  VkPhysicalDevice physical_ = VK_NULL_HANDLE;
+  VkDevice device_ = VK_NULL_HANDLE;
+  VkQueue queue_ = VK_NULL_HANDLE;
+  uint32_t queueFamily_ = 0;
+  DeviceCaps caps_;
+  VkPhysicalDeviceMemoryProperties memory_{};
+  uint64_t bindingRangeLimit_ = 0;
+  mutable std::mutex messagesMutex_;
+  std::vector<std::string> messages_;
+};
+
+}  // namespace spar

@@ -1,0 +1,122 @@
+#include "engine/engine.h"
+
+#include <cstring>
+
+#include "engine/error.h"
+#include "engine/half.h"
+
+namespace spar {
+
+Engine::Engine(const EngineOptions& options)
+    : device_(std::make_unique<Device>(options.device)),
+      memory_(std::make_unique<MemoryAllocator>(*device_)),
+      pipelines_(std::make_unique<PipelineCache>(*device_, options.pipelineCacheFile)) {}
+
+Engine::~Engine() {
+  pipelines_.reset();
+  memory_.reset();
+  device_.reset();
+}
+
+Tensor Engine::tensor(const Shape& shape, DType dtype) {
+  VkDeviceSize bytes = static_cast<VkDeviceSize>(shapeNumel(shape)) * dtypeSize(dtype);
+  // Round up to 16 bytes so every tensor can be read through 4-component texel views.
+  VkDeviceSize padded = std::max<VkDeviceSize>(16, (bytes + 15) / 16 * 16);
+  auto buffer = std::make_shared<Buffer>(*device_, *memory_, padded, MemoryUsage::Tensor);
+  return Tensor(std::move(buffer), 0, shape, dtype);
+}
+
+void Engine::stagedCopy(const Tensor& t, void* data, size_t bytes, bool toDevice) {
+  Buffer staging(*device_, *memory_, bytes, MemoryUsage::Staging);
+  if (toDevice) std::memcpy(staging.mapped(), data, bytes);
+  VkDevice dev = device_->handle();
+  VkCommandPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
+  poolInfo.flags = VK_COMMAND_POOL_CREATE_TRANSIENT_BIT;
+  poolInfo.queueFamilyIndex = device_->queueFamily();
+  VkCommandPool pool;
+  SPAR_VK(vkCreateCommandPool(dev, &poolInfo, nullptr, &pool));
+  VkCommandBufferAllocateInfo alloc{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO};
+  alloc.commandPool = pool;
+  alloc.level = VK_COMMAND_BUFFER_LEVEL_PRIMARY;
+  alloc.commandBufferCount = 1;
+  VkCommandBuffer cmd;
+  SPAR_VK(vkAllocateCommandBuffers(dev, &alloc, &cmd));
+  VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
+  begin.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+  vkBeginCommandBuffer(cmd, &begin);
+  VkBufferCopy region{};
+  region.size = bytes;
+  if (toDevice) {
+    region.dstOffset = t.byteOffset();
+    vkCmdCopyBuffer(cmd, staging.handle(), t.buffer().handle(), 1, &region);
+  } else {
+    region.srcOffset = t.byteOffset();
+    vkCmdCopyBuffer(cmd, t.buffer().handle(), staging.handle(), 1, &region);
+  }
+  VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
+  barrier.srcAccessMask = VK_ACCESS_TRANSFER_WRITE_BIT;
+  barrier.dstAccessMask = VK_ACCESS_HOST_READ_BIT | VK_ACCESS_SHADER_READ_BIT;
+  vkCmdPipelineBarrier(cmd, VK_PIPELINE_STAGE_TRANSFER_BIT, VK_PIPELINE_STAGE_HOST_BIT | VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT,
+                       0, 1, &barrier, 0, nullptr, 0, nullptr);
+  vkEndCommandBuffer(cmd);
+  VkSubmitInfo submit{VK_STRUCTURE_TYPE_SUBMIT_INFO};
+  submit.commandBufferCount = 1;
+  submit.pCommandBuffers = &cmd;
+  VkResult r = vkQueueSubmit(device_->queue(), 1, &submit, VK_NULL_HANDLE);
+  if (r == VK_SUCCESS) r = vkQueueWaitIdle(device_->queue());
+  vkDestroyCommandPool(dev, pool, nullptr);
+  vkCheck(r, "staged copy");
+  if (!toDevice) std::memcpy(data, staging.mapped(), bytes);
+}
+
+void Engine::write(const Tensor& t, const void* data, size_t bytes) {
+  if (bytes != t.bytes()) throw Error("writing " + std::to_string(bytes) + " bytes into " + t.describe());
+  if (void* p = t.buffer().mapped()) {
+    std::memcpy(static_cast<char*>(p) + t.byteOffset(), data, bytes);
+  } else {
+    stagedCopy(t, const_cast<void*>(data), bytes, true);
+  }
+}
+
+void Engine::read(const Tensor& t, void* data, size_t bytes) {
+  if (bytes != t.bytes()) throw Error("reading " + std::to_string(bytes) + " bytes from " + t.describe());
+  if (void* p = t.buffer().mapped()) {
+    std::memcpy(data, static_cast<char*>(p) + t.byteOffset(), bytes);
+  } else {
+    stagedCopy(t, data, bytes, false);
+  }
+}
+
+void Engine::upload(const Tensor& t, std::span<const float> values) {
+  if (static_cast<int64_t>(values.size()) != t.numel())
+    throw Error("uploading " + std::to_string(values.size()) + " values into " + t.describe());
+  if (t.dtype() == DType::F32) return write(t, values.data(), values.size_bytes());
+  if (t.dtype() != DType::F16) throw Error("upload of floats into " + t.describe());
+  std::vector<uint16_t> half(values.size());
+  for (size_t i = 0; i < values.size(); ++i) half[i] = floatToHalf(values[i]);
+  write(t, half.data(), half.size() * 2);
+}
+
+std::vector<float> Engine::download(const Tensor& t) {
+  std::vector<float> out(static_cast<size_t>(t.numel()));
+  if (t.dtype() == DType::F32) {
+    read(t, out.data(), out.size() * 4);
+  } else if (t.dtype() == DType::F16) {
+    std::vector<uint16_t> half(out.size());
+    read(t, half.data(), half.size() * 2);
+    for (size_t i = 0; i < out.size(); ++i) out[i] = halfToFloat(half[i]);
+  } else {
+    std::vector<int32_t> ints(out.size());
+    read(t, ints.data(), ints.size() * 4);
+    for (size_t i = 0; i < out.size(); ++i) out[i] = static_cast<float>(ints[i]);
+  }
+  return out;
+}
+
+Tensor Engine::fromFloats(const Shape& shape, std::span<const float> values, DType dtype) {
+  Tensor t = tensor(shape, dtype);
+  upload(t, values);
+  return t;
+}
+
+}  // namespace spar

@@ -1,0 +1,52 @@
+// The engine a model runs on: device, memory, pipelines, and tensor upload/download.
+#pragma once
+#include <memory>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "engine/device.h"
+#include "engine/memory.h"
+#include "engine/pipeline.h"
+#include "engine/tensor.h"
+
+namespace spar {
+
+struct EngineOptions {
+  DeviceOptions device;
+  std::string pipelineCacheFile;  // "" keeps no cache across runs
+};
+
+class Engine {
+ public:
+  explicit Engine(const EngineOptions& options = {});
+  ~Engine();
+  Engine(const Engine&) = delete;
+  Engine& operator=(const Engine&) = delete;
+
+  Device& device() { return *device_; }
+  const DeviceCaps& caps() const { return device_->caps(); }
+  MemoryAllocator& memory() { return *memory_; }
+  PipelineCache& pipelines() { return *pipelines_; }
+  const Kernel& kernel(const KernelSpec& spec) { return pipelines_->get(spec); }
+
+  // A new tensor with its own buffer; contents undefined.
+  Tensor tensor(const Shape& shape, DType dtype = DType::F32);
+
+  // Raw bytes to and from a tensor (size must equal tensor.bytes()).
+  void write(const Tensor& t, const void* data, size_t bytes);
+  void read(const Tensor& t, void* data, size_t bytes);
+  // Floats converted to and from the tensor's dtype (f32 or f16).
+  void upload(const Tensor& t, std::span<const float> values);
+  std::vector<float> download(const Tensor& t);
+  Tensor fromFloats(const Shape& shape, std::span<const float> values, DType dtype = DType::F32);
+
+ private:
+  void stagedCopy(const Tensor& t, void* data, size_t bytes, bool toDevice);
+
+  std::unique_ptr<Device> device_;
+  std::unique_ptr<MemoryAllocator> memory_;
+  std::unique_ptr<PipelineCache> pipelines_;
+};
+
+}  // namespace spar

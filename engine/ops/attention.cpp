@@ -1,0 +1,73 @@
+#include "engine/ops/attention.h"
+
+#include <cmath>
+
+#include "engine/engine.h"
+#include "engine/error.h"
+
+namespace spar {
+namespace {
+
+struct AttentionPush {
+  int32_t Nq, Nk;
+  int32_t qStride, kStride, vStride, oStride;
+  int32_t qOff, kOff, vOff, oOff;
+  int32_t qBatch, kBatch, vBatch, oBatch;
+  float scaleLog2;
+};
+
+struct Geometry {
+  int64_t batch, rows, cols;
+};
+
+Geometry geometryOf(const HeadsView& h, const char* what, int heads, int headDim) {
+  const Tensor& t = h.tensor;
+  if (t.rank() != 2 && t.rank() != 3) throw Error(std::string("attention: ") + what + " must be [B, N, C] or [N, C]");
+  Geometry g{t.rank() == 3 ? t.dim(0) : 1, t.dim(-2), t.dim(-1)};
+  if (h.column < 0 || h.column + int64_t(heads) * headDim > g.cols)
+    throw Error(std::string("attention: ") + what + " " + t.describe() + " has no room for " + std::to_string(heads) +
+                " heads of " + std::to_string(headDim) + " at column " + std::to_string(h.column));
+  return g;
+}
+
+}  // namespace
+
+void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const HeadsView& v, const HeadsView& out,
+               int heads, int headDim, bool causal, float scale) {
+  Engine& engine = rec.engine();
+  if (heads <= 0 || headDim <= 0 || headDim % 4 != 0)
+    throw Error("attention: head dimension must be a positive multiple of 4, got " + std::to_string(headDim));
+  const Geometry gq = geometryOf(q, "q", heads, headDim), gk = geometryOf(k, "k", heads, headDim),
+                 gv = geometryOf(v, "v", heads, headDim), go = geometryOf(out, "out", heads, headDim);
+  if (gk.rows != gv.rows || gq.rows != go.rows || gq.batch != gk.batch || gq.batch != gv.batch || gq.batch != go.batch)
+    throw Error("attention: q, k, v and out shapes do not agree");
+  if (causal && gq.rows != gk.rows) throw Error("attention: a causal mask needs as many queries as keys");
+  for (const auto* g : {&gq, &gk, &gv})
+    if (g->cols % 4) throw Error("attention: q, k, v row lengths must be multiples of 4");
+  if (q.column % 4 || k.column % 4 || v.column % 4) throw Error("attention: head columns must be multiples of 4");
+  if (out.tensor.dtype() == DType::I32) throw Error("attention: integer output");
+  if (gq.rows == 0 || gk.rows == 0) return;
+  if (out.tensor.bytes() > engine.device().bindingRangeLimit())
+    throw Error("attention: output " + out.tensor.describe() + " exceeds the device's storage binding range");
+
+  const bool cpu = engine.caps().isCpu();
+  const int queriesPerInvocation = cpu ? 8 : 2, keysPerBlock = 16;
+  const int localX = cpu ? std::max<int>(8, engine.caps().subgroupSize) : 64;
+  const Kernel& kernel = engine.kernel({out.tensor.dtype() == DType::F16 ? "attention_f16out" : "attention_f32",
+                                        {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                                        sizeof(AttentionPush),
+                                        {localX, 1, 1, headDim, queriesPerInvocation, keysPerBlock, causal ? 1 : 0}});
+  const float s = scale != 0.0f ? scale : 1.0f / std::sqrt(static_cast<float>(headDim));
+  AttentionPush push{int32_t(gq.rows), int32_t(gk.rows),
+                     int32_t(gq.cols), int32_t(gk.cols), int32_t(gv.cols), int32_t(go.cols),
+                     int32_t(q.column), int32_t(k.column), int32_t(v.column), int32_t(out.column),
+                     int32_t(gq.rows * gq.cols), int32_t(gk.rows * gk.cols), int32_t(gv.rows * gv.cols),
+                     int32_t(go.rows * go.cols), s * 1.4426950408889634f};
+  const int64_t perGroup = int64_t(queriesPerInvocation) * localX;
+  rec.dispatch(kernel,
+               {Arg::texel(q.tensor, 4), Arg::texel(k.tensor, 4), Arg::texel(v.tensor, 4), Arg::out(out.tensor)}, push,
+               static_cast<uint32_t>((gq.rows + perGroup - 1) / perGroup), static_cast<uint32_t>(heads),
+               static_cast<uint32_t>(gq.batch));
+}
+
+}  // namespace spar

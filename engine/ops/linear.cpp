@@ -1,0 +1,94 @@
+#include "engine/ops/linear.h"
+
+#include <algorithm>
+#include <cstdlib>
+#include <cstdio>
+
+#include "engine/engine.h"
+#include "engine/error.h"
+
+namespace spar {
+namespace {
+
+struct GemmPush {
+  int32_t M, N, K, ldx, ldw, ldy, xBatch, wBatch, yBatch;
+};
+
+uint32_t ceilDiv(int64_t a, int64_t b) { return static_cast<uint32_t>((a + b - 1) / b); }
+
+}  // namespace
+
+GemmTiles chooseGemmTiles(const DeviceCaps& caps) {
+  if (const char* env = std::getenv("SPAR_GEMM_TILES")) {
+    GemmTiles t{};
+    if (std::sscanf(env, "%d,%d,%d,%d", &t.rowsPerInvocation, &t.colsPerInvocation, &t.localX, &t.localY) == 4 &&
+        t.rowsPerInvocation > 0 && t.colsPerInvocation > 0 && t.localX > 0 && t.localY > 0)
+      return t;
+    throw Error("SPAR_GEMM_TILES must be RM,RN,LX,LY (positive integers)");
+  }
+  if (caps.isCpu()) return {16, 16, std::max<int>(8, caps.subgroupSize), 8};
+  return {4, 4, 16, 16};
+}
+
+void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y, Activation act) {
+  Engine& engine = rec.engine();
+  const DeviceCaps& caps = engine.caps();
+  if (w.rank() != 2 && w.rank() != 3) throw Error("linear: weight must be [N, K] or [B, N, K], got " + w.describe());
+  const bool batched = w.rank() == 3;
+  const int64_t K = w.dim(-1), N = w.dim(-2);
+  if (x.dim(-1) != K) throw Error("linear: input " + x.describe() + " does not match weight " + w.describe());
+  const int64_t B = batched ? w.dim(0) : 1;
+  if (batched && (x.rank() != 3 || x.dim(0) != B || y.rank() != 3 || y.dim(0) != B))
+    throw Error("linear: batched weight " + w.describe() + " needs x [B, M, K] and y [B, M, N]");
+  const int64_t M = batched ? x.dim(1) : x.numel() / K;
+  if (y.dim(-1) != N || y.numel() != B * M * N)
+    throw Error("linear: output " + y.describe() + " should hold " + std::to_string(M) + " x " + std::to_string(N));
+  if (bias.defined() && bias.numel() != N) throw Error("linear: bias " + bias.describe() + " should have " + std::to_string(N));
+  if (y.dtype() == DType::I32 || x.dtype() == DType::I32 || w.dtype() == DType::I32)
+    throw Error("linear: integer tensors are not supported");
+  if (M == 0 || N == 0) return;
+  if (K == 0) throw Error("linear: K = 0");
+
+  const int texelK = K % 4 == 0 ? 4 : 1;
+  const int64_t kTexels = K / texelK;
+  const GemmTiles tiles = chooseGemmTiles(caps);
+  const Kernel& kernel = engine.kernel({y.dtype() == DType::F16 ? "gemm_f16out" : "gemm_f32",
+                                        {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                                        sizeof(GemmPush),
+                                        {tiles.localX, tiles.localY, 1, tiles.rowsPerInvocation,
+                                         tiles.colsPerInvocation, texelK, static_cast<int>(act), bias.defined()}});
+  const Tensor biasArg = bias.defined() ? bias : w;
+
+  if (batched) {
+    GemmPush push{int32_t(M), int32_t(N), int32_t(kTexels), int32_t(kTexels), int32_t(kTexels), int32_t(N),
+                  int32_t(M * kTexels), int32_t(N * kTexels), int32_t(M * N)};
+    rec.dispatch(kernel, {Arg::texel(x, texelK), Arg::texel(w, texelK), Arg::texel(biasArg, 1), Arg::out(y)}, push,
+                 ceilDiv(M, int64_t(tiles.rowsPerInvocation) * tiles.localX),
+                 ceilDiv(N, int64_t(tiles.colsPerInvocation) * tiles.localY), static_cast<uint32_t>(B));
+    return;
+  }
+
+  // Split rows so that no binding exceeds the device's storage range or texel count.
+  // Chunks are multiples of 256 rows, which keeps every view offset aligned.
+  const uint64_t ySize = dtypeSize(y.dtype()), xSize = dtypeSize(x.dtype());
+  const uint64_t rowsByY = engine.device().bindingRangeLimit() / (uint64_t(N) * ySize);
+  const uint64_t rowsByX = caps.maxTexelBufferElements / uint64_t(kTexels);
+  if (uint64_t(N) * uint64_t(kTexels) > caps.maxTexelBufferElements)
+    throw Error("linear: weight " + w.describe() + " exceeds the device's texel-buffer size");
+  int64_t chunk = static_cast<int64_t>(std::min<uint64_t>(rowsByY, rowsByX));
+  if (chunk < M) chunk = chunk / 256 * 256;
+  if (chunk <= 0) throw Error("linear: one row of " + y.describe() + " exceeds the device's binding limits");
+  (void)xSize;
+  const Tensor x2 = x.reshape({M, K}), y2 = y.reshape({M, N});
+  for (int64_t m0 = 0; m0 < M; m0 += chunk) {
+    const int64_t rows = std::min(chunk, M - m0);
+    GemmPush push{int32_t(rows), int32_t(N), int32_t(kTexels), int32_t(kTexels), int32_t(kTexels), int32_t(N), 0, 0, 0};
+    rec.dispatch(kernel,
+                 {Arg::texel(x2.view(m0 * K, {rows, K}), texelK), Arg::texel(w, texelK), Arg::texel(biasArg, 1),
+                  Arg::out(y2.view(m0 * N, {rows, N}))},
+                 push, ceilDiv(rows, int64_t(tiles.rowsPerInvocation) * tiles.localX),
+                 ceilDiv(N, int64_t(tiles.colsPerInvocation) * tiles.localY), 1);
+  }
+}
+
+}  // namespace spar

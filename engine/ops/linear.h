@@ -1,0 +1,22 @@
+// Linear layer y = act(x W^T + b) on shaders/gemm.comp.
+#pragma once
+#include "engine/ops/activation.h"
+#include "engine/recorder.h"
+
+namespace spar {
+
+// Register-block and workgroup shape of the GEMM kernel for a device.
+struct GemmTiles {
+  int rowsPerInvocation, colsPerInvocation, localX, localY;
+};
+// CPU devices (llvmpipe): big register blocks; GPUs: small blocks, many invocations.
+// SPAR_GEMM_TILES="RM,RN,LX,LY" overrides (for tuning with spar-bench).
+GemmTiles chooseGemmTiles(const DeviceCaps& caps);
+
+// x: [rows..., K] with w: [N, K], or x: [B, M, K] with w: [B, N, K] (batched);
+// bias: [N] or undefined; y: [rows..., N] (f32 or f16). x, w, bias may be f32 or f16.
+// Tensors above the device's binding limits are processed in row chunks.
+void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
+            Activation act = Activation::None);
+
+}  // namespace spar

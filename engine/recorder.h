@@ -1,0 +1,91 @@
+// Records many dispatches into one command buffer, inserts the barriers their data
+// dependencies need, and submits them at once. Optionally times every dispatch with
+// timestamp queries.
+#pragma once
+#include <vulkan/vulkan.h>
+
+#include <set>
+#include <string>
+#include <vector>
+
+#include "engine/pipeline.h"
+#include "engine/tensor.h"
+
+namespace spar {
+
+class Engine;
+
+// One binding of a dispatch: a tensor and how the kernel sees it (must match the
+// kernel's Bind list). Texel bindings read 1 or 4 components per texel.
+struct Arg {
+  Tensor tensor;
+  Bind kind = Bind::Read;
+  int components = 1;
+
+  static Arg in(const Tensor& t) { return {t, Bind::Read, 1}; }
+  static Arg out(const Tensor& t) { return {t, Bind::Write, 1}; }
+  static Arg inout(const Tensor& t) { return {t, Bind::ReadWrite, 1}; }
+  static Arg texel(const Tensor& t, int components) { return {t, Bind::Texel, components}; }
+};
+
+struct DispatchTiming {
+  std::string label;
+  double ms = 0;
+};
+
+class Recorder {
+ public:
+  explicit Recorder(Engine& engine, bool profile = false);
+  ~Recorder();
+  Recorder(const Recorder&) = delete;
+  Recorder& operator=(const Recorder&) = delete;
+
+  void dispatch(const Kernel& kernel, const std::vector<Arg>& args, const void* push, uint32_t pushBytes,
+                uint32_t groupsX, uint32_t groupsY = 1, uint32_t groupsZ = 1, const std::string& label = "");
+
+  template <class Push>
+  void dispatch(const Kernel& kernel, const std::vector<Arg>& args, const Push& push, uint32_t gx, uint32_t gy = 1,
+                uint32_t gz = 1, const std::string& label = "") {
+    dispatch(kernel, args, &push, sizeof(Push), gx, gy, gz, label);
+  }
+
+  // Submits everything recorded so far, waits for it, and makes results readable by the host.
+  void run();
+
+  size_t pending() const { return dispatchCount_; }
+  // Per-dispatch GPU times of the last run() (empty unless profiling on a device with timestamps).
+  const std::vector<DispatchTiming>& timings() const { return timings_; }
+  double totalMs() const;
+
+  Engine& engine() { return engine_; }
+
+ private:
+  void begin();
+  void barrierIfNeeded(const std::vector<Arg>& args);
+  VkDescriptorSet allocateSet(VkDescriptorSetLayout layout);
+  void writeTimestamp();
+  void releaseTransient();
+
+  Engine& engine_;
+  bool profile_;
+  VkCommandPool pool_ = VK_NULL_HANDLE;
+  VkCommandBuffer cmd_ = VK_NULL_HANDLE;
+  VkFence fence_ = VK_NULL_HANDLE;
+  bool recording_ = false;
+  size_t dispatchCount_ = 0;
+
+  std::vector<VkDescriptorPool> descriptorPools_;
+  size_t currentPool_ = 0;
+  std::vector<VkBufferView> views_;
+  // Buffers pending in the command buffer, kept alive until it completes.
+  std::vector<std::shared_ptr<Buffer>> keepAlive_;
+
+  std::set<VkBuffer> writtenSinceBarrier_, readSinceBarrier_;
+
+  std::vector<VkQueryPool> queryPools_;
+  uint32_t queriesUsed_ = 0;
+  std::vector<std::string> labels_;
+  std::vector<DispatchTiming> timings_;
+};
+
+}  // namespace spar

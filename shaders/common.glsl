@@ -1,0 +1,51 @@
+// Shared by every kernel: output element type, activation functions.
+// Conventions: constant_id 0-2 are the workgroup size; shapes come as push constants.
+#extension GL_EXT_control_flow_attributes : enable
+
+#ifndef OUT_F16
+#define OUT_F16 0
+#endif
+#if OUT_F16
+#extension GL_EXT_shader_16bit_storage : require
+#extension GL_EXT_shader_explicit_arithmetic_types_float16 : require
+#define OUT_T float16_t
+// Saturate instead of overflowing to inf: a value beyond fp16's range keeps its sign
+// and the largest finite magnitude, so one hot activation cannot poison what follows.
+#define TO_OUT(v) float16_t(clamp((v), -65504.0, 65504.0))
+#else
+#define OUT_T float
+#define TO_OUT(v) (v)
+#endif
+
+#define ACT_NONE 0
+#define ACT_GELU 1        // exact erf GELU (PyTorch nn.GELU())
+#define ACT_QUICK_GELU 2  // x * sigmoid(1.702 x) (CLIP)
+#define ACT_SILU 3
+#define ACT_SIGMOID 4
+
+// Sigmoid without overflow: exp of a negative argument only.
+float sigmoid_stable(float x) {
+  float e = exp(-abs(x));
+  return x >= 0.0 ? 1.0 / (1.0 + e) : e / (1.0 + e);
+}
+
+// Complementary error function with fractional error < 1.2e-7 everywhere (Chebyshev
+// fit, Numerical Recipes 6.2), so GELU keeps full relative accuracy in its negative tail.
+float erfc_accurate(float x) {
+  float z = abs(x);
+  float t = 1.0 / (1.0 + 0.5 * z);
+  float poly = -1.26551223 + t * (1.00002368 + t * (0.37409196 + t * (0.09678418 + t * (-0.18628806 +
+               t * (0.27886807 + t * (-1.13520398 + t * (1.48851587 + t * (-0.82215223 + t * 0.17087277))))))));
+  float r = t * exp(-z * z + poly);
+  return x >= 0.0 ? r : 2.0 - r;
+}
+
+float gelu_erf(float x) { return 0.5 * x * erfc_accurate(-x * 0.70710678118654752); }
+
+float activate(float x, int act) {
+  if (act == ACT_GELU) return gelu_erf(x);
+  if (act == ACT_QUICK_GELU) return x * sigmoid_stable(1.702 * x);
+  if (act == ACT_SILU) return x * sigmoid_stable(x);
+  if (act == ACT_SIGMOID) return sigmoid_stable(x);
+  return x;
+}

@@ -1,0 +1,74 @@
+#version 450
+// Linear layer as GEMM: y[b][m][n] = act(sum_k x[b][m][k] * w[b][n][k] + bias[n]).
+// Host side: engine/ops/linear.cpp.
+//
+// x and w are read through uniform texel buffers (RGBA texels = 4 consecutive k, or R
+// texels when K is not a multiple of 4): llvmpipe turns texel fetches into branch-free
+// gathers, about twice as fast as storage-buffer loads whose address is not uniform.
+// Each invocation owns an RM x RN register block of outputs and no shared memory is used:
+// on a CPU device the block is the cache-resident working set; on a GPU the host picks
+// smaller blocks. Both x and w have k contiguous (PyTorch's out x in weight layout).
+//! variant gemm_f32 OUT_F16=0
+//! variant gemm_f16out OUT_F16=1
+#extension GL_GOOGLE_include_directive : require
+#include "common.glsl"
+
+layout(local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in;
+layout(constant_id = 3) const int RM = 16;         // rows of y per invocation
+layout(constant_id = 4) const int RN = 16;         // columns of y per invocation
+layout(constant_id = 5) const int TEXEL_K = 4;     // k values per texel: 4 (RGBA) or 1 (R)
+layout(constant_id = 6) const int ACT = ACT_NONE;  // fused epilogue activation
+layout(constant_id = 7) const bool HAS_BIAS = false;
+
+layout(binding = 0) uniform samplerBuffer X;
+layout(binding = 1) uniform samplerBuffer W;
+layout(binding = 2) uniform samplerBuffer BIAS;  // R texels; bound to w when HAS_BIAS is false
+layout(binding = 3) writeonly buffer Y { OUT_T y[]; };
+
+layout(push_constant) uniform Push {
+  int M, N, K;       // K in texels
+  int ldx, ldw;      // row strides of x and w in texels
+  int ldy;           // row stride of y in elements
+  int xBatch, wBatch, yBatch;  // batch strides (texels, texels, elements); wBatch 0 shares w
+} p;
+
+void main() {
+  const int m0 = int(gl_GlobalInvocationID.x) * RM;
+  const int n0 = int(gl_GlobalInvocationID.y) * RN;
+  const int b = int(gl_GlobalInvocationID.z);
+  if (m0 >= p.M || n0 >= p.N) return;
+
+  // Rows past the edge re-read the last row (always in bounds); their results are dropped.
+  int xRow[RM];
+  [[unroll]] for (int r = 0; r < RM; ++r) xRow[r] = b * p.xBatch + min(m0 + r, p.M - 1) * p.ldx;
+  int wRow[RN];
+  [[unroll]] for (int c = 0; c < RN; ++c) wRow[c] = b * p.wBatch + min(n0 + c, p.N - 1) * p.ldw;
+
+  float acc[RM * RN];
+  [[unroll]] for (int i = 0; i < RM * RN; ++i) acc[i] = 0.0;
+
+  for (int k = 0; k < p.K; ++k) {
+    vec4 a[RM];
+    [[unroll]] for (int r = 0; r < RM; ++r) a[r] = texelFetch(X, xRow[r] + k);
+    [[unroll]] for (int c = 0; c < RN; ++c) {
+      vec4 w = texelFetch(W, wRow[c] + k);
+      [[unroll]] for (int r = 0; r < RM; ++r) {
+        float s = acc[r * RN + c];
+        [[unroll]] for (int j = 0; j < TEXEL_K; ++j) s = fma(a[r][j], w[j], s);
+        acc[r * RN + c] = s;
+      }
+    }
+  }
+
+  [[unroll]] for (int r = 0; r < RM; ++r) {
+    const int m = m0 + r;
+    if (m >= p.M) break;
+    [[unroll]] for (int c = 0; c < RN; ++c) {
+      const int n = n0 + c;
+      if (n >= p.N) break;
+      float v = acc[r * RN + c];
+      if (HAS_BIAS) v += texelFetch(BIAS, n).x;
+      y[b * p.yBatch + m * p.ldy + n] = TO_OUT(activate(v, ACT));
+    }
+  }
+}

@@ -1,0 +1,192 @@
+// Linear layer (shaders/gemm.comp via engine/ops/linear.cpp) against a float64 reference.
+#include "engine/ops/linear.h"
+
+#include "tests/test_support.h"
+
+namespace spar::test {
+namespace {
+
+double activateRef(double x, Activation act) {
+  switch (act) {
+    case Activation::Gelu: return 0.5 * x * std::erfc(-x / std::sqrt(2.0));
+    case Activation::QuickGelu: return x / (1.0 + std::exp(-1.702 * x));
+    case Activation::Silu: return x / (1.0 + std::exp(-x));
+    case Activation::Sigmoid: return 1.0 / (1.0 + std::exp(-x));
+    default: return x;
+  }
+}
+
+// y[b][m][n] = act(sum_k x[b][m][k] w[b or 0][n][k] + bias[n])
+std::vector<double> linearRef(const std::vector<float>& x, const std::vector<float>& w, const std::vector<float>& bias,
+                              int64_t B, int64_t M, int64_t N, int64_t K, bool batchedW, Activation act) {
+  std::vector<double> y(B * M * N);
+  for (int64_t b = 0; b < B; ++b)
+    for (int64_t m = 0; m < M; ++m)
+      for (int64_t n = 0; n < N; ++n) {
+        const float* xr = &x[(b * M + m) * K];
+        const float* wr = &w[((batchedW ? b * N : 0) + n) * K];
+        double s = bias.empty() ? 0.0 : bias[n];
+        for (int64_t k = 0; k < K; ++k) s += double(xr[k]) * wr[k];
+        y[(b * M + m) * N + n] = activateRef(s, act);
+      }
+  return y;
+}
+
+struct LinearCase {
+  int64_t M, N, K;
+  bool bias;
+  Activation act;
+};
+
+class LinearTest : public EngineTest, public ::testing::WithParamInterface<LinearCase> {};
+
+TEST_P(LinearTest, MatchesFloat64Reference) {
+  const auto c = GetParam();
+  auto x = randomUniform(c.M * c.K, -1, 1, 1);
+  auto w = randomUniform(c.N * c.K, -1, 1, 2);
+  auto b = c.bias ? randomUniform(c.N, -1, 1, 3) : std::vector<float>{};
+  Tensor tx = eng().fromFloats({c.M, c.K}, x), tw = eng().fromFloats({c.N, c.K}, w);
+  Tensor tb = c.bias ? eng().fromFloats({c.N}, b) : Tensor();
+  GuardedOutput y(eng(), {c.M, c.N});
+  Recorder rec(eng());
+  linear(rec, tx, tw, tb, y.tensor(), c.act);
+  rec.run();
+  auto ref = linearRef(x, w, b, 1, c.M, c.N, c.K, false, c.act);
+  expectClose(y.read(), ref, 1e-10 * std::max<int64_t>(1, c.K / 16), 1e-4, "linear");
+  y.expectAllWritten();
+}
+
+INSTANTIATE_TEST_SUITE_P(
+    OddShapes, LinearTest,
+    ::testing::Values(LinearCase{7, 61, 64, false, Activation::None}, LinearCase{61, 7, 61, true, Activation::None},
+                      LinearCase{257, 131, 256, true, Activation::None}, LinearCase{1, 1, 1, false, Activation::None},
+                      LinearCase{33, 65, 130, true, Activation::Gelu}, LinearCase{19, 40, 24, true, Activation::QuickGelu},
+                      LinearCase{64, 17, 20, false, Activation::Silu}, LinearCase{9, 300, 12, true, Activation::Sigmoid},
+                      LinearCase{130, 768, 518, true, Activation::None}));
+
+TEST_F(EngineTest, LinearBatchedWeights) {
+  const int64_t B = 3, M = 29, N = 37, K = 44;
+  auto x = randomUniform(B * M * K, -1, 1, 4), w = randomUniform(B * N * K, -1, 1, 5);
+  Tensor tx = eng().fromFloats({B, M, K}, x), tw = eng().fromFloats({B, N, K}, w);
+  GuardedOutput y(eng(), {B, M, N});
+  Recorder rec(eng());
+  linear(rec, tx, tw, Tensor(), y.tensor());
+  rec.run();
+  expectClose(y.read(), linearRef(x, w, {}, B, M, N, K, true, Activation::None), 1e-10, 1e-4, "batched");
+  y.expectAllWritten();
+}
+
+TEST_F(EngineTest, LinearLeadingDimsAreRows) {
+  const int64_t B = 2, T = 13, N = 24, K = 16;
+  auto x = randomUniform(B * T * K, -1, 1, 6), w = randomUniform(N * K, -1, 1, 7);
+  Tensor tx = eng().fromFloats({B, T, K}, x), tw = eng().fromFloats({N, K}, w);
+  GuardedOutput y(eng(), {B, T, N});
+  Recorder rec(eng());
+  linear(rec, tx, tw, Tensor(), y.tensor());
+  rec.run();
+  expectClose(y.read(), linearRef(x, w, {}, 1, B * T, N, K, false, Activation::None), 1e-10, 1e-4, "rows");
+}
+
+// fp16 weights and activations, fp32 accumulation: exact on fp16-rounded inputs up to
+// fp32 accumulation error, and within fp16 rounding of the fp32 reference.
+TEST_F(EngineTest, LinearFp16StorageAccumulatesInFp32) {
+  if (!eng().caps().supportsFp16Storage()) GTEST_SKIP() << "device without fp16 storage";
+  const int64_t M = 45, N = 70, K = 384;
+  auto x = randomUniform(M * K, -1, 1, 8), w = randomUniform(N * K, -1, 1, 9), b = randomUniform(N, -1, 1, 10);
+  Tensor tx = eng().fromFloats({M, K}, x, DType::F16), tw = eng().fromFloats({N, K}, w, DType::F16);
+  Tensor tb = eng().fromFloats({N}, b, DType::F16);
+  GuardedOutput y(eng(), {M, N}, DType::F32);
+  GuardedOutput y16(eng(), {M, N}, DType::F16);
+  Recorder rec(eng());
+  linear(rec, tx, tw, tb, y.tensor());
+  linear(rec, tx, tw, tb, y16.tensor());
+  rec.run();
+  auto refRounded = linearRef(roundToHalf(x), roundToHalf(w), roundToHalf(b), 1, M, N, K, false, Activation::None);
+  auto refExact = linearRef(x, w, b, 1, M, N, K, false, Activation::None);
+  expectClose(y.read(), refRounded, 1e-10, 1e-4, "f16 in, f32 out vs rounded");
+  expectClose(y.read(), refExact, 2e-6, 5e-2, "f16 in, f32 out vs fp32");
+  expectClose(y16.read(), refExact, 2e-6, 5e-2, "f16 in, f16 out vs fp32");
+  y16.expectAllWritten();
+}
+
+// Values beyond 65504 saturate to the largest finite fp16 instead of becoming inf.
+TEST_F(EngineTest, LinearFp16OutputOverflowSaturates) {
+  if (!eng().caps().supportsFp16Storage()) GTEST_SKIP() << "device without fp16 storage";
+  const int64_t M = 5, N = 8, K = 4;
+  std::vector<float> x(M * K, 300.0f), w(N * K, 0);
+  for (int64_t n = 0; n < N; ++n) w[n * K] = (n % 2 ? -1.0f : 1.0f) * float(n + 1) * 60.0f;  // |y| up to 144000
+  Tensor tx = eng().fromFloats({M, K}, x, DType::F16), tw = eng().fromFloats({N, K}, w, DType::F16);
+  GuardedOutput y(eng(), {M, N}, DType::F16);
+  Recorder rec(eng());
+  linear(rec, tx, tw, Tensor(), y.tensor());
+  rec.run();
+  auto out = y.read();
+  for (int64_t m = 0; m < M; ++m)
+    for (int64_t n = 0; n < N; ++n) {
+      const double ref = 300.0 * (n % 2 ? -1.0 : 1.0) * (n + 1) * 60.0;
+      const float got = out[m * N + n];
+      ASSERT_TRUE(std::isfinite(got)) << "overflow to inf at n=" << n;
+      if (std::abs(ref) > 65504) EXPECT_EQ(std::abs(got), 65504.0f);
+      else EXPECT_NEAR(got, ref, std::abs(ref) * 1e-3);
+      EXPECT_EQ(got < 0, ref < 0);
+    }
+}
+
+// A weight larger than lavapipe's 128 MiB storage-buffer range (the shape of SPAR's
+// semantic head, 16384 x 3072 fp32 = 192 MiB) works through texel bindings.
+TEST_F(EngineTest, LinearWeightAboveStorageRange) {
+  const int64_t M = 3, N = 16384, K = 3072;
+  auto x = randomUniform(M * K, -1, 1, 11), w = randomUniform(N * K, -0.05f, 0.05f, 12);
+  Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w);
+  ASSERT_GT(tw.bytes(), eng().caps().maxStorageBufferRange > (1ull << 30) ? 0 : (128ull << 20));
+  GuardedOutput y(eng(), {M, N});
+  Recorder rec(eng());
+  linear(rec, tx, tw, Tensor(), y.tensor());
+  rec.run();
+  expectClose(y.read(), linearRef(x, w, {}, 1, M, N, K, false, Activation::None), 1e-9, 1e-4, "big weight");
+  y.expectAllWritten();
+}
+
+// Outputs beyond one storage binding are written in row chunks. The binding limit is
+// lowered so the split is exercised at a small size, then once at the real limit.
+TEST_F(EngineTest, LinearOutputSplitIntoChunks) {
+  const int64_t M = 1000, N = 40, K = 8;
+  auto x = randomUniform(M * K, -1, 1, 13), w = randomUniform(N * K, -1, 1, 14);
+  Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w);
+  GuardedOutput y(eng(), {M, N});
+  const uint64_t saved = eng().device().bindingRangeLimit();
+  eng().device().setBindingRangeLimitForTesting(256 * N * 4);  // 256 rows a chunk: 4 chunks
+  Recorder rec(eng());
+  linear(rec, tx, tw, Tensor(), y.tensor());
+  EXPECT_EQ(rec.pending(), 4u);
+  rec.run();
+  eng().device().setBindingRangeLimitForTesting(saved);
+  expectClose(y.read(), linearRef(x, w, {}, 1, M, N, K, false, Activation::None), 1e-10, 1e-4, "chunked");
+  y.expectAllWritten();
+}
+
+TEST_F(EngineTest, LinearOutputAboveStorageRange) {
+  const int64_t N = 16384, K = 4;
+  const int64_t M = int64_t(eng().device().bindingRangeLimit() / (N * 4)) + 300;
+  if (M * N * 4 > (int64_t(1) << 31)) GTEST_SKIP() << "storage range too large to exceed in a test";
+  auto x = randomUniform(M * K, -1, 1, 15), w = randomUniform(N * K, -1, 1, 16);
+  Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w);
+  Tensor y = eng().tensor({M, N});
+  Recorder rec(eng());
+  linear(rec, tx, tw, Tensor(), y);
+  EXPECT_GE(rec.pending(), 2u);
+  rec.run();
+  expectClose(eng().download(y), linearRef(x, w, {}, 1, M, N, K, false, Activation::None), 1e-10, 1e-4, "above range");
+}
+
+TEST_F(EngineTest, LinearRejectsMismatchedShapes) {
+  Tensor x = eng().tensor({4, 8}), w = eng().tensor({6, 9}), y = eng().tensor({4, 6});
+  Recorder rec(eng());
+  EXPECT_THROW(linear(rec, x, w, Tensor(), y), Error);
+  Tensor w2 = eng().tensor({6, 8}), yBad = eng().tensor({4, 5});
+  EXPECT_THROW(linear(rec, x, w2, Tensor(), yBad), Error);
+  EXPECT_EQ(rec.pending(), 0u);
+}
+
+}  // namespace
+}  // namespace spar::test

@@ -1,0 +1,126 @@
+#include "tests/test_support.h"
+
+#include <cstring>
+
+#include "engine/half.h"
+
+namespace spar::test {
+namespace {
+
+Engine* gEngine = nullptr;
+constexpr uint32_t kGuardWord = 0x7fc0beefu;  // a quiet NaN with a recognizable payload
+constexpr uint32_t kUnwrittenWord = 0x7fc0dead;
+
+}  // namespace
+
+Engine& engine() {
+  if (!gEngine) {
+    EngineOptions options;
+    options.device.validation = true;
+    options.device.verbose = true;
+    gEngine = new Engine(options);  // lives until exit: tests share pipelines
+  }
+  return *gEngine;
+}
+
+void EngineTest::SetUp() { messagesBefore_ = engine().device().validationMessageCount(); }
+
+void EngineTest::TearDown() {
+  const size_t now = engine().device().validationMessageCount();
+  EXPECT_EQ(now, messagesBefore_) << "the Vulkan validation layer reported " << (now - messagesBefore_)
+                                  << " message(s) during this test";
+}
+
+std::vector<float> randomUniform(size_t n, float lo, float hi, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> dist(lo, hi);
+  std::vector<float> v(n);
+  for (auto& x : v) x = dist(rng);
+  return v;
+}
+
+std::vector<float> randomNormal(size_t n, float mean, float stddev, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<float> dist(mean, stddev);
+  std::vector<float> v(n);
+  for (auto& x : v) x = dist(rng);
+  return v;
+}
+
+std::vector<double> toDouble(const std::vector<float>& v) { return {v.begin(), v.end()}; }
+
+std::vector<float> roundToHalf(const std::vector<float>& v) {
+  std::vector<float> out(v.size());
+  for (size_t i = 0; i < v.size(); ++i) out[i] = halfToFloat(floatToHalf(v[i]));
+  return out;
+}
+
+ErrorStats compare(const std::vector<float>& actual, const std::vector<double>& expected) {
+  ErrorStats s;
+  double num = 0, den = 0;
+  for (size_t i = 0; i < actual.size() && i < expected.size(); ++i) {
+    if (!std::isfinite(actual[i])) {
+      if (std::isfinite(expected[i]) || std::isnan(actual[i]) != std::isnan(expected[i])) ++s.nonFinite;
+      continue;
+    }
+    const double d = double(actual[i]) - expected[i];
+    num += d * d;
+    den += expected[i] * expected[i];
+    s.maxAbs = std::max(s.maxAbs, std::abs(d));
+  }
+  s.nmse = den > 0 ? num / den : num;
+  return s;
+}
+
+void expectClose(const std::vector<float>& actual, const std::vector<double>& expected, double maxNmse,
+                 double maxAbsErr, const std::string& what) {
+  ASSERT_EQ(actual.size(), expected.size()) << what;
+  ErrorStats s = compare(actual, expected);
+  std::printf("    %-28s nmse %.3e  max abs %.3e\n", what.c_str(), s.nmse, s.maxAbs);
+  EXPECT_EQ(s.nonFinite, 0u) << what << ": NaN/Inf where the reference is finite";
+  EXPECT_LE(s.nmse, maxNmse) << what;
+  EXPECT_LE(s.maxAbs, maxAbsErr) << what;
+}
+
+GuardedOutput::GuardedOutput(Engine& engine, const Shape& shape, DType dtype) : engine_(engine) {
+  const size_t elemBytes = dtypeSize(dtype);
+  const size_t guardBytes = 256;
+  guardWords_ = guardBytes / 4;
+  const size_t bodyBytes = static_cast<size_t>(shapeNumel(shape)) * elemBytes;
+  const size_t bodyPadded = (bodyBytes + 3) / 4 * 4;
+  const size_t totalWords = 2 * guardWords_ + bodyPadded / 4;
+  whole_ = engine.tensor({static_cast<int64_t>(totalWords)}, DType::I32);
+  std::vector<uint32_t> init(totalWords, kGuardWord);
+  if (dtype == DType::F16) {
+    std::vector<uint16_t> body(bodyPadded / 2, 0x7e01);  // fp16 NaN
+    std::memcpy(init.data() + guardWords_, body.data(), bodyPadded);
+  } else {
+    for (size_t i = 0; i < bodyPadded / 4; ++i) init[guardWords_ + i] = kUnwrittenWord;
+  }
+  engine.write(whole_, init.data(), init.size() * 4);
+  Tensor typed(whole_.bufferPtr(), whole_.byteOffset(), {static_cast<int64_t>(totalWords * 4 / elemBytes)}, dtype);
+  view_ = typed.view(static_cast<int64_t>(guardBytes / elemBytes), {shapeNumel(shape)}).reshape(shape);
+}
+
+std::vector<float> GuardedOutput::read() {
+  std::vector<uint32_t> words(static_cast<size_t>(whole_.numel()));
+  engine_.read(whole_, words.data(), words.size() * 4);
+  size_t bad = 0;
+  for (size_t i = 0; i < guardWords_; ++i) {
+    bad += words[i] != kGuardWord;
+    bad += words[words.size() - 1 - i] != kGuardWord;
+  }
+  // Padding words after an odd-length fp16 body also count as guard on their half.
+  EXPECT_EQ(bad, 0u) << "kernel wrote outside its output tensor";
+  body_ = engine_.download(view_);
+  return body_;
+}
+
+void GuardedOutput::expectAllWritten() {
+  if (body_.empty()) read();
+  size_t unwritten = 0;
+  for (float v : body_) unwritten += std::isnan(v);
+  EXPECT_EQ(unwritten, 0u) << "elements left unwritten (or NaN)";
+}
+
+}  // namespace spar::test

@@ -1,0 +1,68 @@
+// Shared by the op tests: the engine under test (validation layer on), float64 CPU
+// reference helpers, error measures, and guarded output tensors.
+#pragma once
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdint>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "engine/engine.h"
+#include "engine/error.h"
+#include "engine/recorder.h"
+
+namespace spar::test {
+
+// The engine every test uses; created once with the Khronos validation layer enabled.
+Engine& engine();
+
+// Fails the current test if the validation layer reported anything during it.
+class EngineTest : public ::testing::Test {
+ protected:
+  void SetUp() override;
+  void TearDown() override;
+  Engine& eng() { return engine(); }
+
+ private:
+  size_t messagesBefore_ = 0;
+};
+
+// Deterministic random values.
+std::vector<float> randomUniform(size_t n, float lo, float hi, uint32_t seed);
+std::vector<float> randomNormal(size_t n, float mean, float stddev, uint32_t seed);
+std::vector<double> toDouble(const std::vector<float>& v);
+// Values as an fp16 tensor would hold them (for references of fp16-storage paths).
+std::vector<float> roundToHalf(const std::vector<float>& v);
+
+struct ErrorStats {
+  double nmse = 0;     // sum((a-b)^2) / sum(b^2), in double
+  double maxAbs = 0;   // max |a-b|
+  size_t nonFinite = 0;  // elements of a that are NaN/Inf where b is finite
+};
+ErrorStats compare(const std::vector<float>& actual, const std::vector<double>& expected);
+
+// Asserts nmse <= maxNmse and maxAbs <= maxAbsErr, no unexpected NaN/Inf; prints both measures.
+void expectClose(const std::vector<float>& actual, const std::vector<double>& expected, double maxNmse,
+                 double maxAbsErr, const std::string& what = "");
+
+// An output tensor inside a larger buffer: 256 bytes of sentinel words before and after,
+// and NaN in the body, so out-of-bounds writes and unwritten elements are both caught.
+class GuardedOutput {
+ public:
+  GuardedOutput(Engine& engine, const Shape& shape, DType dtype = DType::F32);
+  const Tensor& tensor() const { return view_; }
+  // Reads the body back; fails the test if a guard word changed.
+  std::vector<float> read();
+  // Fails the test if any body element is still the NaN it was filled with.
+  void expectAllWritten();
+
+ private:
+  Engine& engine_;
+  Tensor whole_, view_;
+  size_t guardWords_ = 0;  // 32-bit words before and after
+  std::vector<float> body_;
+};
+
+}  // namespace spar::test
