@@ -19,6 +19,7 @@ layout(constant_id = 4) const int RN = 16;         // columns of y per invocatio
 layout(constant_id = 5) const int TEXEL_K = 4;     // k values per texel: 4 (RGBA) or 1 (R)
 layout(constant_id = 6) const int ACT = ACT_NONE;  // fused epilogue activation
 layout(constant_id = 7) const bool HAS_BIAS = false;
+layout(constant_id = 8) const int KU = 2;          // k texels per loop iteration
 
 layout(binding = 0) uniform samplerBuffer X;
 layout(binding = 1) uniform samplerBuffer W;
@@ -47,18 +48,25 @@ void main() {
   float acc[RM * RN];
   [[unroll]] for (int i = 0; i < RM * RN; ++i) acc[i] = 0.0;
 
-  for (int k = 0; k < p.K; ++k) {
-    vec4 a[RM];
-    [[unroll]] for (int r = 0; r < RM; ++r) a[r] = texelFetch(X, xRow[r] + k);
-    [[unroll]] for (int c = 0; c < RN; ++c) {
-      vec4 w = texelFetch(W, wRow[c] + k);
-      [[unroll]] for (int r = 0; r < RM; ++r) {
-        float s = acc[r * RN + c];
-        [[unroll]] for (int j = 0; j < TEXEL_K; ++j) s = fma(a[r][j], w[j], s);
-        acc[r * RN + c] = s;
-      }
-    }
+  // One k texel: RM x-texels, then per column one w-texel feeding RM fma chains.
+#define GEMM_STEP(kk)                                                          \
+  {                                                                            \
+    vec4 a[RM];                                                                \
+    [[unroll]] for (int r = 0; r < RM; ++r) a[r] = texelFetch(X, xRow[r] + (kk)); \
+    [[unroll]] for (int c = 0; c < RN; ++c) {                                  \
+      vec4 w = texelFetch(W, wRow[c] + (kk));                                  \
+      [[unroll]] for (int r = 0; r < RM; ++r) {                                \
+        float s = acc[r * RN + c];                                             \
+        [[unroll]] for (int j = 0; j < TEXEL_K; ++j) s = fma(a[r][j], w[j], s); \
+        acc[r * RN + c] = s;                                                   \
+      }                                                                        \
+    }                                                                          \
   }
+  int k = 0;
+  for (; k + KU <= p.K; k += KU) {
+    [[unroll]] for (int u = 0; u < KU; ++u) GEMM_STEP(k + u)
+  }
+  for (; k < p.K; ++k) GEMM_STEP(k)
 
   [[unroll]] for (int r = 0; r < RM; ++r) {
     const int m = m0 + r;

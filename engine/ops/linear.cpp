@@ -21,13 +21,14 @@ uint32_t ceilDiv(int64_t a, int64_t b) { return static_cast<uint32_t>((a + b - 1
 GemmTiles chooseGemmTiles(const DeviceCaps& caps) {
   if (const char* env = std::getenv("SPAR_GEMM_TILES")) {
     GemmTiles t{};
-    if (std::sscanf(env, "%d,%d,%d,%d", &t.rowsPerInvocation, &t.colsPerInvocation, &t.localX, &t.localY) == 4 &&
-        t.rowsPerInvocation > 0 && t.colsPerInvocation > 0 && t.localX > 0 && t.localY > 0)
+    if (std::sscanf(env, "%d,%d,%d,%d,%d", &t.rowsPerInvocation, &t.colsPerInvocation, &t.localX, &t.localY,
+                    &t.kUnroll) == 5 &&
+        t.rowsPerInvocation > 0 && t.colsPerInvocation > 0 && t.localX > 0 && t.localY > 0 && t.kUnroll > 0)
       return t;
-    throw Error("SPAR_GEMM_TILES must be RM,RN,LX,LY (positive integers)");
+    throw Error("SPAR_GEMM_TILES must be RM,RN,LX,LY,KU (positive integers)");
   }
-  if (caps.isCpu()) return {16, 16, std::max<int>(8, caps.subgroupSize), 8};
-  return {4, 4, 16, 16};
+  if (caps.isCpu()) return {16, 16, std::max<int>(8, caps.subgroupSize), 8, 2};
+  return {4, 4, 16, 16, 1};
 }
 
 void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y, Activation act) {
@@ -56,7 +57,8 @@ void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
                                         {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
                                         sizeof(GemmPush),
                                         {tiles.localX, tiles.localY, 1, tiles.rowsPerInvocation,
-                                         tiles.colsPerInvocation, texelK, static_cast<int>(act), bias.defined()}});
+                                         tiles.colsPerInvocation, texelK, static_cast<int>(act), bias.defined(),
+                                         tiles.kUnroll}});
   const Tensor biasArg = bias.defined() ? bias : w;
 
   if (batched) {

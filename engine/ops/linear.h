@@ -8,9 +8,10 @@ namespace spar {
 // Register-block and workgroup shape of the GEMM kernel for a device.
 struct GemmTiles {
   int rowsPerInvocation, colsPerInvocation, localX, localY;
+  int kUnroll;  // k texels per loop iteration
 };
 // CPU devices (llvmpipe): big register blocks; GPUs: small blocks, many invocations.
-// SPAR_GEMM_TILES="RM,RN,LX,LY" overrides (for tuning with spar-bench).
+// SPAR_GEMM_TILES="RM,RN,LX,LY,KU" overrides (for tuning with spar-bench).
 GemmTiles chooseGemmTiles(const DeviceCaps& caps);
 
 // x: [rows..., K] with w: [N, K], or x: [B, M, K] with w: [B, N, K] (batched);

@@ -1,0 +1,69 @@
+// spar-bench: per op, GPU time, GFLOPS (or GB/s) and NMSE against a float64 CPU
+// reference, for every precision the engine offers. --json prints one JSON object.
+#include <CLI/CLI.hpp>
+#include <algorithm>
+#include <cstdio>
+#include <iostream>
+#include <nlohmann/json.hpp>
+
+#include "engine/error.h"
+#include "samples/bench_cases.h"
+
+int main(int argc, char** argv) {
+  CLI::App app{"spar-bench: time, throughput and error of the engine's ops"};
+  std::string device, only;
+  bool json = false, listDevices = false;
+  int repeats = 5;
+  app.add_option("--device", device, "device index or name part (default: SPAR_DEVICE, else the first GPU)");
+  app.add_option("--only", only, "run the cases whose name contains this");
+  app.add_option("--repeat", repeats, "timed runs per case (the median is reported)")->check(CLI::Range(1, 1000));
+  app.add_flag("--json", json, "print one JSON object instead of a table");
+  app.add_flag("--list-devices", listDevices, "list Vulkan devices and exit");
+  CLI11_PARSE(app, argc, argv);
+
+  try {
+    if (listDevices) {
+      for (const auto& d : spar::Device::listDevices()) std::cout << d << "\n";
+      return 0;
+    }
+    spar::EngineOptions options;
+    options.device.select = device;
+    options.device.verbose = !json;
+    spar::Engine engine(options);
+    auto cases = spar::bench::makeCases(engine, only);
+    if (cases.empty()) throw spar::Error("no benchmark case matches '" + only + "'");
+
+    nlohmann::json report;
+    report["device"] = engine.caps().name;
+    report["ops"] = nlohmann::json::array();
+    if (!json) std::printf("%-15s %-30s %10s %10s %12s\n", "op", "shape", "ms", "GFLOPS", "NMSE");
+    for (auto& c : cases) {
+      spar::Recorder rec(engine, /*profile=*/true);
+      c.record(rec);  // warm-up: pipeline creation and the driver's JIT
+      rec.run();
+      std::vector<double> ms;
+      for (int r = 0; r < repeats; ++r) {
+        c.record(rec);
+        rec.run();
+        ms.push_back(rec.totalMs());
+      }
+      std::sort(ms.begin(), ms.end());
+      const double median = ms[ms.size() / 2];
+      const double nmse = c.nmse();
+      const double rate = c.flops > 0 ? c.flops / (median * 1e6) : c.bytes / (median * 1e6);
+      nlohmann::json op = {{"name", c.name}, {"shape", c.shape}, {"ms", median}, {"nmse", nmse}};
+      if (c.flops > 0) op["gflops"] = rate;
+      else op["gbps"] = rate;
+      report["ops"].push_back(op);
+      if (!json)
+        std::printf("%-15s %-30s %10.2f %10.1f%s %12.3e\n", c.name.c_str(), c.shape.c_str(), median, rate,
+                    c.flops > 0 ? "" : " GB/s", nmse);
+      std::fflush(stdout);
+    }
+    if (json) std::cout << report.dump(2) << "\n";
+    return 0;
+  } catch (const std::exception& e) {
+    std::cerr << "spar-bench: " << e.what() << "\n";
+    return 1;
+  }
+}

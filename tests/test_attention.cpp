@@ -1,0 +1,175 @@
+// Fused attention (shaders/attention.comp via engine/ops/attention.cpp) against float64.
+#include "engine/ops/attention.h"
+
+#include "tests/test_support.h"
+
+namespace spar::test {
+namespace {
+
+// Reference over tensors [B, N, C] with heads at column offsets (PyTorch "(nh dh)").
+std::vector<double> attentionRef(const std::vector<float>& q, int64_t qCols, int64_t qOff, const std::vector<float>& k,
+                                 int64_t kCols, int64_t kOff, const std::vector<float>& v, int64_t vCols, int64_t vOff,
+                                 int64_t B, int64_t Nq, int64_t Nk, int heads, int dh, bool causal, double scale) {
+  std::vector<double> out(B * Nq * heads * dh);
+  std::vector<double> s(Nk);
+  for (int64_t b = 0; b < B; ++b)
+    for (int h = 0; h < heads; ++h)
+      for (int64_t i = 0; i < Nq; ++i) {
+        double mx = -INFINITY;
+        for (int64_t j = 0; j < Nk; ++j) {
+          if (causal && j > i) { s[j] = -INFINITY; continue; }
+          double d = 0;
+          for (int c = 0; c < dh; ++c)
+            d += double(q[(b * Nq + i) * qCols + qOff + h * dh + c]) * k[(b * Nk + j) * kCols + kOff + h * dh + c];
+          s[j] = d * scale;
+          mx = std::max(mx, s[j]);
+        }
+        double sum = 0;
+        for (int64_t j = 0; j < Nk; ++j) sum += (s[j] = s[j] == -INFINITY ? 0.0 : std::exp(s[j] - mx));
+        for (int c = 0; c < dh; ++c) {
+          double acc = 0;
+          for (int64_t j = 0; j < Nk; ++j) acc += s[j] * v[(b * Nk + j) * vCols + vOff + h * dh + c];
+          out[((b * Nq + i) * heads + h) * dh + c] = acc / sum;
+        }
+      }
+  return out;
+}
+
+struct AttentionCase {
+  int64_t B, N;
+  int heads, dh;
+  bool causal;
+};
+
+class AttentionTest : public EngineTest, public ::testing::WithParamInterface<AttentionCase> {};
+
+// Self-attention reading q, k, v straight out of one fused qkv tensor [B, N, 3D].
+TEST_P(AttentionTest, FusedQkvMatchesFloat64) {
+  const auto c = GetParam();
+  const int64_t D = int64_t(c.heads) * c.dh;
+  auto qkv = randomNormal(c.B * c.N * 3 * D, 0, 1, 21);
+  Tensor t = eng().fromFloats({c.B, c.N, 3 * D}, qkv);
+  GuardedOutput out(eng(), {c.B, c.N, D});
+  Recorder rec(eng());
+  attention(rec, {t, 0}, {t, D}, {t, 2 * D}, {out.tensor(), 0}, c.heads, c.dh, c.causal);
+  rec.run();
+  auto ref = attentionRef(qkv, 3 * D, 0, qkv, 3 * D, D, qkv, 3 * D, 2 * D, c.B, c.N, c.N, c.heads, c.dh, c.causal,
+                          1.0 / std::sqrt(double(c.dh)));
+  expectClose(out.read(), ref, 1e-9, 1e-4, "attention");
+  out.expectAllWritten();
+}
+
+INSTANTIATE_TEST_SUITE_P(Shapes, AttentionTest,
+                         ::testing::Values(AttentionCase{1, 61, 2, 32, false}, AttentionCase{2, 7, 3, 16, false},
+                                           AttentionCase{1, 257, 2, 64, false}, AttentionCase{2, 61, 2, 32, true},
+                                           AttentionCase{1, 130, 1, 64, true}, AttentionCase{1, 1, 1, 8, false}));
+
+// Cross attention: separate q, k, v tensors, fewer queries than keys, output written
+// into a column slice of a wider tensor.
+TEST_F(EngineTest, AttentionSeparateTensorsAndOutputSlice) {
+  const int64_t B = 2, Nq = 19, Nk = 45;
+  const int heads = 2, dh = 24;
+  auto q = randomNormal(B * Nq * 48, 0, 1, 22), k = randomNormal(B * Nk * 52, 0, 1, 23), v = randomNormal(B * Nk * 48, 0, 1, 24);
+  Tensor tq = eng().fromFloats({B, Nq, 48}, q), tk = eng().fromFloats({B, Nk, 52}, k), tv = eng().fromFloats({B, Nk, 48}, v);
+  Tensor wide = eng().tensor({B, Nq, 60});
+  std::vector<float> fill(B * Nq * 60, 7.0f);
+  eng().upload(wide, fill);
+  Recorder rec(eng());
+  attention(rec, {tq, 0}, {tk, 4}, {tv, 0}, {wide, 10}, heads, dh, false, 0.3f);
+  rec.run();
+  auto ref = attentionRef(q, 48, 0, k, 52, 4, v, 48, 0, B, Nq, Nk, heads, dh, false, 0.3);
+  auto got = eng().download(wide);
+  std::vector<float> slice;
+  for (int64_t r = 0; r < B * Nq; ++r) {
+    for (int64_t c = 0; c < 60; ++c) {
+      if (c >= 10 && c < 10 + heads * dh) slice.push_back(got[r * 60 + c]);
+      else ASSERT_EQ(got[r * 60 + c], 7.0f) << "wrote outside the head columns";
+    }
+  }
+  expectClose(slice, ref, 1e-9, 1e-4, "cross");
+}
+
+// Logits of +-1e4: the softmax is one-hot; the online max must keep it finite and exact.
+TEST_F(EngineTest, AttentionLogitsOfTenThousand) {
+  const int64_t N = 37;
+  const int heads = 1, dh = 16;
+  auto q = randomNormal(N * dh, 0, 1, 25), k = randomNormal(N * dh, 0, 1, 26), v = randomNormal(N * dh, 0, 1, 27);
+  for (auto& x : q) x = x > 0 ? 25.0f : -25.0f;  // |q.k| ~ 1e4 with scale 1
+  for (auto& x : k) x *= 25.0f;
+  Tensor tq = eng().fromFloats({N, dh}, q), tk = eng().fromFloats({N, dh}, k), tv = eng().fromFloats({N, dh}, v);
+  GuardedOutput out(eng(), {N, dh});
+  Recorder rec(eng());
+  attention(rec, {tq, 0}, {tk, 0}, {tv, 0}, {out.tensor(), 0}, heads, dh, false, 1.0f);
+  rec.run();
+  auto ref = attentionRef(q, dh, 0, k, dh, 0, v, dh, 0, 1, N, N, heads, dh, false, 1.0);
+  expectClose(out.read(), ref, 1e-9, 1e-4, "logits 1e4");
+  out.expectAllWritten();
+}
+
+// One key dominates every row (its logit exceeds the rest by ~60): output ~= that value row.
+TEST_F(EngineTest, AttentionOneKeyDominates) {
+  const int64_t N = 50;
+  const int dh = 8;
+  auto q = randomNormal(N * dh, 0, 0.1f, 28), k = randomNormal(N * dh, 0, 0.1f, 29), v = randomNormal(N * dh, 0, 1, 30);
+  for (int64_t i = 0; i < N; ++i) q[i * dh] = 10.0f;
+  k[33 * dh] = 50.0f;  // key 33: logit 500 * scale vs ~0 for the rest
+  Tensor tq = eng().fromFloats({N, dh}, q), tk = eng().fromFloats({N, dh}, k), tv = eng().fromFloats({N, dh}, v);
+  GuardedOutput out(eng(), {N, dh});
+  Recorder rec(eng());
+  attention(rec, {tq, 0}, {tk, 0}, {tv, 0}, {out.tensor(), 0}, 1, dh, false);
+  rec.run();
+  auto ref = attentionRef(q, dh, 0, k, dh, 0, v, dh, 0, 1, N, N, 1, dh, false, 1.0 / std::sqrt(8.0));
+  expectClose(out.read(), ref, 1e-9, 1e-5, "dominant key");
+}
+
+// fp16 q/k/v with fp32 accumulation: exact up to fp32 error on the fp16-rounded inputs.
+TEST_F(EngineTest, AttentionFp16Storage) {
+  if (!eng().caps().supportsFp16Storage()) GTEST_SKIP() << "device without fp16 storage";
+  const int64_t N = 77;
+  const int heads = 2, dh = 32, D = heads * dh;
+  auto qkv = randomNormal(N * 3 * D, 0, 1, 31);
+  Tensor t = eng().fromFloats({N, 3 * D}, qkv, DType::F16);
+  GuardedOutput out(eng(), {N, D}, DType::F16);
+  GuardedOutput out32(eng(), {N, D}, DType::F32);
+  Recorder rec(eng());
+  attention(rec, {t, 0}, {t, D}, {t, 2 * D}, {out.tensor(), 0}, heads, dh, false);
+  attention(rec, {t, 0}, {t, D}, {t, 2 * D}, {out32.tensor(), 0}, heads, dh, false);
+  rec.run();
+  auto rounded = roundToHalf(qkv);
+  auto refRounded = attentionRef(rounded, 3 * D, 0, rounded, 3 * D, D, rounded, 3 * D, 2 * D, 1, N, N, heads, dh, false,
+                                 1.0 / std::sqrt(double(dh)));
+  auto refExact = attentionRef(qkv, 3 * D, 0, qkv, 3 * D, D, qkv, 3 * D, 2 * D, 1, N, N, heads, dh, false,
+                               1.0 / std::sqrt(double(dh)));
+  expectClose(out32.read(), refRounded, 1e-9, 1e-4, "f16 in, f32 out vs rounded");
+  expectClose(out.read(), refExact, 1e-5, 1e-2, "f16 in, f16 out vs fp32");
+  out.expectAllWritten();
+}
+
+// fp16 output of values above 65504 saturates instead of overflowing to inf.
+TEST_F(EngineTest, AttentionFp16OutputOverflowSaturates) {
+  if (!eng().caps().supportsFp16Storage()) GTEST_SKIP() << "device without fp16 storage";
+  const int64_t N = 9;
+  const int dh = 4;
+  std::vector<float> q(N * dh, 0.0f), k(N * dh, 0.0f), v(N * dh);
+  for (int64_t i = 0; i < N * dh; ++i) v[i] = (i % 2 ? -1.0f : 1.0f) * 1e5f;  // every output row: +-1e5
+  Tensor tq = eng().fromFloats({N, dh}, q), tk = eng().fromFloats({N, dh}, k), tv = eng().fromFloats({N, dh}, v);
+  GuardedOutput out(eng(), {N, dh}, DType::F16);
+  Recorder rec(eng());
+  attention(rec, {tq, 0}, {tk, 0}, {tv, 0}, {out.tensor(), 0}, 1, dh, false);
+  rec.run();
+  auto got = out.read();
+  for (int64_t i = 0; i < N * dh; ++i) EXPECT_EQ(got[i], (i % 2 ? -1.0f : 1.0f) * 65504.0f) << i;
+}
+
+TEST_F(EngineTest, AttentionRejectsBadLayouts) {
+  Tensor t = eng().tensor({10, 64});
+  Recorder rec(eng());
+  EXPECT_THROW(attention(rec, {t, 0}, {t, 0}, {t, 0}, {t, 0}, 2, 6), Error);     // head dim not a multiple of 4
+  EXPECT_THROW(attention(rec, {t, 0}, {t, 40}, {t, 0}, {t, 0}, 2, 16), Error);   // heads run past the row
+  Tensor k = eng().tensor({12, 64});
+  EXPECT_THROW(attention(rec, {t, 0}, {k, 0}, {k, 0}, {t, 0}, 2, 16, true), Error);  // causal needs Nq == Nk
+  EXPECT_EQ(rec.pending(), 0u);
+}
+
+}  // namespace
+}  // namespace spar::test
