@@ -1,5 +1,7 @@
 #include "engine/engine.h"
 
+#include <algorithm>
+#include <cmath>
 #include <cstring>
 
 #include "engine/error.h"
@@ -93,7 +95,9 @@ void Engine::upload(const Tensor& t, std::span<const float> values) {
   if (t.dtype() == DType::F32) return write(t, values.data(), values.size_bytes());
   if (t.dtype() != DType::F16) throw Error("upload of floats into " + t.describe());
   std::vector<uint16_t> half(values.size());
-  for (size_t i = 0; i < values.size(); ++i) half[i] = floatToHalf(values[i]);
+  // Saturate like the kernels' fp16 stores: a weight beyond 65504 stays finite.
+  for (size_t i = 0; i < values.size(); ++i)
+    half[i] = floatToHalf(std::isnan(values[i]) ? values[i] : std::clamp(values[i], -65504.0f, 65504.0f));
   write(t, half.data(), half.size() * 2);
 }
 

@@ -36,7 +36,7 @@ class Engine {
   // Raw bytes to and from a tensor (size must equal tensor.bytes()).
   void write(const Tensor& t, const void* data, size_t bytes);
   void read(const Tensor& t, void* data, size_t bytes);
-  // Floats converted to and from the tensor's dtype (f32 or f16).
+  // Floats converted to and from the tensor's dtype (f32 or f16; fp16 saturates at +-65504).
   void upload(const Tensor& t, std::span<const float> values);
   std::vector<float> download(const Tensor& t);
   Tensor fromFloats(const Shape& shape, std::span<const float> values, DType dtype = DType::F32);

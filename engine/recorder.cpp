@@ -114,6 +114,7 @@ void Recorder::barrierIfNeeded(const std::vector<Arg>& args) {
                          &barrier, 0, nullptr, 0, nullptr);
     writtenSinceBarrier_.clear();
     readSinceBarrier_.clear();
+    ++barrierCount_;
   }
   for (const auto& a : args) {
     VkBuffer b = a.tensor.buffer().handle();
@@ -234,6 +235,7 @@ void Recorder::run() {
   SPAR_VK(vkResetCommandBuffer(cmd_, 0));
   releaseTransient();
   dispatchCount_ = 0;
+  barrierCount_ = 0;
 }
 
 double Recorder::totalMs() const {

@@ -53,6 +53,8 @@ class Recorder {
   void run();
 
   size_t pending() const { return dispatchCount_; }
+  // Barriers recorded since the last run() (dependency tracking is per buffer).
+  size_t barriers() const { return barrierCount_; }
   // Per-dispatch GPU times of the last run() (empty unless profiling on a device with timestamps).
   const std::vector<DispatchTiming>& timings() const { return timings_; }
   double totalMs() const;
@@ -73,6 +75,7 @@ class Recorder {
   VkFence fence_ = VK_NULL_HANDLE;
   bool recording_ = false;
   size_t dispatchCount_ = 0;
+  size_t barrierCount_ = 0;
 
   std::vector<VkDescriptorPool> descriptorPools_;
   size_t currentPool_ = 0;

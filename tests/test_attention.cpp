@@ -62,7 +62,7 @@ TEST_P(AttentionTest, FusedQkvMatchesFloat64) {
 INSTANTIATE_TEST_SUITE_P(Shapes, AttentionTest,
                          ::testing::Values(AttentionCase{1, 61, 2, 32, false}, AttentionCase{2, 7, 3, 16, false},
                                            AttentionCase{1, 257, 2, 64, false}, AttentionCase{2, 61, 2, 32, true},
-                                           AttentionCase{1, 130, 1, 64, true}, AttentionCase{1, 1, 1, 8, false}));
+                                           AttentionCase{1, 130, 1, 64, true}, AttentionCase{1, 1, 1, 16, false}));
 
 // Cross attention: separate q, k, v tensors, fewer queries than keys, output written
 // into a column slice of a wider tensor.
@@ -109,7 +109,7 @@ TEST_F(EngineTest, AttentionLogitsOfTenThousand) {
 // One key dominates every row (its logit exceeds the rest by ~60): output ~= that value row.
 TEST_F(EngineTest, AttentionOneKeyDominates) {
   const int64_t N = 50;
-  const int dh = 8;
+  const int dh = 16;
   auto q = randomNormal(N * dh, 0, 0.1f, 28), k = randomNormal(N * dh, 0, 0.1f, 29), v = randomNormal(N * dh, 0, 1, 30);
   for (int64_t i = 0; i < N; ++i) q[i * dh] = 10.0f;
   k[33 * dh] = 50.0f;  // key 33: logit 500 * scale vs ~0 for the rest
@@ -118,7 +118,7 @@ TEST_F(EngineTest, AttentionOneKeyDominates) {
   Recorder rec(eng());
   attention(rec, {tq, 0}, {tk, 0}, {tv, 0}, {out.tensor(), 0}, 1, dh, false);
   rec.run();
-  auto ref = attentionRef(q, dh, 0, k, dh, 0, v, dh, 0, 1, N, N, 1, dh, false, 1.0 / std::sqrt(8.0));
+  auto ref = attentionRef(q, dh, 0, k, dh, 0, v, dh, 0, 1, N, N, 1, dh, false, 1.0 / std::sqrt(16.0));
   expectClose(out.read(), ref, 1e-9, 1e-5, "dominant key");
 }
 
@@ -149,7 +149,7 @@ TEST_F(EngineTest, AttentionFp16Storage) {
 TEST_F(EngineTest, AttentionFp16OutputOverflowSaturates) {
   if (!eng().caps().supportsFp16Storage()) GTEST_SKIP() << "device without fp16 storage";
   const int64_t N = 9;
-  const int dh = 4;
+  const int dh = 16;
   std::vector<float> q(N * dh, 0.0f), k(N * dh, 0.0f), v(N * dh);
   for (int64_t i = 0; i < N * dh; ++i) v[i] = (i % 2 ? -1.0f : 1.0f) * 1e5f;  // every output row: +-1e5
   Tensor tq = eng().fromFloats({N, dh}, q), tk = eng().fromFloats({N, dh}, k), tv = eng().fromFloats({N, dh}, v);

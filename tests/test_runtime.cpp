@@ -1,0 +1,192 @@
+// The Vulkan runtime itself: device choice, memory, recorder barriers, profiling,
+// validation plumbing, fp16 conversion.
+#include <cstring>
+
+#include "engine/half.h"
+#include "engine/ops/linear.h"
+#include "tests/test_support.h"
+
+namespace spar::test {
+namespace {
+
+TEST(Runtime, ListsAtLeastOneDevice) {
+  auto devices = Device::listDevices();
+  ASSERT_FALSE(devices.empty());
+  EXPECT_EQ(devices[0].rfind("0: ", 0), 0u) << devices[0];
+}
+
+TEST(Runtime, UnknownDeviceNameIsAClearError) {
+  DeviceOptions options;
+  options.select = "no-such-gpu-xyz";
+  try {
+    Device device(options);
+    FAIL() << "expected an error";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("no Vulkan device matches 'no-such-gpu-xyz'"), std::string::npos) << e.what();
+  }
+}
+
+TEST(Runtime, DeviceChosenByIndexAndByName) {
+  DeviceOptions byIndex;
+  byIndex.select = "0";
+  Device a(byIndex);
+  DeviceOptions byName;
+  byName.select = a.caps().name.substr(0, 4);
+  Device b(byName);
+  EXPECT_EQ(a.caps().name.substr(0, 4), b.caps().name.substr(0, 4));
+}
+
+// The messenger counts what the layer reports: a buffer of size 0 is invalid usage.
+TEST(Runtime, ValidationMessagesAreCounted) {
+  DeviceOptions options;
+  options.validation = true;
+  Device device(options);
+  EXPECT_EQ(device.validationMessageCount(), 0u);
+  VkBufferCreateInfo info{VK_STRUCTURE_TYPE_BUFFER_CREATE_INFO};
+  info.size = 0;
+  info.usage = VK_BUFFER_USAGE_STORAGE_BUFFER_BIT;
+  VkBuffer buffer = VK_NULL_HANDLE;
+  std::fprintf(stderr, "(the next validation message is expected)\n");
+  if (vkCreateBuffer(device.handle(), &info, nullptr, &buffer) == VK_SUCCESS && buffer)
+    vkDestroyBuffer(device.handle(), buffer, nullptr);
+  EXPECT_GE(device.validationMessageCount(), 1u);
+}
+
+TEST_F(EngineTest, AllocatorReusesAndCoalescesFreedRanges) {
+  MemoryAllocator& mem = eng().memory();
+  const VkDeviceSize inUseBefore = mem.bytesInUse();
+  VkDeviceSize reservedBefore = 0;
+  {
+    std::vector<Tensor> tensors;
+    for (int i = 0; i < 20; ++i) tensors.push_back(eng().tensor({1000 + i * 37}));
+    EXPECT_GT(mem.bytesInUse(), inUseBefore);
+    reservedBefore = mem.bytesReserved();
+  }
+  EXPECT_EQ(mem.bytesInUse(), inUseBefore);
+  // After the 20 small ranges were freed and coalesced, one tensor as large as all of
+  // them together fits without a new block.
+  Tensor big = eng().tensor({20 * 1400});
+  EXPECT_EQ(mem.bytesReserved(), reservedBefore);
+}
+
+TEST_F(EngineTest, ViewsShareTheirBuffer) {
+  auto values = randomUniform(64, -1, 1, 40);
+  Tensor t = eng().fromFloats({8, 8}, values);
+  Tensor row3 = t.view(24, {8});
+  auto got = eng().download(row3);
+  for (int i = 0; i < 8; ++i) EXPECT_EQ(got[i], values[24 + i]);
+  EXPECT_THROW(t.view(60, {8}), Error);
+  EXPECT_THROW(t.reshape({7, 8}), Error);
+}
+
+// 40 dependent linear layers in one submission: each reads what the previous wrote, so
+// a missing barrier shows up as a wrong result.
+TEST_F(EngineTest, RecorderOrdersDependentDispatches) {
+  const int64_t M = 33, D = 24;
+  const int layers = 40;
+  auto x = randomUniform(M * D, -1, 1, 41);
+  auto w = randomUniform(D * D, -1.0f, 1.0f, 42);
+  Tensor tw = eng().fromFloats({D, D}, w);
+  std::vector<Tensor> acts = {eng().fromFloats({M, D}, x)};
+  Recorder rec(eng(), true);
+  for (int l = 0; l < layers; ++l) {
+    acts.push_back(eng().tensor({M, D}));
+    linear(rec, acts[l], tw, Tensor(), acts[l + 1], Activation::Sigmoid);
+  }
+  EXPECT_EQ(rec.pending(), size_t(layers));
+  rec.run();
+  std::vector<double> ref(x.begin(), x.end()), next(M * D);
+  for (int l = 0; l < layers; ++l) {
+    for (int64_t m = 0; m < M; ++m)
+      for (int64_t n = 0; n < D; ++n) {
+        double s = 0;
+        for (int64_t k = 0; k < D; ++k) s += ref[m * D + k] * w[n * D + k];
+        next[m * D + n] = 1 / (1 + std::exp(-s));
+      }
+    ref.swap(next);
+  }
+  expectClose(eng().download(acts.back()), ref, 1e-9, 1e-5, "40 chained layers");
+  // Profiling: one timing per dispatch, labelled, non-negative.
+  ASSERT_EQ(rec.timings().size(), size_t(layers));
+  for (const auto& t : rec.timings()) {
+    EXPECT_GE(t.ms, 0.0);
+    EXPECT_NE(t.label.find("gemm"), std::string::npos) << t.label;
+  }
+  EXPECT_GT(rec.totalMs(), 0.0);
+}
+
+// Barriers go exactly where a dispatch touches what an earlier one wrote (read after
+// write, write after read, write after write), and nowhere else.
+TEST_F(EngineTest, RecorderInsertsBarriersOnlyForHazards) {
+  Tensor w = eng().fromFloats({4, 4}, randomUniform(16, -1, 1, 45));
+  Tensor a = eng().fromFloats({4, 4}, randomUniform(16, -1, 1, 46));
+  Tensor b = eng().tensor({4, 4}), c = eng().tensor({4, 4}), d = eng().tensor({4, 4});
+  Recorder rec(eng());
+  linear(rec, a, w, Tensor(), b);  // writes b
+  linear(rec, a, w, Tensor(), c);  // independent of the first: no barrier
+  EXPECT_EQ(rec.barriers(), 0u);
+  linear(rec, b, w, Tensor(), d);  // reads b: read after write
+  EXPECT_EQ(rec.barriers(), 1u);
+  linear(rec, a, w, Tensor(), b);  // writes b, which the previous dispatch read: write after read
+  EXPECT_EQ(rec.barriers(), 2u);
+  linear(rec, a, w, Tensor(), b);  // writes b again: write after write
+  EXPECT_EQ(rec.barriers(), 3u);
+  rec.run();
+  EXPECT_EQ(rec.barriers(), 0u);
+}
+
+TEST_F(EngineTest, RecorderIsReusableAfterRun) {
+  auto x = randomUniform(16, -1, 1, 43), w = randomUniform(16, -1, 1, 44);
+  Tensor tx = eng().fromFloats({4, 4}, x), tw = eng().fromFloats({4, 4}, w), ty = eng().tensor({4, 4});
+  Recorder rec(eng());
+  for (int round = 0; round < 3; ++round) {
+    linear(rec, tx, tw, Tensor(), ty);
+    rec.run();
+    EXPECT_EQ(rec.pending(), 0u);
+  }
+  auto y = eng().download(ty);
+  double s = 0;
+  for (int k = 0; k < 4; ++k) s += double(x[k]) * w[k];
+  EXPECT_NEAR(y[0], s, 1e-6);
+}
+
+TEST_F(EngineTest, UploadChecksSizes) {
+  Tensor t = eng().tensor({10});
+  std::vector<float> wrong(9);
+  EXPECT_THROW(eng().upload(t, wrong), Error);
+}
+
+TEST_F(EngineTest, Fp16UploadSaturatesBeyondRange) {
+  if (!eng().caps().supportsFp16Storage()) GTEST_SKIP() << "device without fp16 storage";
+  std::vector<float> v = {1e5f, -7e4f, 65504.0f, 65519.0f, 1.0f};
+  Tensor t = eng().fromFloats({5}, v, DType::F16);
+  auto got = eng().download(t);
+  EXPECT_EQ(got[0], 65504.0f);
+  EXPECT_EQ(got[1], -65504.0f);
+  EXPECT_EQ(got[2], 65504.0f);
+  EXPECT_EQ(got[3], 65504.0f);
+  EXPECT_EQ(got[4], 1.0f);
+}
+
+TEST(Half, EveryHalfRoundTripsThroughFloat) {
+  for (uint32_t h = 0; h < 65536; ++h) {
+    const float f = halfToFloat(uint16_t(h));
+    if (std::isnan(f)) {
+      EXPECT_TRUE(std::isnan(halfToFloat(floatToHalf(f))));
+      continue;
+    }
+    ASSERT_EQ(floatToHalf(f), h) << "half 0x" << std::hex << h;
+  }
+}
+
+TEST(Half, RoundsToNearestEven) {
+  EXPECT_EQ(halfToFloat(floatToHalf(1.0f + 1.0f / 2048)), 1.0f);                 // tie: down to even
+  EXPECT_EQ(halfToFloat(floatToHalf(1.0f + 3.0f / 2048)), 1.0f + 4.0f / 2048);   // tie: up to even
+  EXPECT_EQ(halfToFloat(floatToHalf(5.9604645e-8f)), 5.9604645e-8f);             // smallest subnormal
+  EXPECT_EQ(halfToFloat(floatToHalf(2.9e-8f)), 0.0f);                            // below half of it
+  EXPECT_TRUE(std::isinf(halfToFloat(floatToHalf(65520.0f))));                   // IEEE: overflow to inf
+  EXPECT_EQ(halfToFloat(floatToHalf(65519.0f)), 65504.0f);
+}
+
+}  // namespace
+}  // namespace spar::test
