@@ -1,0 +1,106 @@
+// Host side of shaders/conv2d.comp.
+#include "engine/ops/conv2d.h"
+
+#include <cstdio>
+#include <cstdlib>
+#include <numeric>
+
+#include "engine/ops/binding_range.h"
+
+namespace spar {
+namespace {
+
+struct ConvPush {
+  int32_t Cin, H, W, Cout, Ho, Wo, padY, padX, coBlocks, zBase, inBase, wBase, biasBase, outBase;
+};
+
+}  // namespace
+
+ConvTiles chooseConvTiles(const DeviceCaps& caps, int64_t kh, int64_t kw) {
+  if (const char* env = std::getenv("SPAR_CONV_TILES")) {
+    ConvTiles t{};
+    if (std::sscanf(env, "%d,%d,%d,%d,%d", &t.channels, &t.rows, &t.cols, &t.localX, &t.localY) == 5 &&
+        t.channels > 0 && t.rows > 0 && t.cols > 0 && t.localX > 0 && t.localY > 0)
+      return t;
+    throw Error("SPAR_CONV_TILES must be RC,RY,RX,LX,LY (positive integers)");
+  }
+  // The unrolled loop body holds channels x 4 input channels x kh x kw x rows x cols
+  // multiply-adds; beyond about 9k of them (16 channels of 3x3) compiling takes seconds
+  // (10 s for 5x5, 27 s for 7x7 at 16 channels on llvmpipe), so big kernels get fewer channels.
+  ConvTiles t = caps.isCpu() ? ConvTiles{16, 2, 8, std::max<int>(8, caps.subgroupSize), 1} : ConvTiles{4, 1, 4, 16, 8};
+  const int64_t perChannel = 4 * std::max<int64_t>(1, kh * kw) * t.rows * t.cols;
+  t.channels = static_cast<int>(std::clamp<int64_t>(9216 / perChannel, 1, t.channels));
+  return t;
+}
+
+int64_t conv2dOutputSize(int64_t in, int64_t kernel, int stride, int pad) {
+  const int64_t span = in + 2 * int64_t(pad) - kernel;
+  if (stride < 1 || pad < 0 || span < 0)
+    throw Error("conv2d: kernel " + std::to_string(kernel) + " with padding " + std::to_string(pad) +
+                " does not fit input size " + std::to_string(in));
+  return span / stride + 1;
+}
+
+void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
+            const Conv2dParams& params) {
+  using namespace detail;
+  Engine& engine = rec.engine();
+  const DeviceCaps& caps = engine.caps();
+  checkF32(x, "conv2d", "input");
+  checkF32(w, "conv2d", "weight");
+  checkF32(y, "conv2d", "output");
+  if (bias.defined()) checkF32(bias, "conv2d", "bias");
+  if (x.rank() != 4) throw Error("conv2d: input must be [N, Cin, H, W], got " + x.describe());
+  if (w.rank() != 4) throw Error("conv2d: weight must be [Cout, Cin, kh, kw], got " + w.describe());
+  const int64_t N = x.dim(0), Cin = x.dim(1), H = x.dim(2), W = x.dim(3);
+  const int64_t Cout = w.dim(0), KH = w.dim(2), KW = w.dim(3);
+  if (w.dim(1) != Cin) throw Error("conv2d: weight " + w.describe() + " does not match input " + x.describe());
+  if (params.stride < 1 || params.padY < 0 || params.padX < 0) throw Error("conv2d: stride must be >= 1, padding >= 0");
+  if (KH < 1 || KW < 1 || KH > 32 || KW > 32) throw Error("conv2d: kernel size must be 1..32, got " + w.describe());
+  const int64_t Ho = conv2dOutputSize(H, KH, params.stride, params.padY);
+  const int64_t Wo = conv2dOutputSize(W, KW, params.stride, params.padX);
+  if (y.shape() != Shape{N, Cout, Ho, Wo})
+    throw Error("conv2d: output " + y.describe() + " should be " + shapeString({N, Cout, Ho, Wo}));
+  if (bias.defined() && bias.shape() != Shape{Cout})
+    throw Error("conv2d: bias " + bias.describe() + " should be [" + std::to_string(Cout) + "]");
+  for (const Tensor* t : {&x, &w, &y}) checkElementCount(*t, "conv2d");
+  if (y.numel() == 0) return;
+  if (Cin == 0) throw Error("conv2d: input has no channels");
+
+  const ConvTiles tiles = chooseConvTiles(caps, KH, KW);
+  // Weights and bias may sit at any offset: they are bound from an aligned start.
+  const BoundRange wr = bindRange(caps, w, 0, w.numel(), true);
+  const BoundRange br = bias.defined() ? bindRange(caps, bias, 0, Cout, true) : wr;
+  // Input channels per step: a step's weights are whole RGBA texels when Cin*kh*kw is a
+  // multiple of 4 (and the binding starts on a texel); otherwise one channel with R texels.
+  const int64_t kk = KH * KW;
+  const bool rgba = (Cin * kk) % 4 == 0 && wr.base % 4 == 0;
+  const int G = rgba ? int(4 / std::gcd<int64_t>(kk, 4)) : 1;
+  if (wr.view.numel() / (rgba ? 4 : 1) > int64_t(caps.maxTexelBufferElements))
+    throw Error("conv2d: weight " + w.describe() + " exceeds the device's texel-buffer size");
+  // Input rows as RGBA texels (4 columns each) when rows and every tile start stay on texel
+  // boundaries: W and cols*stride multiples of 4 and x starting on a texel.
+  const bool rgbaX = W % 4 == 0 && (tiles.cols * params.stride) % 4 == 0 && x.byteOffset() % 16 == 0;
+  const Kernel& kernel = engine.kernel({"conv2d_f32",
+                                        {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                                        sizeof(ConvPush),
+                                        {tiles.localX, tiles.localY, 1, int(KH), int(KW), params.stride, tiles.channels,
+                                         tiles.rows, tiles.cols, G, rgba ? 4 : 1, static_cast<int>(params.act),
+                                         bias.defined(), rgbaX ? 4 : 1, rgbaX ? (4 - params.padX % 4) % 4 : 0}});
+
+  // One workgroup layer per (image, block of output channels).
+  const int64_t coBlocks = (Cout + tiles.channels - 1) / tiles.channels;
+  const uint32_t gx = ceilDiv(ceilDiv(Wo, tiles.cols), tiles.localX);
+  const uint32_t gy = ceilDiv(ceilDiv(Ho, tiles.rows), tiles.localY);
+  forEachUnitChunk(engine, x, y, N, Cout, tiles.channels, Ho * Wo, 1, "conv2d", [&](const UnitChunk& c) {
+    const ConvPush push{int32_t(Cin),      int32_t(H),      int32_t(W),  int32_t(Cout), int32_t(Ho),
+                        int32_t(Wo),       params.padY,     params.padX, int32_t(coBlocks), int32_t(c.u0),
+                        c.in.base,         wr.base,         br.base,     c.out.base};
+    rec.dispatch(kernel,
+                 {Arg::texel(c.in.view, rgbaX ? 4 : 1), Arg::texel(wr.view, rgba ? 4 : 1), Arg::texel(br.view, 1),
+                  Arg::out(c.out.view)},
+                 push, gx, gy, static_cast<uint32_t>(c.u1 - c.u0));
+  });
+}
+
+}  // namespace spar

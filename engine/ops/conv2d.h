@@ -1,0 +1,35 @@
+// 2-D convolution (PyTorch nn.Conv2d) on shaders/conv2d.comp.
+#pragma once
+#include "engine/ops/activation.h"
+#include "engine/recorder.h"
+
+namespace spar {
+
+// Register block and workgroup shape of the conv2d kernel: each invocation computes
+// channels x rows x cols outputs; a workgroup is localX x localY invocations.
+struct ConvTiles {
+  int channels, rows, cols, localX, localY;
+};
+// For a kh x kw kernel: CPU devices (llvmpipe) get big register blocks (fewer channels for
+// big kernels, to bound compile time), GPUs small ones. SPAR_CONV_TILES="RC,RY,RX,LX,LY"
+// overrides (for tuning).
+ConvTiles chooseConvTiles(const DeviceCaps& caps, int64_t kh, int64_t kw);
+
+struct Conv2dParams {
+  int stride = 1;   // the same along y and x
+  int padY = 0, padX = 0;  // zero padding on each side
+  Activation act = Activation::None;
+};
+
+// x: [N, Cin, H, W], w: [Cout, Cin, kh, kw] (PyTorch layout), bias: [Cout] or undefined,
+// y: [N, Cout, Ho, Wo] with Ho = (H + 2 padY - kh) / stride + 1 (likewise Wo). All f32.
+// y = act(conv(x, w) + bias). Kernels up to 32x32; beyond about 7x7 the register-blocked
+// kernel gets slow (a 14x14 stride-14 patch embedding runs at ~1.5 GFLOPS on llvmpipe):
+// express patch embeddings as patchify + linear instead.
+void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
+            const Conv2dParams& params = {});
+
+// Output size along one axis, PyTorch's formula; throws if the kernel does not fit.
+int64_t conv2dOutputSize(int64_t in, int64_t kernel, int stride, int pad);
+
+}  // namespace spar

@@ -1,0 +1,81 @@
+// Host side of shaders/conv_transpose2d.comp.
+#include "engine/ops/conv_transpose2d.h"
+
+#include "engine/ops/binding_range.h"
+
+namespace spar {
+namespace {
+
+struct ConvTransposePush {
+  int32_t Cin, H, W, Cout, coBlocks, zBase, inBase, wBase, biasBase, outBase;
+};
+
+// Register block (channels x input rows x input columns) and workgroup shape; the block
+// holds channels * rows * cols * k * k outputs.
+struct Tiles {
+  int channels, rows, cols, localX, localY;
+};
+
+Tiles chooseTiles(const DeviceCaps& caps, int k) {
+  // CPU (llvmpipe): about 256-512 outputs per invocation (measured: bigger blocks compile
+  // for seconds and run no faster); 4 input columns = one RGBA texel.
+  if (caps.isCpu())
+    return {k > 4 ? 1 : 4, std::clamp(512 / (16 * k * k), 1, 4), 4, std::max<int>(8, caps.subgroupSize), 1};
+  return {2, 1, 4, 16, 8};
+}
+
+}  // namespace
+
+void convTranspose2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
+                     Activation act) {
+  using namespace detail;
+  Engine& engine = rec.engine();
+  const DeviceCaps& caps = engine.caps();
+  checkF32(x, "convTranspose2d", "input");
+  checkF32(w, "convTranspose2d", "weight");
+  checkF32(y, "convTranspose2d", "output");
+  if (bias.defined()) checkF32(bias, "convTranspose2d", "bias");
+  if (x.rank() != 4) throw Error("convTranspose2d: input must be [N, Cin, H, W], got " + x.describe());
+  if (w.rank() != 4 || w.dim(2) != w.dim(3))
+    throw Error("convTranspose2d: weight must be [Cin, Cout, k, k], got " + w.describe());
+  const int64_t N = x.dim(0), Cin = x.dim(1), H = x.dim(2), W = x.dim(3);
+  const int64_t Cout = w.dim(1), k = w.dim(2);
+  if (w.dim(0) != Cin) throw Error("convTranspose2d: weight " + w.describe() + " does not match input " + x.describe());
+  if (k < 1 || k > 8) throw Error("convTranspose2d: kernel size (= stride) must be 1..8, got " + w.describe());
+  if (y.shape() != Shape{N, Cout, H * k, W * k})
+    throw Error("convTranspose2d: output " + y.describe() + " should be " + shapeString({N, Cout, H * k, W * k}));
+  if (bias.defined() && bias.shape() != Shape{Cout})
+    throw Error("convTranspose2d: bias " + bias.describe() + " should be [" + std::to_string(Cout) + "]");
+  for (const Tensor* t : {&x, &w, &y}) checkElementCount(*t, "convTranspose2d");
+  if (y.numel() == 0) return;
+  if (Cin == 0) throw Error("convTranspose2d: input has no channels");
+
+  const int ks = static_cast<int>(k);
+  const Tiles tiles = chooseTiles(caps, ks);
+  const BoundRange wr = bindRange(caps, w, 0, w.numel(), true);
+  const BoundRange br = bias.defined() ? bindRange(caps, bias, 0, Cout, true) : wr;
+  const bool rgbaW = (k * k) % 4 == 0 && wr.base % 4 == 0;
+  const bool rgbaX = W % 4 == 0 && tiles.cols % 4 == 0 && x.byteOffset() % 16 == 0;
+  if (wr.view.numel() / (rgbaW ? 4 : 1) > int64_t(caps.maxTexelBufferElements))
+    throw Error("convTranspose2d: weight " + w.describe() + " exceeds the device's texel-buffer size");
+  const Kernel& kernel = engine.kernel({"conv_transpose2d_f32",
+                                        {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                                        sizeof(ConvTransposePush),
+                                        {tiles.localX, tiles.localY, 1, ks, tiles.channels, tiles.rows, tiles.cols,
+                                         rgbaW ? 4 : 1, rgbaX ? 4 : 1, static_cast<int>(act), bias.defined()}});
+
+  // One workgroup layer per (image, block of output channels).
+  const int64_t coBlocks = (Cout + tiles.channels - 1) / tiles.channels;
+  const uint32_t gx = ceilDiv(ceilDiv(W, tiles.cols), tiles.localX);
+  const uint32_t gy = ceilDiv(ceilDiv(H, tiles.rows), tiles.localY);
+  forEachUnitChunk(engine, x, y, N, Cout, tiles.channels, H * k * W * k, 1, "convTranspose2d", [&](const UnitChunk& c) {
+    const ConvTransposePush push{int32_t(Cin), int32_t(H), int32_t(W), int32_t(Cout), int32_t(coBlocks),
+                                 int32_t(c.u0), c.in.base, wr.base,   br.base,       c.out.base};
+    rec.dispatch(kernel,
+                 {Arg::texel(c.in.view, rgbaX ? 4 : 1), Arg::texel(wr.view, rgbaW ? 4 : 1), Arg::texel(br.view, 1),
+                  Arg::out(c.out.view)},
+                 push, gx, gy, static_cast<uint32_t>(c.u1 - c.u0));
+  });
+}
+
+}  // namespace spar

@@ -1,0 +1,125 @@
+// convTranspose2d (shaders/conv_transpose2d.comp via engine/ops/conv_transpose2d.cpp)
+// against a float64 reference.
+#include "engine/ops/conv_transpose2d.h"
+
+#include "tests/test_support.h"
+
+namespace spar::test {
+namespace {
+
+double activateRef(double x, Activation act) {
+  switch (act) {
+    case Activation::Gelu: return 0.5 * x * std::erfc(-x / std::sqrt(2.0));
+    case Activation::QuickGelu: return x / (1.0 + std::exp(-1.702 * x));
+    case Activation::Silu: return x / (1.0 + std::exp(-x));
+    case Activation::Sigmoid: return 1.0 / (1.0 + std::exp(-x));
+    default: return x;
+  }
+}
+
+struct ConvTCase {
+  int64_t N, Cin, H, W, Cout, k;
+  bool bias;
+  Activation act;
+};
+
+// Readable test names and failure messages.
+std::string describe(const ConvTCase& c) {
+  return "N" + std::to_string(c.N) + "_Cin" + std::to_string(c.Cin) + "_" + std::to_string(c.H) + "x" +
+         std::to_string(c.W) + "_Cout" + std::to_string(c.Cout) + "_k" + std::to_string(c.k) +
+         (c.bias ? "_bias" : "") + "_act" + std::to_string(int(c.act));
+}
+void PrintTo(const ConvTCase& c, std::ostream* os) { *os << describe(c); }
+
+// out[n,co,oy,ox] = act(b[co] + sum_ci in[n,ci,oy/k,ox/k] * w[ci,co,oy%k,ox%k])
+std::vector<double> convTRef(const ConvTCase& c, const std::vector<float>& x, const std::vector<float>& w,
+                             const std::vector<float>& b) {
+  const int64_t Ho = c.H * c.k, Wo = c.W * c.k;
+  std::vector<double> y(c.N * c.Cout * Ho * Wo);
+  for (int64_t n = 0; n < c.N; ++n)
+    for (int64_t co = 0; co < c.Cout; ++co)
+      for (int64_t oy = 0; oy < Ho; ++oy)
+        for (int64_t ox = 0; ox < Wo; ++ox) {
+          double s = b.empty() ? 0.0 : b[co];
+          for (int64_t ci = 0; ci < c.Cin; ++ci)
+            s += double(x[((n * c.Cin + ci) * c.H + oy / c.k) * c.W + ox / c.k]) *
+                 w[((ci * c.Cout + co) * c.k + oy % c.k) * c.k + ox % c.k];
+          y[((n * c.Cout + co) * Ho + oy) * Wo + ox] = activateRef(s, c.act);
+        }
+  return y;
+}
+
+void runCase(Engine& eng, const ConvTCase& c, const std::vector<float>& x, const std::vector<float>& w,
+             const std::vector<float>& b, double maxNmse, double maxAbs, const std::string& what) {
+  Tensor tx = eng.fromFloats({c.N, c.Cin, c.H, c.W}, x), tw = eng.fromFloats({c.Cin, c.Cout, c.k, c.k}, w);
+  Tensor tb = c.bias ? eng.fromFloats({c.Cout}, b) : Tensor();
+  GuardedOutput y(eng, {c.N, c.Cout, c.H * c.k, c.W * c.k});
+  Recorder rec(eng);
+  convTranspose2d(rec, tx, tw, tb, y.tensor(), c.act);
+  rec.run();
+  expectClose(y.read(), convTRef(c, x, w, c.bias ? b : std::vector<float>{}), maxNmse, maxAbs, what);
+  y.expectAllWritten();
+}
+
+class ConvTranspose2dTest : public EngineTest, public ::testing::WithParamInterface<ConvTCase> {};
+
+TEST_P(ConvTranspose2dTest, MatchesFloat64Reference) {
+  const auto c = GetParam();
+  auto x = randomUniform(c.N * c.Cin * c.H * c.W, -1, 1, 1);
+  auto w = randomUniform(c.Cin * c.Cout * c.k * c.k, -1, 1, 2);
+  auto b = randomUniform(c.Cout, -1, 1, 3);
+  runCase(eng(), c, x, w, b, 1e-8, 1e-4, "convTranspose2d");
+}
+
+// W % 4 == 0 cases read the input as RGBA texels; k = 3 reads the weights as R texels.
+INSTANTIATE_TEST_SUITE_P(
+    Shapes, ConvTranspose2dTest,
+    ::testing::Values(ConvTCase{1, 7, 13, 13, 61, 2, true, Activation::None},
+                      ConvTCase{2, 61, 7, 9, 7, 2, false, Activation::None},
+                      ConvTCase{1, 64, 16, 16, 32, 2, true, Activation::Gelu},
+                      ConvTCase{2, 13, 5, 11, 19, 4, true, Activation::None},
+                      ConvTCase{1, 32, 8, 12, 61, 4, false, Activation::Silu},
+                      ConvTCase{1, 5, 7, 8, 6, 3, true, Activation::None},
+                      ConvTCase{3, 3, 1, 1, 2, 2, true, Activation::Sigmoid}),
+    [](const ::testing::TestParamInfo<ConvTCase>& info) { return describe(info.param); });
+
+TEST_F(EngineTest, ConvTranspose2dBlackImageGivesBias) {
+  const ConvTCase c{2, 9, 7, 12, 13, 4, true, Activation::None};
+  std::vector<float> x(c.N * c.Cin * c.H * c.W, 0.0f);
+  auto w = randomUniform(c.Cin * c.Cout * 16, -1, 1, 4), b = randomUniform(c.Cout, -1, 1, 5);
+  runCase(eng(), c, x, w, b, 0.0, 0.0, "black image");
+}
+
+TEST_F(EngineTest, ConvTranspose2dOutputSplitIntoChunks) {
+  const ConvTCase c{3, 6, 5, 8, 21, 2, true, Activation::None};
+  auto x = randomUniform(c.N * c.Cin * c.H * c.W, -1, 1, 6), w = randomUniform(c.Cin * c.Cout * 4, -1, 1, 7);
+  auto b = randomUniform(c.Cout, -1, 1, 8);
+  Tensor tx = eng().fromFloats({c.N, c.Cin, c.H, c.W}, x), tw = eng().fromFloats({c.Cin, c.Cout, 2, 2}, w);
+  Tensor tb = eng().fromFloats({c.Cout}, b);
+  GuardedOutput y(eng(), {c.N, c.Cout, c.H * 2, c.W * 2});
+  const uint64_t saved = eng().device().bindingRangeLimit();
+  // Room for just under one image's output: its channel blocks go to different dispatches.
+  eng().device().setBindingRangeLimitForTesting(uint64_t(c.Cout * c.H * 2 * c.W * 2) * 4);
+  Recorder rec(eng());
+  convTranspose2d(rec, tx, tw, tb, y.tensor());
+  EXPECT_GT(rec.pending(), size_t(c.N));
+  rec.run();
+  eng().device().setBindingRangeLimitForTesting(saved);
+  expectClose(y.read(), convTRef(c, x, w, b), 1e-8, 1e-4, "chunked");
+  y.expectAllWritten();
+}
+
+TEST_F(EngineTest, ConvTranspose2dRejectsBadShapes) {
+  Tensor x = eng().tensor({1, 4, 5, 6}), w = eng().tensor({4, 3, 2, 2}), b = eng().tensor({3});
+  Tensor y = eng().tensor({1, 3, 10, 12});
+  Recorder rec(eng());
+  EXPECT_THROW(convTranspose2d(rec, x, eng().tensor({5, 3, 2, 2}), b, y), Error);     // Cin mismatch
+  EXPECT_THROW(convTranspose2d(rec, x, eng().tensor({4, 3, 2, 3}), b, y), Error);     // non-square kernel
+  EXPECT_THROW(convTranspose2d(rec, x, w, b, eng().tensor({1, 3, 10, 11})), Error);   // output size
+  EXPECT_THROW(convTranspose2d(rec, x, w, eng().tensor({4}), y), Error);               // bias size
+  EXPECT_THROW(convTranspose2d(rec, eng().tensor({4, 5, 6}), w, b, y), Error);         // rank
+  EXPECT_EQ(rec.pending(), 0u);
+}
+
+}  // namespace
+}  // namespace spar::test
