@@ -16,7 +16,7 @@
 layout(local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in;
 layout(constant_id = 3) const int DH = 64;   // head dimension (multiple of 4)
 layout(constant_id = 4) const int QPI = 8;   // queries per invocation
-layout(constant_id = 5) const int KB = 16;   // keys per block
+layout(constant_id = 5) const int KB = 16;   // keys per block (multiple of 4)
 layout(constant_id = 6) const bool CAUSAL = false;
 
 layout(binding = 0) uniform samplerBuffer Q;
@@ -85,20 +85,24 @@ void main() {
       runSum[i] = sum;
       [[unroll]] for (int d = 0; d < DH; ++d) acc[i * DH + d] *= correction;
     }
-    // Keys stay a loop and head channels are unrolled, so every accumulator index is a
-    // compile-time constant and acc[] can live in registers.
-    for (int j = 0; j < KB; ++j) {
-      float w[QPI];
-      [[unroll]] for (int i = 0; i < QPI; ++i) w[i] = s[i * KB + j];
-      const int vTexel = vBase + min(kb + j, p.Nk - 1) * vRow;
+    // Keys advance 4 at a time in a loop; head channels are unrolled, so every
+    // accumulator index is a compile-time constant, and each accumulator takes a chain
+    // of 4 fmas per load/store: with QPI x DH accumulators mostly in spilled registers,
+    // that traffic, not the arithmetic, is what bounds this loop on a CPU device.
+    [[unroll]] for (int j0 = 0; j0 < KB; j0 += 4) {
+      float w[QPI * 4];
+      [[unroll]] for (int i = 0; i < QPI; ++i)
+        [[unroll]] for (int u = 0; u < 4; ++u) w[i * 4 + u] = s[i * KB + j0 + u];
+      int vTexel[4];
+      [[unroll]] for (int u = 0; u < 4; ++u) vTexel[u] = vBase + min(kb + j0 + u, p.Nk - 1) * vRow;
       [[unroll]] for (int d4 = 0; d4 < DH / 4; ++d4) {
-        vec4 vv = texelFetch(V, vTexel + d4);
-        [[unroll]] for (int i = 0; i < QPI; ++i) {
-          acc[i * DH + d4 * 4 + 0] = fma(w[i], vv.x, acc[i * DH + d4 * 4 + 0]);
-          acc[i * DH + d4 * 4 + 1] = fma(w[i], vv.y, acc[i * DH + d4 * 4 + 1]);
-          acc[i * DH + d4 * 4 + 2] = fma(w[i], vv.z, acc[i * DH + d4 * 4 + 2]);
-          acc[i * DH + d4 * 4 + 3] = fma(w[i], vv.w, acc[i * DH + d4 * 4 + 3]);
-        }
+        const vec4 v0 = texelFetch(V, vTexel[0] + d4), v1 = texelFetch(V, vTexel[1] + d4);
+        const vec4 v2 = texelFetch(V, vTexel[2] + d4), v3 = texelFetch(V, vTexel[3] + d4);
+        [[unroll]] for (int i = 0; i < QPI; ++i)
+          [[unroll]] for (int c = 0; c < 4; ++c) {
+            const int a = i * DH + d4 * 4 + c;
+            acc[a] = fma(w[i * 4 + 3], v3[c], fma(w[i * 4 + 2], v2[c], fma(w[i * 4 + 1], v1[c], fma(w[i * 4], v0[c], acc[a]))));
+          }
       }
     }
   }

@@ -1,6 +1,8 @@
 #include "engine/ops/attention.h"
 
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 
 #include "engine/engine.h"
 #include "engine/error.h"
@@ -51,8 +53,14 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
     throw Error("attention: output " + out.tensor.describe() + " exceeds the device's storage binding range");
 
   const bool cpu = engine.caps().isCpu();
-  const int queriesPerInvocation = cpu ? 8 : 2, keysPerBlock = 16;
-  const int localX = cpu ? std::max<int>(8, engine.caps().subgroupSize) : 64;
+  int queriesPerInvocation = cpu ? 8 : 2, keysPerBlock = 16;
+  int localX = cpu ? std::max<int>(8, engine.caps().subgroupSize) : 64;
+  if (const char* env = std::getenv("SPAR_ATTENTION_TILES")) {
+    if (std::sscanf(env, "%d,%d,%d", &queriesPerInvocation, &keysPerBlock, &localX) != 3 || queriesPerInvocation <= 0 ||
+        keysPerBlock <= 0 || localX <= 0)
+      throw Error("SPAR_ATTENTION_TILES must be QPI,KB,LX (positive integers)");
+    if (keysPerBlock % 4) throw Error("SPAR_ATTENTION_TILES: keys per block must be a multiple of 4");
+  }
   const Kernel& kernel = engine.kernel({out.tensor.dtype() == DType::F16 ? "attention_f16out" : "attention_f32",
                                         {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
                                         sizeof(AttentionPush),
