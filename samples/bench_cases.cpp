@@ -4,7 +4,10 @@
 #include <random>
 
 #include "engine/ops/attention.h"
+#include "engine/ops/conv2d.h"
 #include "engine/ops/linear.h"
+#include "engine/ops/norm.h"
+#include "engine/ops/reduce_channels.h"
 
 namespace spar::bench {
 namespace {
@@ -95,6 +98,80 @@ void addAttention(std::vector<BenchCase>& cases, Engine& engine, int64_t N, int 
   cases.push_back(std::move(c));
 }
 
+// Row ops over [rows, D]: LayerNorm (weight and bias) and softmax. Memory-bound: GB/s
+// counts one read and one write of the tensor.
+void addRowOp(std::vector<BenchCase>& cases, Engine& engine, const std::string& op, int64_t rows, int64_t D) {
+  auto x = std::make_shared<std::vector<float>>(randomValues(rows * D, 4, 3.0f));
+  for (auto& v : *x) v += 2.0f;  // a mean away from 0, as activations have
+  auto w = std::make_shared<std::vector<float>>(randomValues(D, 5));
+  auto b = std::make_shared<std::vector<float>>(randomValues(D, 6));
+  Tensor tx = engine.fromFloats({rows, D}, *x), tw = engine.fromFloats({D}, *w), tb = engine.fromFloats({D}, *b);
+  Tensor ty = engine.tensor({rows, D});
+  const bool ln = op == "layernorm";
+  BenchCase c;
+  c.name = op + "_f32";
+  c.shape = std::to_string(rows) + "x" + std::to_string(D);
+  c.bytes = 2.0 * rows * D * 4;
+  c.record = [=](Recorder& rec) {
+    if (ln) layerNorm(rec, tx, tw, tb, ty);
+    else softmax(rec, tx, ty);
+  };
+  c.nmse = [=, &engine]() {
+    auto y = engine.download(ty);
+    NmseAccumulator acc;
+    for (int64_t r = 0; r < rows; ++r) {
+      const float* row = &(*x)[r * D];
+      if (ln) {
+        double mean = 0, var = 0;
+        for (int64_t i = 0; i < D; ++i) mean += row[i];
+        mean /= D;
+        for (int64_t i = 0; i < D; ++i) var += (row[i] - mean) * (row[i] - mean);
+        var /= D;
+        for (int64_t i = 0; i < D; ++i)
+          acc.add(y[r * D + i], (row[i] - mean) / std::sqrt(var + 1e-5) * (*w)[i] + (*b)[i]);
+      } else {
+        double mx = -INFINITY, sum = 0;
+        for (int64_t i = 0; i < D; ++i) mx = std::max(mx, double(row[i]));
+        for (int64_t i = 0; i < D; ++i) sum += std::exp(row[i] - mx);
+        for (int64_t i = 0; i < D; ++i) acc.add(y[r * D + i], std::exp(row[i] - mx) / sum);
+      }
+    }
+    return acc.value();
+  };
+  cases.push_back(std::move(c));
+}
+
+void addConv3x3(std::vector<BenchCase>& cases, Engine& engine, int64_t C, int64_t H, int64_t W) {
+  auto x = std::make_shared<std::vector<float>>(randomValues(C * H * W, 7));
+  auto w = std::make_shared<std::vector<float>>(randomValues(C * C * 9, 8, 0.1f));
+  Tensor tx = engine.fromFloats({1, C, H, W}, *x), tw = engine.fromFloats({C, C, 3, 3}, *w);
+  Tensor ty = engine.tensor({1, C, H, W});
+  BenchCase c;
+  c.name = "conv3x3_f32";
+  c.shape = std::to_string(C) + "->" + std::to_string(C) + " at " + std::to_string(H) + "x" + std::to_string(W);
+  c.flops = 2.0 * C * C * 9 * H * W;
+  c.record = [=](Recorder& rec) { conv2d(rec, tx, tw, Tensor(), ty, {1, 1, 1}); };
+  c.nmse = [=, &engine]() {
+    auto y = engine.download(ty);
+    NmseAccumulator acc;
+    for (int64_t oy : sampleRows(H))
+      for (int64_t co = 0; co < C; ++co)
+        for (int64_t ox = 0; ox < W; ++ox) {
+          double s = 0;
+          for (int64_t ci = 0; ci < C; ++ci)
+            for (int ky = 0; ky < 3; ++ky)
+              for (int kx = 0; kx < 3; ++kx) {
+                const int64_t iy = oy + ky - 1, ix = ox + kx - 1;
+                if (iy < 0 || iy >= H || ix < 0 || ix >= W) continue;
+                s += double((*x)[(ci * H + iy) * W + ix]) * (*w)[((co * C + ci) * 3 + ky) * 3 + kx];
+              }
+          acc.add(y[(co * H + oy) * W + ox], s);
+        }
+    return acc.value();
+  };
+  cases.push_back(std::move(c));
+}
+
 }  // namespace
 
 std::vector<BenchCase> makeCases(Engine& engine, const std::string& only) {
@@ -109,6 +186,11 @@ std::vector<BenchCase> makeCases(Engine& engine, const std::string& only) {
     addAttention(cases, engine, 1280, 12, 64, s);
     addAttention(cases, engine, 2816, 12, 64, s);
   }
+  for (int64_t tokens : {1280, 2816}) {
+    addRowOp(cases, engine, "layernorm", tokens, 768);
+    addRowOp(cases, engine, "softmax", tokens, 768);
+  }
+  addConv3x3(cases, engine, 64, 128, 128);
   if (!only.empty())
     std::erase_if(cases, [&](const BenchCase& c) { return c.name.find(only) == std::string::npos; });
   return cases;
