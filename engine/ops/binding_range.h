@@ -8,10 +8,9 @@
 
 #include "engine/engine.h"
 #include "engine/error.h"
+#include "engine/ops/op_support.h"
 
-namespace spar::detail {
-
-inline uint32_t ceilDiv(int64_t a, int64_t b) { return static_cast<uint32_t>((a + b - 1) / b); }
+namespace spar::ops {
 
 // A binding that covers elements [begin, end) of t. The view starts where the device
 // allows a binding to start (at or before begin, possibly before t's first element);
@@ -88,13 +87,8 @@ void forEachUnitChunk(Engine& engine, const Tensor& x, const Tensor& y, int64_t 
   }
 }
 
-inline void checkF32(const Tensor& t, const char* op, const char* name) {
-  if (!t.defined()) throw Error(std::string(op) + ": " + name + " tensor is missing");
-  if (t.dtype() != DType::F32) throw Error(std::string(op) + ": " + name + " must be f32, got " + t.describe());
-}
-
 inline void checkElementCount(const Tensor& t, const char* op) {
   if (t.numel() >= INT32_MAX) throw Error(std::string(op) + ": " + t.describe() + " has too many elements for 32-bit indexing");
 }
 
-}  // namespace spar::detail
+}  // namespace spar::ops

@@ -43,13 +43,13 @@ int64_t conv2dOutputSize(int64_t in, int64_t kernel, int stride, int pad) {
 
 void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
             const Conv2dParams& params) {
-  using namespace detail;
+  using namespace ops;
   Engine& engine = rec.engine();
   const DeviceCaps& caps = engine.caps();
-  checkF32(x, "conv2d", "input");
-  checkF32(w, "conv2d", "weight");
-  checkF32(y, "conv2d", "output");
-  if (bias.defined()) checkF32(bias, "conv2d", "bias");
+  requireF32(x, "conv2d", "input");
+  requireF32(w, "conv2d", "weight");
+  requireF32(y, "conv2d", "output");
+  if (bias.defined()) requireF32(bias, "conv2d", "bias");
   if (x.rank() != 4) throw Error("conv2d: input must be [N, Cin, H, W], got " + x.describe());
   if (w.rank() != 4) throw Error("conv2d: weight must be [Cout, Cin, kh, kw], got " + w.describe());
   const int64_t N = x.dim(0), Cin = x.dim(1), H = x.dim(2), W = x.dim(3);

@@ -28,13 +28,13 @@ Tiles chooseTiles(const DeviceCaps& caps, int k) {
 
 void convTranspose2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
                      Activation act) {
-  using namespace detail;
+  using namespace ops;
   Engine& engine = rec.engine();
   const DeviceCaps& caps = engine.caps();
-  checkF32(x, "convTranspose2d", "input");
-  checkF32(w, "convTranspose2d", "weight");
-  checkF32(y, "convTranspose2d", "output");
-  if (bias.defined()) checkF32(bias, "convTranspose2d", "bias");
+  requireF32(x, "convTranspose2d", "input");
+  requireF32(w, "convTranspose2d", "weight");
+  requireF32(y, "convTranspose2d", "output");
+  if (bias.defined()) requireF32(bias, "convTranspose2d", "bias");
   if (x.rank() != 4) throw Error("convTranspose2d: input must be [N, Cin, H, W], got " + x.describe());
   if (w.rank() != 4 || w.dim(2) != w.dim(3))
     throw Error("convTranspose2d: weight must be [Cin, Cout, k, k], got " + w.describe());

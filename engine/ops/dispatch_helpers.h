@@ -15,10 +15,9 @@
 
 #include "engine/engine.h"
 #include "engine/error.h"
+#include "engine/ops/op_support.h"
 
 namespace spar::ops {
-
-inline uint64_t ceilDiv(uint64_t a, uint64_t b) { return (a + b - 1) / b; }
 
 // Workgroups as a 2-D grid when one dimension cannot hold them all. Shaders recover the
 // linear workgroup index as gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x and
@@ -107,10 +106,5 @@ inline LineGroup lineGroupFor(const DeviceCaps& caps, int64_t lineLength, bool c
 // one vec4 of 4 consecutive values (llvmpipe loads a vec4 for about the cost of a float).
 constexpr int kElementLocalX = 256;
 constexpr uint64_t kElementsPerGroup = 4 * kElementLocalX;
-
-inline void requireF32(const Tensor& t, const std::string& op, const char* what) {
-  if (!t.defined()) throw Error(op + ": " + what + " is missing");
-  if (t.dtype() != DType::F32) throw Error(op + ": " + what + " " + t.describe() + " must be f32");
-}
 
 }  // namespace spar::ops

@@ -6,6 +6,7 @@
 
 #include "engine/engine.h"
 #include "engine/error.h"
+#include "engine/ops/op_support.h"
 
 namespace spar {
 namespace {
@@ -13,8 +14,6 @@ namespace {
 struct GemmPush {
   int32_t M, N, K, ldx, ldw, ldy, xBatch, wBatch, yBatch;
 };
-
-uint32_t ceilDiv(int64_t a, int64_t b) { return static_cast<uint32_t>((a + b - 1) / b); }
 
 }  // namespace
 
@@ -72,8 +71,8 @@ void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
     GemmPush push{int32_t(M), int32_t(N), int32_t(kTexels), int32_t(kTexels), int32_t(kTexels), int32_t(N),
                   int32_t(M * kTexels), int32_t(N * kTexels), int32_t(M * N)};
     rec.dispatch(kernel, {Arg::texel(x, texelK), Arg::texel(w, texelK), Arg::texel(biasArg, 1), Arg::out(y)}, push,
-                 ceilDiv(M, int64_t(tiles.rowsPerInvocation) * tiles.localX),
-                 ceilDiv(N, int64_t(tiles.colsPerInvocation) * tiles.localY), static_cast<uint32_t>(B));
+                 ops::ceilDiv(M, int64_t(tiles.rowsPerInvocation) * tiles.localX),
+                 ops::ceilDiv(N, int64_t(tiles.colsPerInvocation) * tiles.localY), static_cast<uint32_t>(B));
     return;
   }
 
@@ -95,8 +94,8 @@ void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
     rec.dispatch(kernel,
                  {Arg::texel(x2.view(m0 * K, {rows, K}), texelK), Arg::texel(w, texelK), Arg::texel(biasArg, 1),
                   Arg::out(y2.view(m0 * N, {rows, N}))},
-                 push, ceilDiv(rows, int64_t(tiles.rowsPerInvocation) * tiles.localX),
-                 ceilDiv(N, int64_t(tiles.colsPerInvocation) * tiles.localY), 1);
+                 push, ops::ceilDiv(rows, int64_t(tiles.rowsPerInvocation) * tiles.localX),
+                 ops::ceilDiv(N, int64_t(tiles.colsPerInvocation) * tiles.localY), 1);
   }
 }
 

@@ -11,12 +11,12 @@ struct PatchifyPush {
 };
 
 void patchCopy(Recorder& rec, const Tensor& images, const Tensor& tokens, int p, bool toTokens) {
-  using namespace detail;
+  using namespace ops;
   const char* op = toTokens ? "patchify" : "unpatchify";
   Engine& engine = rec.engine();
   const DeviceCaps& caps = engine.caps();
-  checkF32(images, op, "image");
-  checkF32(tokens, op, "token");
+  requireF32(images, op, "image");
+  requireF32(tokens, op, "token");
   if (images.rank() != 4) throw Error(std::string(op) + ": images must be [V, C, H, W], got " + images.describe());
   if (p < 1) throw Error(std::string(op) + ": patch size must be >= 1, got " + std::to_string(p));
   const int64_t V = images.dim(0), C = images.dim(1), H = images.dim(2), W = images.dim(3);

@@ -13,11 +13,11 @@ struct PoolPush {
 }  // namespace
 
 void avgPool2d(Recorder& rec, const Tensor& x, const Tensor& y, int k) {
-  using namespace detail;
+  using namespace ops;
   Engine& engine = rec.engine();
   const DeviceCaps& caps = engine.caps();
-  checkF32(x, "avgPool2d", "input");
-  checkF32(y, "avgPool2d", "output");
+  requireF32(x, "avgPool2d", "input");
+  requireF32(y, "avgPool2d", "output");
   if (k < 1) throw Error("avgPool2d: kernel size must be >= 1, got " + std::to_string(k));
   if (x.rank() != 4) throw Error("avgPool2d: input must be [N, C, H, W], got " + x.describe());
   const int64_t N = x.dim(0), C = x.dim(1), H = x.dim(2), W = x.dim(3), Ho = H / k, Wo = W / k;

@@ -13,11 +13,11 @@ struct ResizePush {
 }  // namespace
 
 void resizeBilinear(Recorder& rec, const Tensor& x, const Tensor& y, bool alignCorners) {
-  using namespace detail;
+  using namespace ops;
   Engine& engine = rec.engine();
   const DeviceCaps& caps = engine.caps();
-  checkF32(x, "resizeBilinear", "input");
-  checkF32(y, "resizeBilinear", "output");
+  requireF32(x, "resizeBilinear", "input");
+  requireF32(y, "resizeBilinear", "output");
   if (x.rank() != 4 || y.rank() != 4)
     throw Error("resizeBilinear: input and output must be [N, C, H, W], got " + x.describe() + " and " + y.describe());
   const int64_t N = x.dim(0), C = x.dim(1), H = x.dim(2), W = x.dim(3), Ho = y.dim(2), Wo = y.dim(3);
