@@ -7,16 +7,6 @@
 namespace spar::test {
 namespace {
 
-double activateRef(double x, Activation act) {
-  switch (act) {
-    case Activation::Gelu: return 0.5 * x * std::erfc(-x / std::sqrt(2.0));
-    case Activation::QuickGelu: return x / (1.0 + std::exp(-1.702 * x));
-    case Activation::Silu: return x / (1.0 + std::exp(-x));
-    case Activation::Sigmoid: return 1.0 / (1.0 + std::exp(-x));
-    default: return x;
-  }
-}
-
 struct ConvTCase {
   int64_t N, Cin, H, W, Cout, k;
   bool bias;

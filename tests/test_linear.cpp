@@ -6,16 +6,6 @@
 namespace spar::test {
 namespace {
 
-double activateRef(double x, Activation act) {
-  switch (act) {
-    case Activation::Gelu: return 0.5 * x * std::erfc(-x / std::sqrt(2.0));
-    case Activation::QuickGelu: return x / (1.0 + std::exp(-1.702 * x));
-    case Activation::Silu: return x / (1.0 + std::exp(-x));
-    case Activation::Sigmoid: return 1.0 / (1.0 + std::exp(-x));
-    default: return x;
-  }
-}
-
 // y[b][m][n] = act(sum_k x[b][m][k] w[b or 0][n][k] + bias[n])
 std::vector<double> linearRef(const std::vector<float>& x, const std::vector<float>& w, const std::vector<float>& bias,
                               int64_t B, int64_t M, int64_t N, int64_t K, bool batchedW, Activation act) {

@@ -55,6 +55,16 @@ std::vector<float> roundToHalf(const std::vector<float>& v) {
   return out;
 }
 
+double activateRef(double x, Activation act) {
+  switch (act) {
+    case Activation::Gelu: return 0.5 * x * std::erfc(-x / std::sqrt(2.0));
+    case Activation::QuickGelu: return x / (1.0 + std::exp(-1.702 * x));
+    case Activation::Silu: return x / (1.0 + std::exp(-x));
+    case Activation::Sigmoid: return 1.0 / (1.0 + std::exp(-x));
+    default: return x;
+  }
+}
+
 ErrorStats compare(const std::vector<float>& actual, const std::vector<double>& expected) {
   ErrorStats s;
   double num = 0, den = 0;

@@ -11,6 +11,7 @@
 
 #include "engine/engine.h"
 #include "engine/error.h"
+#include "engine/ops/activation.h"
 #include "engine/recorder.h"
 
 namespace spar::test {
@@ -35,6 +36,9 @@ std::vector<float> randomNormal(size_t n, float mean, float stddev, uint32_t see
 std::vector<double> toDouble(const std::vector<float>& v);
 // Values as an fp16 tensor would hold them (for references of fp16-storage paths).
 std::vector<float> roundToHalf(const std::vector<float>& v);
+
+// The fused activations (shaders/common.glsl) in float64.
+double activateRef(double x, Activation act);
 
 struct ErrorStats {
   double nmse = 0;     // sum((a-b)^2) / sum(b^2), in double
