@@ -52,8 +52,13 @@ int main(int argc, char** argv) {
       const double nmse = c.nmse();
       const double rate = c.flops > 0 ? c.flops / (median * 1e6) : c.bytes / (median * 1e6);
       nlohmann::json op = {{"name", c.name}, {"shape", c.shape}, {"ms", median}, {"nmse", nmse}};
-      if (c.flops > 0) op["gflops"] = rate;
-      else op["gbps"] = rate;
+      // Memory-bound ops count bytes, not flops: "gflops" is null and "gbps" says their rate.
+      if (c.flops > 0) {
+        op["gflops"] = rate;
+      } else {
+        op["gflops"] = nullptr;
+        op["gbps"] = rate;
+      }
       report["ops"].push_back(op);
       if (!json)
         std::printf("%-15s %-30s %10.2f %10.1f%s %12.3e\n", c.name.c_str(), c.shape.c_str(), median, rate,
