@@ -566,9 +566,12 @@ class SPAR(nn.Module):
                 "pair_fused": torch.stack(fused, 0), "pair_tokens": torch.stack(toks, 0),
                 "pair_logits": torch.stack(plog, 0)}
 
-    def run_stack(self, layers: nn.ModuleList, x: torch.Tensor) -> torch.Tensor:
+    def run_stack(self, layers: nn.ModuleList, x: torch.Tensor,
+                  record: Optional[List[torch.Tensor]] = None) -> torch.Tensor:
         for blk in layers:
             x = blk(x)
+            if record is not None:
+                record.append(x)
         return x
 
     # ------------------------------------------------------------------ forward
@@ -579,7 +582,8 @@ class SPAR(nn.Module):
                 dynamic_mask: Optional[torch.Tensor] = None,
                 dino_features: Optional[torch.Tensor] = None,
                 lseg_features: Optional[torch.Tensor] = None,
-                semantic_queries: Optional[bool] = None) -> Dict[str, Any]:
+                semantic_queries: Optional[bool] = None,
+                record_layers: bool = False) -> Dict[str, Any]:
         """Run SPAR on one ordered sequence of frames.
 
         Args:
@@ -601,6 +605,9 @@ class SPAR(nn.Module):
             semantic_queries: put semantic queries into the decoder (default:
                 cfg.semantic_decoding, the official training/eval behaviour; the official
                 SPAR.render_images_video renders RGB without them).
+            record_layers: also return every layer's output of the three stacks under
+                ``layers`` = {"transformer_encoder": [...], "transformer_encoder_geom": [...],
+                "transformer_decoder": [...]}.
 
         Returns a dict (B batch, V all views, K inputs, T targets, R rendered views,
         n = tokens per view, S scene tokens, D width):
@@ -646,6 +653,11 @@ class SPAR(nn.Module):
         k_in, k_tg = in_idx.shape[1], tg_idx.shape[1]
         assert k_in >= 1
         out: Dict[str, Any] = {"input_idx": in_idx, "target_idx": tg_idx}
+        rec: Dict[str, Optional[List[torch.Tensor]]] = {
+            name: ([] if record_layers else None)
+            for name in ("transformer_encoder", "transformer_encoder_geom", "transformer_decoder")}
+        if record_layers:
+            out["layers"] = rec
 
         # ---- image tokens with spatial-temporal codes (all views)
         tok = self.image_tokenizer(images * 2.0 - 1.0)                   # [(b v), n, D]
@@ -660,7 +672,8 @@ class SPAR(nn.Module):
         cam = self.camera_tokens(b, v, dt, dev)
         out["cam_tokens_in"] = cam
         enc = self.run_stack(self.transformer_encoder,
-                             torch.cat([cam, img_tokens.reshape(b, v * n, d)], dim=1))
+                             torch.cat([cam, img_tokens.reshape(b, v * n, d)], dim=1),
+                             rec["transformer_encoder"])
         out["pose_encoder_out"] = enc
         cam_out = enc[:, :v]
         out["cam_tokens"] = cam_out
@@ -747,7 +760,8 @@ class SPAR(nn.Module):
             parts.append(sem_gated)
         scene_in = torch.cat(parts, dim=1)
         out["scene_encoder_in"] = scene_in
-        scene_out = self.run_stack(self.transformer_encoder_geom, scene_in)
+        scene_out = self.run_stack(self.transformer_encoder_geom, scene_in,
+                                   rec["transformer_encoder_geom"])
         out["scene_encoder_out"] = scene_out
         scene = scene_out[:, :cfg.scene_tokens]
         out["scene_tokens"] = scene
@@ -784,7 +798,7 @@ class SPAR(nn.Module):
         seq.append(scene[:, None].expand(b, r, -1, -1).reshape(b * r, cfg.scene_tokens, d))
         dec_in = self.decoder_ln(torch.cat(seq, dim=1))
         out["decoder_in"] = dec_in
-        dec = self.run_stack(self.transformer_decoder, dec_in)
+        dec = self.run_stack(self.transformer_decoder, dec_in, rec["transformer_decoder"])
         out["decoder_out"] = dec
 
         rgb_tok = dec[:, :n]

@@ -541,3 +541,57 @@ def test_make_checkpoint_structure_and_strict_reload(tmp_path):
     bad.pop("mlp_fuse.1.bias")
     with pytest.raises(RuntimeError):
         spar.load_spar(cfg, bad, dino=DinoStub(cfg.d), lseg=LSegStub(cfg.semantic_dim))
+
+
+def test_record_layers():
+    m = make_model()
+    cfg = m.cfg
+    with torch.no_grad():
+        o = m(images(cfg), [0, 3, 4], [1, 2], record_layers=True)
+    lay = o["layers"]
+    assert len(lay["transformer_encoder"]) == cfg.encoder_n_layer
+    assert len(lay["transformer_encoder_geom"]) == cfg.encoder_geom_n_layer
+    assert len(lay["transformer_decoder"]) == cfg.decoder_n_layer
+    assert torch.equal(lay["transformer_encoder"][-1], o["pose_encoder_out"])
+    assert torch.equal(lay["transformer_encoder_geom"][-1], o["scene_encoder_out"])
+    assert torch.equal(lay["transformer_decoder"][-1], o["decoder_out"])
+
+
+def _real_backbones_available():
+    try:
+        from spar_reference import dino_v3, lseg  # noqa: F401
+        return hasattr(dino_v3, "DinoV3") and hasattr(lseg, "LSegEncoder")
+    except Exception:
+        return False
+
+
+@pytest.mark.skipif(not _real_backbones_available(), reason="backbone references not present")
+def test_checkpoint_with_real_backbones_round_trip(tmp_path):
+    """make_checkpoint with the real tiny DINOv3 / LSeg references: official prefixes,
+    torch.save / torch.load, strict reload, float32 vs float64 on the main outputs."""
+    cfg = spar_config.tiny()
+    ck = spar.make_checkpoint(cfg, seed=2, perturb=True, step=3, optimizer_state=False)
+    sd = ck["model"]
+    assert "_dino_v3.mean" in sd and "_dino_v3.std" in sd
+    assert any(k.startswith("_dino_v3.model.") for k in sd)
+    assert any(k.startswith("lseg_model.") for k in sd)
+    path = tmp_path / "ckpt_spar_000000000003.pt"
+    torch.save(ck, path)
+    back = torch.load(path, map_location="cpu")
+    m = spar.load_spar(cfg, back["model"])
+    for k, v in m.state_dict().items():
+        assert torch.equal(v, sd[k]), k
+    m64 = copy.deepcopy(m).double()
+    x = images(cfg, v=4)
+    with torch.no_grad():
+        a = m(x, [0, 3], [1, 2])
+        b = m64(x.double(), [0, 3], [1, 2])
+    for k in ("dino", "lseg_features", "cam_info", "cv_drp_input.prob", "gated_tokens",
+              "scene_tokens", "rgb", "semantic_features"):
+        if "." in k:
+            k1, k2 = k.split(".")
+            va, vb = a[k1][k2], b[k1][k2]
+        else:
+            va, vb = a[k], b[k]
+        err = ((va.double() - vb).abs().max() / vb.abs().max()).item()
+        assert err < STAGE_RTOL, (k, err)
