@@ -126,3 +126,17 @@ class CLIPTextEncoder(nn.Module):
         x = self.ln_final(x)
         x = x[torch.arange(x.shape[0], device=x.device), ids.argmax(dim=-1)]
         return x @ self.text_projection
+
+
+LSEG_LOGIT_SCALE = 1.0 / 0.07  # LSeg: exp(log(1 / 0.07)), a fixed tensor (not in the checkpoint)
+
+
+def label_logits(image_features: torch.Tensor, text_embeddings: torch.Tensor,
+                 logit_scale: float = LSEG_LOGIT_SCALE) -> torch.Tensor:
+    """Open-vocabulary logits as LSeg / SPAR compute them: both sides L2-normalised over the
+    channels, logits = scale * <image, text>.  image_features [B, C, H, W], text_embeddings
+    [K, C] -> [B, K, H, W].  (The official code multiplies fp16 image features by the text
+    features; here everything stays in the inputs' dtype.)"""
+    img = image_features / image_features.norm(dim=1, keepdim=True)
+    txt = text_embeddings / text_embeddings.norm(dim=-1, keepdim=True)
+    return logit_scale * torch.einsum("bchw,kc->bkhw", img, txt.to(img.dtype))

@@ -23,7 +23,7 @@ from spar_reference.backbones import backbone_config, backbone_configs, resolve_
 from spar_reference.dino_v3 import DinoV3, DinoV3Backbone  # noqa: E402
 from spar_reference.lseg import (LSegEncoder, add_net_prefix, split_lseg_state_dict,  # noqa: E402
                                  strip_net_prefix)
-from spar_reference.clip_text import CLIPTextEncoder  # noqa: E402
+from spar_reference.clip_text import CLIPTextEncoder, LSEG_LOGIT_SCALE, label_logits  # noqa: E402
 from spar_reference import bpe  # noqa: E402
 
 torch.set_num_threads(2)
@@ -409,6 +409,24 @@ def test_lseg_input_norm_and_bn_sensitivity():
         assert nmse(spar(x), ref) > 1e-10
 
 
+def test_label_logits():
+    f = torch.randn(2, 8, 3, 5, dtype=torch.float64)
+    t = torch.randn(4, 8, dtype=torch.float64)
+    out = label_logits(f, t)
+    assert out.shape == (2, 4, 3, 5)
+    ref = (F.normalize(f.permute(0, 2, 3, 1), dim=-1) @ F.normalize(t, dim=-1).T).permute(0, 3, 1, 2)
+    assert torch.allclose(out, LSEG_LOGIT_SCALE * ref, atol=1e-12)
+    assert abs(LSEG_LOGIT_SCALE - 14.2857) < 1e-4
+
+
+def test_dino_resizes_to_patch_multiple():
+    m = DinoV3(backbone_config("dino", "tiny"), seed=4, perturb=True).double()
+    x = torch.rand(1, 3, 40, 56, dtype=torch.float64)
+    with torch.no_grad():
+        y = F.interpolate((x - m.mean) / m.std, size=(32, 48), mode="bilinear", align_corners=False)
+        assert torch.equal(m(x), m.model(y)) and m(x).shape == (1, 6, 64)
+
+
 def test_lseg_pos_embed_resize():
     m = LSegEncoder(backbone_config("lseg", "tiny"), seed=1, perturb=True).double()
     vit = m.pretrained.model
@@ -492,3 +510,40 @@ def test_tokenizer_cleanup():
     assert t("caf\u0065\u0301") == t("caf\u00e9")              # NFC
     assert t("12")[:4] == [49406, t("1")[1], t("2")[1], 49407]  # one token per digit
     assert bpe.pre_tokenize("hello!!'s world's") == ["hello", "!!'", "s", "world", "'s"]
+
+
+def _class_of(pred):
+    """A re character class (as ranges) of every code point satisfying pred."""
+    parts, start, prev = [], None, None
+    for cp in range(0x110000):
+        if 0xD800 <= cp <= 0xDFFF:
+            continue
+        if pred(chr(cp)):
+            if start is None:
+                start = cp
+            prev = cp
+        elif start is not None:
+            parts.append((start, prev))
+            start = None
+    if start is not None:
+        parts.append((start, prev))
+    esc = lambda c: "\\U%08x" % c
+    return "".join(esc(a) if a == b else esc(a) + "-" + esc(b) for a, b in parts)
+
+
+def test_pre_tokenizer_matches_clip_pattern():
+    """The scanner against CLIP's pattern rebuilt for the standard re module
+    (\\p{L} = categories L*, \\p{N} = N*, \\s = Unicode White_Space)."""
+    import re
+    import unicodedata
+    L = _class_of(lambda ch: unicodedata.category(ch).startswith("L"))
+    N = _class_of(lambda ch: unicodedata.category(ch).startswith("N"))
+    S = _class_of(bpe._is_space)
+    pat = re.compile(r"<\|startoftext\|>|<\|endoftext\|>|'s|'t|'re|'ve|'m|'ll|'d|[" + L + "]+|[" + N
+                     + "]|[^" + S + L + N + "]+", re.IGNORECASE)
+    samples = ["a photo of a sofa", "it's a dog's life, isn't it?", "we'll've 'd 'dd", "x'sy", "!!'s",
+               "straße 沙发 ½ ² ٣ 12.5%", "<|startoftext|>hi<|endoftext|>", "a\u00a0b\u3000c\u2028d",
+               "emoji 🛋️ and 😀😀", "tab\tand\nnewline", "\u00e9t\u00e9 caf\u00e9", "ǅemal", "--==--"]
+    for s in samples:
+        s = bpe.whitespace_clean(bpe.basic_clean(s)).lower()
+        assert bpe.pre_tokenize(s) == pat.findall(s), s
