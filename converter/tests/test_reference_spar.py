@@ -595,3 +595,58 @@ def test_checkpoint_with_real_backbones_round_trip(tmp_path):
             va, vb = a[k], b[k]
         err = ((va.double() - vb).abs().max() / vb.abs().max()).item()
         assert err < STAGE_RTOL, (k, err)
+
+
+def test_sincos_codes_follow_official_grid():
+    """pe_utils: 1D code concat(sin(p f), cos(p f)), f_k = 10000^(-k/(dim/2)); 2D code built
+    from meshgrid(arange(gw), arange(gh), 'ij') flattened (non-square grid included)."""
+    pos = torch.arange(7, dtype=torch.float64)
+    f = 1.0 / 10000.0 ** (torch.arange(4, dtype=torch.float64) / 4)
+    want1 = torch.cat([torch.sin(pos[:, None] * f), torch.cos(pos[:, None] * f)], -1)
+    assert torch.allclose(spar.sincos_1d(8, pos, torch.float64), want1, atol=1e-15)
+    for gh, gw in ((4, 4), (3, 5), (5, 2)):
+        gy = torch.arange(gh, dtype=torch.float64)
+        gx = torch.arange(gw, dtype=torch.float64)
+        grid = torch.stack(torch.meshgrid(gx, gy, indexing="ij"), 0)
+        grid = grid.reshape(2, 1, grid.shape[1], grid.shape[2])
+        a, b = grid[0].reshape(-1), grid[1].reshape(-1)
+        want2 = torch.cat([spar.sincos_1d(8, a, torch.float64), spar.sincos_1d(8, b, torch.float64)], -1)
+        assert torch.equal(spar.sincos_2d(16, gh, gw, torch.float64), want2)
+    # square grid: first half encodes the row, second half the column of token row*W + col
+    c = spar.sincos_2d(16, 4, 4, torch.float64)
+    assert torch.equal(c[1 * 4 + 3, :8], spar.sincos_1d(8, torch.tensor([1.0]), torch.float64)[0])
+    assert torch.equal(c[1 * 4 + 3, 8:], spar.sincos_1d(8, torch.tensor([3.0]), torch.float64)[0])
+
+
+@pytest.mark.parametrize("variant", ["canonical_first", "quat", "per_scene", "learnable_plucker",
+                                     "zero_out", "learnable_indicator", "none", "no_pe"])
+def test_official_option_variants_run(variant):
+    cfg = spar_config.tiny()
+    if variant == "canonical_first":
+        cfg.canonical = "first"
+    elif variant == "quat":
+        cfg.pose_representation = "quat"
+    elif variant == "per_scene":
+        cfg.plucker_norm_mode = "per_scene"
+    elif variant == "learnable_plucker":
+        cfg.plucker_norm_mode = "learnable"
+    elif variant == "no_pe":
+        cfg.input_with_pe = False
+    else:
+        cfg.input_masking_mode = variant
+    m = make_model(cfg)
+    if variant == "learnable_plucker":
+        assert "log_plucker_scale" in m.state_dict()
+    if variant == "quat":
+        assert m.state_dict()["pose_predictor.rel_head.2.weight"].shape[0] == 7
+    if variant == "no_pe":
+        assert not any(k.startswith("pe_embedder.") for k in m.state_dict())
+    with torch.no_grad():
+        o = m(images(cfg), [0, 3, 4], [1, 2])
+    assert torch.isfinite(o["rgb"]).all()
+    can = 0 if variant == "canonical_first" else 2
+    assert torch.equal(o["c2w"][:, can], torch.eye(4)[None])
+    if variant == "per_scene":
+        assert o["plucker"][:, :, :3].abs().max() <= 1.0 + 1e-6
+    if variant == "none":
+        assert torch.equal(o["gated_tokens"], o["fused_tokens"])
