@@ -28,7 +28,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from .config import SparConfig
-from .transformer import Block, LayerNorm, compute_dtype, spar_block
+from .transformer import LayerNorm, spar_block
 
 IndexLike = Union[Sequence[int], torch.Tensor]
 

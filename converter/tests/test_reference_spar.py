@@ -8,7 +8,6 @@ Run: cd /work/main && /usr/bin/python3 -m pytest -q converter/tests/test_referen
 """
 
 import copy
-import io
 import math
 import os
 import sys
