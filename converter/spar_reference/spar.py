@@ -562,7 +562,9 @@ class SPAR(nn.Module):
             else:
                 per_view.append(torch.stack(bk, 0).mean(0))
         logits = torch.cat(per_view, dim=1)
-        return {"pairs": pairs, "logits": logits, "prob": torch.sigmoid(logits),
+        prob = torch.sigmoid(logits)
+        return {"pairs": pairs, "logits": logits, "prob": prob,
+                "binary": prob > cfg.mask_threshold,
                 "pair_fused": torch.stack(fused, 0), "pair_tokens": torch.stack(toks, 0),
                 "pair_logits": torch.stack(plog, 0)}
 
@@ -623,7 +625,8 @@ class SPAR(nn.Module):
             plucker [B,V,6,H,W]
             ray_tokens [B,V,n,D]       target_pose_tokenizer over all views
             dino [B,V,n,D]
-            cv_drp_input / cv_drp_target: dict(pairs, logits [B,*,1,H,W], prob,
+            cv_drp_input / cv_drp_target: dict(pairs, logits [B,*,1,H,W], prob, binary (bool,
+                prob > mask_threshold, the evaluation's motion mask),
                 pair_fused [P,B,2n,D], pair_tokens [P,B,2n,D], pair_logits [P,B,2,1,H,W])
             dynamic_mask_input [B,K,1,H,W]  the mask used for gating
             dynamic_patch [B,K*n], static_patch [B,K*n]
