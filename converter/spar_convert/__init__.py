@@ -3,6 +3,8 @@
 Modules:
   torch_checkpoint  -- restricted, lazy reader of torch.save zip checkpoints (no code execution)
   safetensors_file  -- streaming, atomic safetensors writer and a validating memory-mapped reader
+  model_config      -- SparConfig and the backbone size presets (shared with spar_reference)
+  convert           -- the spar-convert command (checkpoint -> packed file, see ../FORMAT.md)
 
 Only the Python standard library and numpy are used here; torch is never imported.
 The names below are re-exported lazily (so `python3 -m spar_convert.torch_checkpoint` runs cleanly).

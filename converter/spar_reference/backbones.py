@@ -13,7 +13,6 @@
 
 Key names and shapes follow the official state_dicts; see each module's docstring.
 """
-import copy
 import math
 from typing import Any, Dict, Optional
 
@@ -22,125 +21,11 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 # --------------------------------------------------------------------------------------------
-# configurations
+# configurations: torch-free, in spar_convert.model_config (the converter uses them too)
 # --------------------------------------------------------------------------------------------
 
-_DINO_FULL = {
-    # dinov3/hub/backbones.py: dinov3_vitb16
-    "arch": "vitb16",
-    "embed_dim": 768,
-    "depth": 12,
-    "num_heads": 12,
-    "patch_size": 16,
-    "n_storage_tokens": 4,
-    "ffn_ratio": 4.0,
-    "in_chans": 3,
-    "rope_base": 100.0,               # pos_embed_rope_base
-    "rope_normalize_coords": "separate",
-    "layerscale_init": 1e-5,
-    "ln_eps": 1e-5,                   # norm_layer "layernormbf16" = LayerNorm(eps=1e-5)
-    "qkv_bias": True,
-    "mask_k_bias": True,
-    "proj_bias": True,
-    "ffn_bias": True,
-    # SPAR's DINOv3FeatureExtractor (model/dino_v3.py): ImageNet normalisation
-    "mean": [0.485, 0.456, 0.406],
-    "std": [0.229, 0.224, 0.225],
-}
-
-_DINO_TINY = dict(_DINO_FULL, arch="tiny", embed_dim=64, depth=2, num_heads=2)
-
-_LSEG_FULL = {
-    # lang-seg modules/models/lseg_net.py + lseg_vit.py, backbone clip_vitl16_384
-    "backbone": "clip_vitl16_384",
-    "width": 1024,                    # timm vit_large_patch16_384
-    "depth": 24,
-    "num_heads": 16,
-    "mlp_ratio": 4.0,
-    "patch_size": 16,
-    "ln_eps": 1e-6,                   # timm ViT LayerNorm eps
-    "pretrain_img_size": 384,         # learned position embeddings for a 24x24 grid
-    "num_classes": 1000,              # timm classifier head (in the checkpoint, unused)
-    "hooks": [5, 11, 17, 23],
-    "reassemble": [256, 512, 1024, 1024],
-    "features": 256,
-    "feature_dim": 512,               # out_c of scratch.head1
-    "use_bn": True,                   # LSegNet forces use_bn=True
-    "readout": "project",
-    # what SPAR feeds LSeg: images in [0,1] without any normalisation ("none");
-    # LSeg itself was trained on Normalize(mean=0.5, std=0.5) inputs ("lseg")
-    "input_norm": "none",
-}
-
-_LSEG_TINY = dict(_LSEG_FULL, backbone="tiny", width=64, depth=4, num_heads=2,
-                  pretrain_img_size=64, num_classes=10, hooks=[0, 1, 2, 3],
-                  reassemble=[16, 32, 64, 64], features=16, feature_dim=32)
-
-_CLIP_FULL = {
-    # openai/CLIP clip/model.py, ViT-B/32 text transformer
-    "width": 512,
-    "layers": 12,
-    "heads": 8,
-    "context_length": 77,
-    "vocab_size": 49408,
-    "embed_dim": 512,
-    "ln_eps": 1e-5,
-}
-
-_CLIP_TINY = dict(_CLIP_FULL, width=64, layers=2, heads=2, embed_dim=32)
-
-_PRESETS = {
-    "dino": {"full": _DINO_FULL, "tiny": _DINO_TINY},
-    "lseg": {"full": _LSEG_FULL, "tiny": _LSEG_TINY},
-    "clip": {"full": _CLIP_FULL, "tiny": _CLIP_TINY},
-}
-
-
-def backbone_config(name: str, preset: str = "full") -> Dict[str, Any]:
-    """A fresh copy of the size dictionary of backbone ``name`` (dino, lseg, clip)."""
-    if name not in _PRESETS:
-        raise KeyError(f"unknown backbone {name!r}; one of {sorted(_PRESETS)}")
-    if preset not in _PRESETS[name]:
-        raise KeyError(f"unknown preset {preset!r}; one of {sorted(_PRESETS[name])}")
-    return copy.deepcopy(_PRESETS[name][preset])
-
-
-def backbone_configs(preset: str = "full") -> Dict[str, Dict[str, Any]]:
-    """{"dino": ..., "lseg": ..., "clip": ...} for one preset."""
-    return {n: backbone_config(n, preset) for n in _PRESETS}
-
-
-def resolve_config(name: str, cfg: Optional[Dict[str, Any]]) -> Dict[str, Any]:
-    """Complete a partial dictionary: the official values for options, sizes derived from
-    the sizes given (so a dictionary with only widths and depths is enough)."""
-    cfg = dict(cfg or {})
-    # a dictionary naming the tiny test model ("arch"/"backbone": "tiny") starts from the tiny
-    # preset (small position-embedding grid and classifier), anything else from the full one
-    tag = cfg.get("arch", cfg.get("backbone", cfg.get("preset")))
-    out = backbone_config(name, "tiny" if tag == "tiny" else "full")
-    cfg.pop("preset", None)
-    if name == "dino":
-        if "width" in cfg and "embed_dim" not in cfg:
-            cfg["embed_dim"] = cfg["width"]
-        cfg.pop("width", None)
-        out.update(cfg)
-    elif name == "lseg":
-        if "out_dim" in cfg and "feature_dim" not in cfg:
-            cfg["feature_dim"] = cfg["out_dim"]
-        cfg.pop("out_dim", None)
-        out.update(cfg)
-        w, d = int(out["width"]), int(out["depth"])
-        if "hooks" not in cfg:
-            # [5, 11, 17, 23] for 24 layers
-            out["hooks"] = [d // 4 - 1, d // 2 - 1, 3 * d // 4 - 1, d - 1] if d >= 4 else list(range(4))
-        if "reassemble" not in cfg:
-            # [256, 512, 1024, 1024] for width 1024
-            out["reassemble"] = [w // 4, w // 2, w, w]
-    elif name == "clip":
-        out.update(cfg)
-    else:
-        raise KeyError(name)
-    return out
+from spar_convert.model_config import (  # noqa: E402,F401
+    backbone_config, backbone_configs, resolve_config)
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,0 +1,400 @@
+#!/usr/bin/python3
+"""Tests of converter/spar-convert (spar_convert.convert): a tiny SPAR checkpoint made by the
+PyTorch reference (perturbed weights, so biases, BatchNorm statistics and the k-bias mask
+matter) is converted and the packed file compared with the sources; refusals exit 1 with one
+line and leave no file. The converter itself never imports torch (checked in a subprocess)."""
+import gzip
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+import torch.nn.functional as F
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+CONVERTER = os.path.join(HERE, "..")
+SCRIPT = os.path.join(CONVERTER, "spar-convert")
+sys.path.insert(0, CONVERTER)
+
+from spar_convert.safetensors_file import SafetensorsFile  # noqa: E402
+from spar_convert.convert import RUNTIME_FIELDS, is_matrix  # noqa: E402
+from spar_reference import make_checkpoint, tiny  # noqa: E402
+from spar_reference.dino_v3 import DinoV3Backbone  # noqa: E402
+from spar_reference.clip_text import CLIPTextEncoder  # noqa: E402
+
+torch.set_num_threads(2)
+SEED = 5
+
+
+def run(*args, env=None):
+    p = subprocess.run([sys.executable, SCRIPT] + [str(a) for a in args], capture_output=True,
+                       text=True, timeout=120, env=env)
+    return p.returncode, p.stdout, p.stderr
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    d = tmp_path_factory.mktemp("convert")
+    ckpt = make_checkpoint(tiny(), SEED, perturb=True)
+    g = torch.Generator().manual_seed(1)
+    # a training checkpoint after the first step also holds the perceptual-loss VGG
+    ckpt["model"]["spar_loss_computer._perceptual_loss.vgg.0.weight"] = torch.randn(4, 3, 3, 3, generator=g)
+    path = d / "tiny.pt"
+    torch.save(ckpt, path)
+    return {"dir": d, "ckpt": path, "sd": ckpt["model"]}
+
+
+def convert(work, name, *extra, expect=0):
+    out = work["dir"] / name
+    rc, so, se = run(work["ckpt"], "-o", out, *extra)
+    assert rc == expect, se
+    return out, so, se
+
+
+def read(path):
+    f = SafetensorsFile(str(path))
+    meta = f.metadata
+    cfg = json.loads(meta["config"])
+    rec = json.loads(meta["conversion"])
+    return f, meta, cfg, rec
+
+
+def source_key(name):
+    if name.startswith("dino."):
+        return "_dino_v3.model." + name[5:]
+    if name.startswith("lseg."):
+        return "lseg_model." + name[5:]
+    return name
+
+
+def without(d, keys):
+    return {k: v for k, v in d.items() if k not in keys}
+
+
+@pytest.fixture(scope="module")
+def f32(work):
+    out, so, se = convert(work, "tiny.spar")
+    return (out, so) + read(out)
+
+
+# ----------------------------------------------------------------------------- conversion
+def test_metadata_and_inferred_config(f32):
+    out, so, f, meta, cfg, rec = f32
+    assert meta["format"] == "spar-vulkan" and meta["format_version"] == "1"
+    want = tiny().to_dict()
+    # sizes the tensors do not hold: runtime sizes, and CLIP (this checkpoint carries none)
+    skip = set(RUNTIME_FIELDS) | {"clip"}
+    assert without(cfg, skip) == without(want, skip)
+    assert json.loads(meta["components"]) == {"spar": True, "dino": True, "lseg": True,
+                                              "clip": False, "bpe": False}
+    assert "configuration inferred" in so and "MB in" in so and "MB out" in so
+    for word in ("kept", "folded", "dropped", "converted"):
+        assert word in so
+
+
+def test_kept_tensors_equal_sources(f32, work):
+    out, so, f, meta, cfg, rec = f32
+    sd = work["sd"]
+    assert rec["kept"]
+    for name in rec["kept"]:
+        src = sd[source_key(name)].numpy()
+        assert f.info(name).dtype == "F32"
+        np.testing.assert_array_equal(f.get(name), src, err_msg=name)
+    # every tensor of the file is accounted for
+    assert set(f.keys()) == set(rec["kept"]) | set(rec["folded"]) | set(rec["packed"])
+
+
+def test_training_tensors_and_unused_modules_absent(f32):
+    out, so, f, meta, cfg, rec = f32
+    names = set(f.keys())
+    banned = ("spar_loss_computer", "dino_proj", "image_proj", "ray_proj", "running_mean",
+              "running_var", "num_batches_tracked", "bias_mask", "static_indicator",
+              "dynamic_indicator", "_dino_v3", "lseg_model", "optimizer")
+    for n in names:
+        assert not any(b in n for b in banned), n
+    for n in ("lseg.pretrained.model.head.weight", "lseg.pretrained.model.norm.weight",
+              "lseg.scratch.refinenet4.resConfUnit1.conv1.weight", "dino.mask_token",
+              "cv_drp.estimator.dpt_decoder.project.1.weight"):
+        assert n not in names
+    dropped = rec["dropped"]
+    assert any("spar_loss_computer" in k for k in dropped)
+    assert any("<optimizer>" in k for k in dropped)
+    # and everything the engine reads is there
+    for n in ("scene_code", "dino.blocks.1.ls2.gamma", "lseg.scratch.head1.weight",
+              "semantic_token_decoder.5.weight", "cv_drp.estimator.dpt_decoder.head.bias"):
+        assert n in names
+
+
+def _conv(x, w, b, transposed):
+    if transposed:
+        return F.conv_transpose2d(x, w, b, stride=w.shape[-1])
+    return F.conv2d(x, w, b, padding=w.shape[-1] // 2)
+
+
+def test_batchnorm_folding_numerically(f32, work):
+    out, so, f, meta, cfg, rec = f32
+    sd = work["sd"]
+    g = torch.Generator().manual_seed(7)
+    convs = [n[:-len(".bias")] for n in rec["folded"] if n.endswith(".bias") and "qkv" not in n]
+    assert len(convs) == 8 + 14  # CV-DRP decoder + LSeg residual conv units (refinenet4: one)
+    for conv in convs:
+        src_conv = source_key(conv)
+        if conv.startswith("cv_drp"):
+            mod, idx = src_conv.rsplit(".", 1)
+            bn = "%s.%d" % (mod, int(idx) + 1)
+        else:
+            bn = src_conv.replace(".conv", ".bn")
+        w = sd[src_conv + ".weight"].double()
+        b = sd.get(src_conv + ".bias")
+        transposed = conv.endswith("up_blocks.0.0") or conv.endswith("up_blocks.1.0") or \
+            conv.endswith("up_blocks.2.0") or conv.endswith("final_up.0")
+        cin = w.shape[0] if transposed else w.shape[1]
+        x = torch.randn(2, cin, 5, 6, generator=g, dtype=torch.float64)
+        ref = F.batch_norm(_conv(x, w, None if b is None else b.double(), transposed),
+                           sd[bn + ".running_mean"].double(), sd[bn + ".running_var"].double(),
+                           sd[bn + ".weight"].double(), sd[bn + ".bias"].double(), False, 0.0, 1e-5)
+        fw = torch.from_numpy(f.get(conv + ".weight").astype(np.float64))
+        fb = torch.from_numpy(f.get(conv + ".bias").astype(np.float64))
+        got = _conv(x, fw, fb, transposed)
+        nmse = float(((got - ref) ** 2).sum() / (ref ** 2).sum())
+        assert nmse < 1e-12, (conv, nmse)
+        assert (b is None) == (conv + ".bias" in rec["created"])
+
+
+def test_dino_k_bias_mask_folded(f32, work):
+    out, so, f, meta, cfg, rec = f32
+    sd = work["sd"]
+    for i in range(2):
+        k = "_dino_v3.model.blocks.%d.attn.qkv." % i
+        got = f.get("dino.blocks.%d.attn.qkv.bias" % i)
+        np.testing.assert_array_equal(got, (sd[k + "bias"] * sd[k + "bias_mask"]).numpy())
+        e = got.shape[0] // 3
+        assert np.all(got[e:2 * e] == 0) and np.any(got[:e] != 0)
+
+
+def test_fp16_halves_the_matrices(f32, work):
+    out32, _, f, _, _, _ = f32
+    out16, so, _ = convert(work, "tiny16.spar", "--fp16")
+    h, meta, cfg, rec = read(out16)
+    assert rec["fp16"] is True
+    mat32 = mat16 = 0
+    for name in f.keys():
+        i32, i16 = f.info(name), h.info(name)
+        assert i32.shape == i16.shape
+        if is_matrix(name, i32.shape):
+            assert i16.dtype == "F16", name
+            mat32 += i32.end - i32.begin
+            mat16 += i16.end - i16.begin
+            if name in rec["kept"]:
+                np.testing.assert_array_equal(h.get(name), f.get(name).astype(np.float16))
+            else:  # folded in float64, rounded once to F16 (F32 file: rounded to F32)
+                np.testing.assert_allclose(h.get(name), f.get(name), rtol=1e-3, atol=1e-7)
+        else:
+            assert i16.dtype == i32.dtype == "F32", name
+            np.testing.assert_array_equal(h.get(name), f.get(name))
+    assert mat16 * 2 == mat32 and mat32 > 0
+    for n in ("scene_code", "decoder_ln.weight", "dino.blocks.0.ls1.gamma", "view_type_embedding.weight",
+              "lseg.pretrained.model.pos_embed", "mlp_fuse.1.bias"):
+        assert h.info(n).dtype == "F32", n
+    assert os.path.getsize(out16) < 0.6 * os.path.getsize(out32)
+
+
+def test_separate_dino_file_overrides(work):
+    d = work["dir"]
+    other = DinoV3Backbone(tiny().dino, seed=99, perturb=True)
+    sd_other = {k: v.clone() for k, v in other.state_dict().items()}
+    torch.save(sd_other, d / "dino.pth")
+    out, so, se = convert(work, "dino.spar", "--dino", d / "dino.pth")
+    f, meta, cfg, rec = read(out)
+    assert rec["sources"]["dino"].endswith("dino.pth")
+    np.testing.assert_array_equal(f.get("dino.blocks.1.mlp.fc2.weight"),
+                                  sd_other["blocks.1.mlp.fc2.weight"].numpy())
+    assert not np.array_equal(f.get("dino.blocks.1.mlp.fc2.weight"),
+                              work["sd"]["_dino_v3.model.blocks.1.mlp.fc2.weight"].numpy())
+    np.testing.assert_array_equal(
+        f.get("dino.blocks.0.attn.qkv.bias"),
+        (sd_other["blocks.0.attn.qkv.bias"] * sd_other["blocks.0.attn.qkv.bias_mask"]).numpy())
+    assert any(v == "overridden by --dino" for v in rec["dropped"].values())
+    # a bare SPAR state_dict without _dino_v3.* needs --dino
+    bare = {k: v for k, v in work["sd"].items() if not k.startswith("_dino_v3.")}
+    torch.save(bare, d / "nodino.pt")
+    rc, so, se = run(d / "nodino.pt", "-o", d / "nodino.spar")
+    assert rc == 1 and "--dino" in se and not (d / "nodino.spar").exists()
+    rc, so, se = run(d / "nodino.pt", "-o", d / "nodino.spar", "--dino", d / "dino.pth")
+    assert rc == 0, se
+
+
+def test_lseg_file_with_clip_bpe_and_bare_state_dict(work):
+    """LSeg's own checkpoint (Lightning: state_dict with net.*, CLIP under
+    net.clip_pretrained.*), a bare SPAR state_dict without lseg_model.*, and a BPE table."""
+    d = work["dir"]
+    sd = work["sd"]
+    lseg = {"net." + k[len("lseg_model."):]: v for k, v in sd.items() if k.startswith("lseg_model.")}
+    clip = CLIPTextEncoder(tiny().clip, seed=3, perturb=True).state_dict()
+    for k, v in clip.items():
+        lseg["net.clip_pretrained." + k] = v
+    lseg["net.clip_pretrained.visual.conv1.weight"] = torch.randn(8, 3, 4, 4)
+    lseg["net.clip_pretrained.logit_scale"] = torch.tensor(4.6)
+    torch.save({"state_dict": lseg, "epoch": 3}, d / "lseg.ckpt")
+    bare = {k: v for k, v in sd.items() if not k.startswith("lseg_model.")}
+    torch.save(bare, d / "bare.pt")
+    merges = b"#version: 0.2\nt h\nth e</w>\n"
+    with gzip.open(d / "merges.txt.gz", "wb") as g:
+        g.write(merges)
+    out = d / "lsegfile.spar"
+    rc, so, se = run(d / "bare.pt", "-o", out, "--lseg", d / "lseg.ckpt", "--bpe",
+                     d / "merges.txt.gz")
+    assert rc == 0, se
+    f, meta, cfg, rec = read(out)
+    want = tiny().to_dict()
+    assert without(cfg, RUNTIME_FIELDS) == without(want, RUNTIME_FIELDS)
+    assert json.loads(meta["components"])["clip"] is True
+    for k, v in clip.items():
+        np.testing.assert_array_equal(f.get("clip." + k), v.numpy(), err_msg=k)
+    np.testing.assert_array_equal(f.get("lseg.scratch.head1.weight"),
+                                  sd["lseg_model.scratch.head1.weight"].numpy())
+    assert not any("visual" in n or "logit_scale" in n for n in f.keys())
+    bpe = f.get("clip.bpe_merges")
+    assert f.info("clip.bpe_merges").dtype == "U8"
+    assert gzip.decompress(bpe.tobytes()) == merges
+    # OpenAI's CLIP state_dict (visual tower, logit_scale, integer entries) overrides LSeg's CLIP
+    openai = {k: v for k, v in CLIPTextEncoder(tiny().clip, seed=4, perturb=True).state_dict().items()}
+    openai["visual.proj"] = torch.randn(8, 4)
+    openai["logit_scale"] = torch.tensor(4.6)
+    openai["context_length"] = torch.tensor(77)
+    torch.save(openai, d / "clip.pt")
+    out2 = d / "clipfile.spar"
+    rc, so, se = run(d / "bare.pt", "-o", out2, "--lseg", d / "lseg.ckpt", "--clip", d / "clip.pt")
+    assert rc == 0, se
+    f2, meta2, cfg2, rec2 = read(out2)
+    for k in clip:
+        np.testing.assert_array_equal(f2.get("clip." + k), openai[k].numpy(), err_msg=k)
+    assert rec2["sources"]["clip"].endswith("clip.pt")
+    assert any(v == "overridden by --clip" for v in rec2["dropped"].values())
+    assert "clip.bpe_merges" not in f2.keys() and not json.loads(meta2["components"])["bpe"]
+
+
+def test_config_file(work):
+    d = work["dir"]
+    tiny().save(str(d / "tiny.json"))
+    out, so, se = convert(work, "cfg.spar", "--config", d / "tiny.json")
+    f, meta, cfg, rec = read(out)
+    want = tiny().to_dict()
+    assert without(cfg, {"clip"}) == without(want, {"clip"})
+    assert rec["config_from"] == "file"
+    try:
+        import yaml
+    except ImportError:
+        return
+    with open(d / "tiny.yaml", "w") as fh:
+        yaml.safe_dump(tiny().to_dict(), fh)
+    out, so, se = convert(work, "cfgy.spar", "--config", d / "tiny.yaml")
+    assert without(read(out)[2], {"clip"}) == without(want, {"clip"})
+
+
+# ----------------------------------------------------------------------------- refusals
+def assert_refused(rc, se, out, *words):
+    assert rc == 1
+    lines = se.strip().splitlines()
+    assert len(lines) == 1, se
+    assert lines[0].startswith("spar-convert: error: "), se
+    assert "Traceback" not in se
+    for w in words:
+        assert w in lines[0], (w, se)
+    assert not os.path.exists(out)
+    assert not [n for n in os.listdir(os.path.dirname(out)) if n.endswith(".tmp")]
+
+
+def test_refuses_config_with_another_d(work):
+    d = work["dir"]
+    c = tiny().to_dict()
+    c["d"] = 128
+    c["dino"]["embed_dim"] = 128
+    with open(d / "d128.json", "w") as fh:
+        json.dump(c, fh)
+    out = d / "d128.spar"
+    rc, so, se = run(work["ckpt"], "-o", out, "--config", d / "d128.json")
+    assert_refused(rc, se, str(out), "scene_code", "[16, 64]", "[16, 128]")
+
+
+def test_refuses_missing_tensor(work):
+    d = work["dir"]
+    sd = dict(work["sd"])
+    del sd["transformer_decoder.1.mlp.mlp.2.weight"]
+    torch.save({"model": sd}, d / "missing.pt")
+    out = d / "missing.spar"
+    rc, so, se = run(d / "missing.pt", "-o", out)
+    assert_refused(rc, se, str(out), "missing tensor", "transformer_decoder.1.mlp.mlp.2.weight")
+    del sd["_dino_v3.model.blocks.1.norm1.weight"]  # a hole in the layer numbering
+    torch.save({"model": sd}, d / "missing2.pt")
+    rc, so, se = run(d / "missing2.pt", "-o", out)
+    assert_refused(rc, se, str(out), "missing tensor")
+
+
+def test_refuses_bad_dtype(work):
+    d = work["dir"]
+    sd = dict(work["sd"])
+    sd["mlp_fuse.1.bias"] = sd["mlp_fuse.1.bias"].to(torch.int32)
+    torch.save({"model": sd}, d / "dtype.pt")
+    out = d / "dtype.spar"
+    rc, so, se = run(d / "dtype.pt", "-o", out)
+    assert_refused(rc, se, str(out), "mlp_fuse.1.bias", "int32")
+
+
+def test_refuses_corrupt_file_and_keeps_old_output(work):
+    d = work["dir"]
+    data = open(work["ckpt"], "rb").read()
+    with open(d / "corrupt.pt", "wb") as fh:
+        fh.write(data[: len(data) // 2])
+    out = d / "corrupt.spar"
+    rc, so, se = run(d / "corrupt.pt", "-o", out)
+    assert_refused(rc, se, str(out))
+    with open(d / "garbage.pt", "wb") as fh:
+        fh.write(b"not a checkpoint at all" * 100)
+    rc, so, se = run(d / "garbage.pt", "-o", out)
+    assert_refused(rc, se, str(out))
+    # a failure leaves an existing output untouched
+    out.write_bytes(b"old")
+    rc, so, se = run(d / "garbage.pt", "-o", out)
+    assert rc == 1 and out.read_bytes() == b"old"
+    out.unlink()
+
+
+def test_refuses_values_beyond_fp16(work):
+    d = work["dir"]
+    sd = dict(work["sd"])
+    w = sd["transformer_encoder.0.mlp.mlp.0.weight"].clone()
+    w[0, 0] = 1e5
+    sd["transformer_encoder.0.mlp.mlp.0.weight"] = w
+    torch.save({"model": sd}, d / "big.pt")
+    out = d / "big.spar"
+    rc, so, se = run(d / "big.pt", "-o", out, "--fp16")
+    assert_refused(rc, se, str(out), "transformer_encoder.0.mlp.mlp.0.weight", "float16")
+    rc, so, se = run(d / "big.pt", "-o", out)  # fine in F32
+    assert rc == 0, se
+
+
+# ----------------------------------------------------------------------------- no torch
+def test_runs_without_torch(work):
+    d = work["dir"]
+    out = d / "notorch.spar"
+    code = ("import runpy, sys; sys.modules['torch'] = None; "
+            "sys.argv = ['spar-convert', %r, '-o', %r, '-q']; "
+            "import builtins; real = builtins.__import__\n"
+            "def guard(name, *a, **k):\n"
+            "    if name == 'torch' or name.startswith('torch.'): raise ImportError('torch imported')\n"
+            "    return real(name, *a, **k)\n"
+            "builtins.__import__ = guard\n"
+            "try:\n    runpy.run_path(%r, run_name='__main__')\n"
+            "except SystemExit as e:\n    sys.exit(e.code)\n") % (str(work["ckpt"]), str(out), SCRIPT)
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert out.exists()
+
+
+def test_help():
+    rc, so, se = run("--help")
+    assert rc == 0 and "--fp16" in so and "--dino" in so and "--bpe" in so
