@@ -28,7 +28,7 @@ import numpy as np
 
 from .model_config import SparConfig, backbone_config, resolve_config
 from .safetensors_file import SafetensorsError, TensorSpec, write_safetensors
-from .torch_checkpoint import CheckpointError, open_checkpoint
+from .torch_checkpoint import CheckpointError, open_checkpoint, open_torchscript
 
 PROG = "spar-convert"
 FORMAT = "spar-vulkan"
@@ -106,13 +106,14 @@ _CLIP_TEXT_ROOTS = ("token_embedding.", "positional_embedding", "transformer.", 
 
 def _open(path, what):
     try:
-        return open_checkpoint(path)
+        try:
+            return open_checkpoint(path)
+        except CheckpointError as e:
+            if what == "--clip" and "TorchScript" in str(e):  # OpenAI's ViT-B-32.pt
+                return open_torchscript(path)
+            raise
     except CheckpointError as e:
-        msg = str(e)
-        if what == "--clip" and "TorchScript" in msg:
-            msg += ("; give a torch.save'd state_dict of it (torch.save(torch.jit.load(f)"
-                    ".state_dict(), g)), or let --lseg supply CLIP (net.clip_pretrained.*)")
-        raise ConvertError(msg) from None
+        raise ConvertError(str(e)) from None
     except OSError as e:
         raise ConvertError("cannot read %s %s: %s" % (what, path, e.strerror or e)) from None
 
@@ -769,6 +770,7 @@ _DROP_RULES = [
      "refinenet4 has one input: resConfUnit1 is never called"),
     ("lseg", re.compile(r"^pretrained\.model\.blocks\.\d+\."), "ViT block after the last hook"),
     ("lseg", re.compile(r"(^|\.)num_batches_tracked$"), "BatchNorm step counter (training only)"),
+    ("clip", re.compile(r"(^|\.)attn_mask$"), "causal mask (the engine builds it)"),
 ]
 
 

@@ -38,7 +38,8 @@ import zlib
 
 import numpy as np
 
-__all__ = ["CheckpointError", "TensorRef", "Checkpoint", "open_checkpoint", "load_state_dict"]
+__all__ = ["CheckpointError", "TensorRef", "Checkpoint", "open_checkpoint", "load_state_dict",
+           "open_torchscript"]
 
 
 class CheckpointError(Exception):
@@ -820,6 +821,109 @@ def _load(archive, key):
     for name, value in result.items():  # after the extents, so that those errors come first
         value._check_record_size(name)
     return Checkpoint(archive, result, key, extra, skipped)
+
+
+# ---------------------------------------------------------------------------------------------
+# TorchScript archives (torch.jit.save), e.g. OpenAI's CLIP ViT-B-32.pt: only the tensors
+
+
+class _ScriptObject(_Unresolved):
+    """A TorchScript module (``__torch__.*`` class): keeps the attribute dict that pickle's
+    BUILD passes (parameters, buffers and submodules by attribute name); nothing is called."""
+
+    def __setstate__(self, state):
+        self.script_state = state if isinstance(state, dict) else None
+
+
+class _ScriptUnpickler(_RestrictedUnpickler):
+    def find_class(self, module, name):
+        if isinstance(module, str) and isinstance(name, str) and \
+                (module == "__torch__" or module.startswith("__torch__.")):
+            display = "%s.%s" % (module, name)
+            cls = self.placeholders.get(display)
+            if cls is None:
+                cls = type("ScriptObject", (_ScriptObject,), {"global_name": display})
+                self.placeholders[display] = cls
+            return cls
+        return super().find_class(module, name)
+
+
+def _script_tensors(root):
+    """Tensor attributes of a TorchScript module tree, named like its state_dict."""
+    out = {}
+    seen = set()
+    stack = [("", root)]
+    while stack:
+        prefix, obj = stack.pop()
+        if id(obj) in seen:
+            continue
+        seen.add(id(obj))
+        state = getattr(obj, "script_state", None)
+        if not isinstance(state, dict):
+            continue
+        items = [(k, v) for k, v in state.items() if isinstance(k, str)]
+        for k, v in reversed(items):
+            if isinstance(v, TensorRef):
+                out[prefix + k] = v
+            elif isinstance(v, _ScriptObject):
+                stack.append((prefix + k + ".", v))
+    return dict(sorted(out.items(), key=lambda kv: _natural_key(kv[0])))
+
+
+def _natural_key(name):
+    return [(0, int(p), "") if p.isdigit() else (1, 0, p) for p in name.split(".")]
+
+
+def open_torchscript(path):
+    """Opens a TorchScript archive (torch.jit.save) and returns a Checkpoint whose state_dict
+    holds the tensor attributes of its module tree (the names of the module's state_dict).
+    Like open_checkpoint: no code runs, nothing is imported, tensors are read on demand."""
+    path = os.fspath(path)
+    try:
+        zf = zipfile.ZipFile(path, "r")
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as e:
+        raise CheckpointError("%s is not a TorchScript archive (%s)" % (path, _one_line(e))) from None
+    try:
+        names = zf.namelist()
+        pickles = [n for n in names if n.count("/") == 1 and n.endswith("/data.pkl")]
+        if len(pickles) != 1 or not any(n.endswith("/constants.pkl") for n in names):
+            raise CheckpointError("%s is not a TorchScript archive" % path)
+        prefix = pickles[0][: -len("data.pkl")]
+        byteorder = "little"
+        if prefix + "byteorder" in names:
+            byteorder = zf.read(prefix + "byteorder").decode("ascii", "replace").strip()
+            if byteorder not in ("little", "big"):
+                raise CheckpointError("%s: unknown byteorder record %r" % (path, byteorder[:20]))
+        version = zf.read(prefix + "version").decode("ascii", "replace").strip() \
+            if prefix + "version" in names else None
+        archive = _Archive(path, zf, prefix, byteorder, version)
+        try:
+            data = zf.read(prefix + "data.pkl")
+        except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as e:
+            raise CheckpointError("%s: cannot read %sdata.pkl: %s"
+                                  % (path, prefix, _one_line(e))) from None
+        try:
+            root = _ScriptUnpickler(io.BytesIO(data), archive).load()
+        except CheckpointError:
+            raise
+        except RecursionError:
+            raise CheckpointError("%s: data.pkl is nested too deeply" % path) from None
+        except Exception as e:
+            raise CheckpointError("%s: malformed data.pkl (%s: %s)"
+                                  % (path, type(e).__name__, _one_line(e)[:200])) from None
+        if not isinstance(root, _ScriptObject):
+            raise CheckpointError("%s: the TorchScript archive does not hold a module" % path)
+        result = _script_tensors(root)
+        for name, value in result.items():
+            value._check_extent(name)
+            if value.name is None:
+                value.name = name
+        for name, value in result.items():
+            value._check_record_size(name)
+        return Checkpoint(archive, result, None, {}, {})
+    except BaseException:
+        zf.close()
+        raise
 
 
 def main(argv=None):

@@ -261,7 +261,8 @@ def test_lseg_file_with_clip_bpe_and_bare_state_dict(work):
     assert f.info("clip.bpe_merges").dtype == "U8"
     assert gzip.decompress(bpe.tobytes()) == merges
     # OpenAI's CLIP state_dict (visual tower, logit_scale, integer entries) overrides LSeg's CLIP
-    openai = {k: v for k, v in CLIPTextEncoder(tiny().clip, seed=4, perturb=True).state_dict().items()}
+    # (OpenAI's weights are float16: converted to F32)
+    openai = {k: v.half() for k, v in CLIPTextEncoder(tiny().clip, seed=4, perturb=True).state_dict().items()}
     openai["visual.proj"] = torch.randn(8, 4)
     openai["logit_scale"] = torch.tensor(4.6)
     openai["context_length"] = torch.tensor(77)
@@ -271,7 +272,8 @@ def test_lseg_file_with_clip_bpe_and_bare_state_dict(work):
     assert rc == 0, se
     f2, meta2, cfg2, rec2 = read(out2)
     for k in clip:
-        np.testing.assert_array_equal(f2.get("clip." + k), openai[k].numpy(), err_msg=k)
+        np.testing.assert_array_equal(f2.get("clip." + k), openai[k].float().numpy(), err_msg=k)
+        assert rec2["converted"]["clip." + k] == "float16 -> F32"
     assert rec2["sources"]["clip"].endswith("clip.pt")
     assert any(v == "overridden by --clip" for v in rec2["dropped"].values())
     assert "clip.bpe_merges" not in f2.keys() and not json.loads(meta2["components"])["bpe"]
@@ -293,6 +295,58 @@ def test_config_file(work):
         yaml.safe_dump(tiny().to_dict(), fh)
     out, so, se = convert(work, "cfgy.spar", "--config", d / "tiny.yaml")
     assert without(read(out)[2], {"clip"}) == without(want, {"clip"})
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_clip_from_torchscript_archive(work):
+    """OpenAI's ViT-B-32.pt is a TorchScript archive (torch.jit.save): read without torch."""
+    d = work["dir"]
+    m = CLIPTextEncoder(tiny().clip, seed=6, perturb=True)
+    with torch.no_grad():
+        traced = torch.jit.trace(m, torch.randint(0, 100, (1, 77)), check_trace=False)
+    traced.save(str(d / "clipjit.pt"))
+    out = d / "clipjit.spar"
+    rc, so, se = run(work["ckpt"], "-o", out, "--clip", d / "clipjit.pt")
+    assert rc == 0, se
+    f, meta, cfg, rec = read(out)
+    assert cfg["clip"] == tiny().clip
+    for k, v in m.state_dict().items():
+        np.testing.assert_array_equal(f.get("clip." + k), v.numpy(), err_msg=k)
+
+
+def test_official_yaml_config(work):
+    """The official YAML structure (configs/spar/spar.yaml) with tiny sizes; the backbone
+    sizes go under the reserved top-level keys dino / lseg."""
+    yaml = pytest.importorskip("yaml")
+    d = work["dir"]
+    t = tiny()
+    official = {
+        "model": {
+            "transformer": {"d": t.d, "d_head": t.d_head, "encoder_n_layer": 2,
+                            "encoder_geom_n_layer": 2, "decoder_n_layer": 2, "use_qk_norm": True},
+            "cv_drp": {"vit_n_layers": 2, "vit_n_heads": 2, "mask_threshold": 0.5},
+            "scene_latent": {"length": 16},
+            "pose_latent": {"length": 1, "canonical": "middle", "representation": "6d"},
+            "image_tokenizer": {"patch_size": 16, "image_size": 128, "in_channels": 3},
+            "target_image": {"patch_size": 16, "height": 128, "width": 128, "in_channels": 6},
+            "lseg": {"checkpoint_path": "lseg.ckpt", "feature_dim": 32},
+            "dino_v3": {"embed_dim": 64, "arch": "tiny"},
+        },
+        "training": {"num_views": 5, "num_input_views": 3, "semantic_loss_weight": 0.1},
+        "dino": t.dino,
+        "lseg": t.lseg,
+    }
+    with open(d / "spar.yaml", "w") as fh:
+        yaml.safe_dump(official, fh)
+    out, so, se = convert(work, "official.spar", "--config", d / "spar.yaml")
+    cfg = read(out)[2]
+    assert without(cfg, {"clip"}) == without(t.to_dict(), {"clip"})
+    official["model"]["transformer"]["decoder_n_layer"] = 3
+    with open(d / "spar3.yaml", "w") as fh:
+        yaml.safe_dump(official, fh)
+    out = d / "official3.spar"
+    rc, so, se = run(work["ckpt"], "-o", out, "--config", d / "spar3.yaml")
+    assert_refused(rc, se, str(out), "missing tensor", "transformer_decoder.2.")
 
 
 # ----------------------------------------------------------------------------- refusals
