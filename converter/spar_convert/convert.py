@@ -261,7 +261,7 @@ def _read_inputs(inp, args):
             text = gzip.decompress(data)
         except (OSError, EOFError, zlib.error) as e:
             raise ConvertError("--bpe %s is not a gzip file (%s)" % (args.bpe, e)) from None
-        if not text.startswith(b"#version"):
+        if b"#version" not in text.split(b"\n", 1)[0]:
             raise ConvertError("--bpe %s does not look like CLIP's merges table (no #version "
                                "line)" % args.bpe)
         inp.bpe = np.frombuffer(data, dtype=np.uint8)

@@ -297,6 +297,30 @@ def test_config_file(work):
     assert without(read(out)[2], {"clip"}) == without(want, {"clip"})
 
 
+def _bpe_path():
+    path = os.environ.get("SPAR_CLIP_BPE") or os.path.join(
+        HERE, "..", "..", "..", "shared", "data", "clip", "bpe_simple_vocab_16e6.txt.gz")
+    return path if os.path.exists(path) else None
+
+
+def test_real_bpe_table_packed(work):
+    path = _bpe_path()
+    if path is None:
+        pytest.skip("CLIP merges table not found (set SPAR_CLIP_BPE)")
+    out, so, se = convert(work, "bpe.spar", "--bpe", path)
+    f = read(out)[0]
+    with open(path, "rb") as fh:
+        assert f.get("clip.bpe_merges").tobytes() == fh.read()
+
+
+def test_refuses_bad_bpe(work):
+    d = work["dir"]
+    (d / "notgz.txt.gz").write_bytes(b"plain text")
+    out = d / "badbpe.spar"
+    rc, so, se = run(work["ckpt"], "-o", out, "--bpe", d / "notgz.txt.gz")
+    assert_refused(rc, se, str(out), "--bpe")
+
+
 @pytest.mark.filterwarnings("ignore")
 def test_clip_from_torchscript_archive(work):
     """OpenAI's ViT-B-32.pt is a TorchScript archive (torch.jit.save): read without torch."""
