@@ -585,6 +585,8 @@ class SPAR(nn.Module):
                 dino_features: Optional[torch.Tensor] = None,
                 lseg_features: Optional[torch.Tensor] = None,
                 semantic_queries: Optional[bool] = None,
+                semantic_head: bool = True,
+                render: bool = True,
                 record_layers: bool = False) -> Dict[str, Any]:
         """Run SPAR on one ordered sequence of frames.
 
@@ -607,6 +609,13 @@ class SPAR(nn.Module):
             semantic_queries: put semantic queries into the decoder (default:
                 cfg.semantic_decoding, the official training/eval behaviour; the official
                 SPAR.render_images_video renders RGB without them).
+            semantic_head: run the semantic head (semantic_token_decoder and
+                semantic_feature_expansion) on the decoded semantic tokens; False skips it
+                (the semantic queries still take part in the decoder, so RGB is unchanged)
+                and leaves out semantic_out_tokens / semantic_hidden / semantic_features.
+            render: False stops after the scene tokens (no render_* / decoder / rgb / semantic
+                entries); ``render(out, ...)`` renders from that dict later, e.g. along cameras
+                derived from the estimated ones.
             record_layers: also return every layer's output of the three stacks under
                 ``layers`` = {"transformer_encoder": [...], "transformer_encoder_geom": [...],
                 "transformer_decoder": [...]}.
@@ -769,6 +778,35 @@ class SPAR(nn.Module):
         scene = scene_out[:, :cfg.scene_tokens]
         out["scene_tokens"] = scene
 
+        if not render:
+            return out
+        return self.render(out, render_c2w, render_fxfycxcy, semantic_queries=semantic_queries,
+                           semantic_head=semantic_head, record=rec["transformer_decoder"])
+
+    def render(self, out: Dict[str, Any], render_c2w: Optional[torch.Tensor] = None,
+               render_fxfycxcy: Optional[torch.Tensor] = None, *,
+               semantic_queries: Optional[bool] = None, semantic_head: bool = True,
+               record: Optional[List[torch.Tensor]] = None) -> Dict[str, Any]:
+        """The rendering part of ``forward`` (decoder and heads), on the output dict of a
+        ``forward(..., render=False)`` call: renders the target views with their estimated
+        cameras, or the cameras ``render_c2w`` / ``render_fxfycxcy`` ([B,R,4,4] OpenCV c2w in
+        the canonical frame, [B,R,4] normalized intrinsics). Adds the render_* / decoder /
+        rgb / semantic entries to ``out`` (overwriting those of an earlier render) and
+        returns it. ``record``: list to append each decoder layer's output to."""
+        cfg = self.cfg
+        dt = self.dtype
+        dev = self.scene_code.device
+        b, v = out["c2w"].shape[:2]
+        h, w = cfg.image_height, cfg.image_width
+        n, d, ps = cfg.tokens_per_view, cfg.d, cfg.patch_size
+        tg_idx = out["target_idx"]
+        k_tg = tg_idx.shape[1]
+        rays = out["plucker"]
+        scene = out["scene_tokens"]
+        for key in ("rgb_queries", "semantic_queries", "decoder_in", "decoder_out", "rgb_tokens",
+                    "rgb", "semantic_out_tokens", "semantic_hidden", "semantic_features"):
+            out.pop(key, None)
+
         # ---- cameras to render
         if render_c2w is not None:
             assert render_fxfycxcy is not None
@@ -801,14 +839,14 @@ class SPAR(nn.Module):
         seq.append(scene[:, None].expand(b, r, -1, -1).reshape(b * r, cfg.scene_tokens, d))
         dec_in = self.decoder_ln(torch.cat(seq, dim=1))
         out["decoder_in"] = dec_in
-        dec = self.run_stack(self.transformer_decoder, dec_in, rec["transformer_decoder"])
+        dec = self.run_stack(self.transformer_decoder, dec_in, record)
         out["decoder_out"] = dec
 
         rgb_tok = dec[:, :n]
         out["rgb_tokens"] = rgb_tok
         out["rgb"] = unpatchify(self.image_token_decoder(rgb_tok), b, r,
                                 cfg.patches_h, cfg.patches_w, ps, 3)
-        if sem_q is not None:
+        if sem_q is not None and semantic_head:
             sem_tok = dec[:, n:2 * n]
             out["semantic_out_tokens"] = sem_tok
             hid = unpatchify(self.semantic_token_decoder(sem_tok), b, r,
