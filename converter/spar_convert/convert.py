@@ -57,6 +57,7 @@ class Source:
         self.tensors = {}      # key -> TensorRef
         self.origin = {}       # key -> "file: key as stored"
         self.used = set()
+        self.where = None      # (file, prefix of the keys in that file), for error messages
 
     def add(self, key, ref, path, stored):
         self.tensors[key] = ref
@@ -75,8 +76,9 @@ class Source:
         """The TensorRef of key, checked: present, floating point, and of `shape` if given."""
         ref = self.tensors.get(key)
         if ref is None:
-            raise ConvertError("missing tensor %r (%s weights%s)" % (
-                PREFIX[self.component] + key, self.component,
+            file, pre = self.where or ("", PREFIX[self.component])
+            raise ConvertError("missing tensor %r%s%s" % (
+                pre + key, " in %s" % file if file else " (no %s weights given)" % self.component,
                 ", expected shape %s" % list(shape) if shape is not None else ""))
         if ref.dtype not in FLOAT_DTYPES:
             raise ConvertError("tensor %r (%s) has dtype %s, which the converter cannot handle "
@@ -172,6 +174,7 @@ def _read_inputs(inp, args):
         else:
             inp.spar.add(key, ref, path, key)
     inp.source_of["spar"] = path
+    inp.spar.where = (os.path.basename(path), "")
 
     # DINOv3: --dino (released bare state_dict) overrides _dino_v3.* of the checkpoint
     if args.dino:
@@ -193,10 +196,12 @@ def _read_inputs(inp, args):
         for k, (_, stored) in spar_dino.items():
             inp.drop(path, stored, "overridden by --dino")
         inp.source_of["dino"] = args.dino
+        inp.dino.where = (os.path.basename(args.dino), pre)
     elif spar_dino:
         for k, (ref, stored) in spar_dino.items():
             inp.dino.add(k, ref, path, stored)
         inp.source_of["dino"] = path + " (_dino_v3.model.*)"
+        inp.dino.where = (os.path.basename(path), "_dino_v3.model.")
 
     # LSeg: --lseg (Lightning checkpoint, net.*) overrides lseg_model.*; it also carries CLIP
     lseg_from, lseg_path = {}, None
@@ -226,6 +231,8 @@ def _read_inputs(inp, args):
                 inp.drop(lseg_path, key, "CLIP tensor not used (LSeg's logit scale is fixed)")
         else:
             inp.lseg.add(k, ref, lseg_path, key)
+            if inp.lseg.where is None:
+                inp.lseg.where = (os.path.basename(lseg_path), key[: len(key) - len(k)])
 
     # CLIP: --clip (OpenAI's state_dict) overrides the CLIP inside the LSeg checkpoint
     if args.clip:
@@ -246,10 +253,14 @@ def _read_inputs(inp, args):
         for k, (_, stored) in clip_from_lseg.items():
             inp.drop(lseg_path, stored, "overridden by --clip")
         inp.source_of["clip"] = args.clip
+        inp.clip.where = (os.path.basename(args.clip), "")
     elif clip_from_lseg:
         for k, (ref, stored) in clip_from_lseg.items():
             inp.clip.add(k, ref, lseg_path, stored)
         inp.source_of["clip"] = lseg_path + " (clip_pretrained.*)"
+        stored = next(iter(clip_from_lseg.values()))[1]
+        inp.clip.where = (os.path.basename(lseg_path),
+                          stored[: stored.index("clip_pretrained.") + len("clip_pretrained.")])
 
     if args.bpe:
         try:
@@ -271,15 +282,21 @@ def _read_inputs(inp, args):
 
 
 # ============================================================================ configuration
-def _count(src, pattern):
-    """Number of layers i for which `pattern % i` exists; they must be 0..n-1."""
-    rx = re.compile("^" + re.escape(pattern).replace("%d", r"(\d+)") + "$")
-    idx = sorted(int(m.group(1)) for m in (rx.match(k) for k in src.tensors) if m)
-    if idx != list(range(len(idx))):
-        missing = sorted(set(range(max(idx) + 1)) - set(idx))
-        raise ConvertError("missing tensor %r (layers must be numbered 0..%d)"
-                           % (PREFIX[src.component] + pattern % missing[0], max(idx)))
-    return len(idx)
+def _count(src, stack):
+    """Number of layers of `stack`: 1 + the largest index i of any tensor `<stack>.<i>.*`
+    (the plan then requires every tensor of every layer, so a hole is a missing tensor)."""
+    rx = re.compile("^" + re.escape(stack) + r"\.(\d+)\.")
+    idx = [int(m.group(1)) for m in (rx.match(k) for k in src.tensors) if m]
+    return max(idx) + 1 if idx else 0
+
+
+# stacks whose layer count the configuration fixes: a layer beyond it is an error
+_STACKS = {
+    "spar": ("transformer_encoder", "transformer_encoder_geom", "transformer_decoder",
+             "cv_drp.estimator.transformer_layers"),
+    "dino": ("blocks",),
+    "clip": ("transformer.resblocks",),
+}
 
 
 def _shape(src, key, ndim=None):
@@ -322,10 +339,10 @@ def infer_config(inp, notes):
     else:
         c.use_qk_norm = False
         notes.append("no QK-norm weights: d_head=%d ASSUMED (official default)" % c.d_head)
-    c.encoder_n_layer = _count(s, "transformer_encoder.%d.norm1.weight")
-    c.encoder_geom_n_layer = _count(s, "transformer_encoder_geom.%d.norm1.weight")
-    c.decoder_n_layer = _count(s, "transformer_decoder.%d.norm1.weight")
-    c.cv_drp_n_layer = _count(s, "cv_drp.estimator.transformer_layers.%d.norm1.weight")
+    c.encoder_n_layer = _count(s, "transformer_encoder")
+    c.encoder_geom_n_layer = _count(s, "transformer_encoder_geom")
+    c.decoder_n_layer = _count(s, "transformer_decoder")
+    c.cv_drp_n_layer = _count(s, "cv_drp.estimator.transformer_layers")
     if c.cv_drp_n_layer:
         dh = _shape(s, "cv_drp.estimator.transformer_layers.0.attn.q_norm.weight", 1)[0]
         c.cv_drp_n_heads = c.d // dh if dh and c.d % dh == 0 else 0
@@ -347,17 +364,19 @@ def infer_config(inp, notes):
         raise ConvertError("tensor 'pose_predictor.rel_head.2.weight' has %d outputs: neither "
                            "9 (6D rotation + t) nor 7 (quaternion + t)" % n_pose)
     c.pose_representation = "6d" if n_pose == 9 else "quat"
-    c.input_with_pe = "pe_embedder.0.weight" in s
+    c.input_with_pe = any(k.startswith(("pe_embedder.", "temporal_pe_embedder."))
+                          for k in s.tensors)
     if "log_plucker_scale" in s:
         c.plucker_norm_mode = "learnable"
-    c.use_lseg = "semantic_proj.weight" in s
+    c.use_lseg = any(k.startswith(("semantic_", "target_pose_tokenizer_semantic."))
+                     for k in s.tensors)
     if c.use_lseg:
         c.semantic_dim = _shape(s, "semantic_proj.weight", 2)[1] - 6
         c.semantic_hidden = _shape(s, "semantic_feature_expansion.1.weight", 4)[1]
-        notes.append("use_lseg: semantic_proj present; semantic dim %d, hidden %d"
+        notes.append("use_lseg: semantic tensors present; semantic dim %d, hidden %d"
                      % (c.semantic_dim, c.semantic_hidden))
     else:
-        notes.append("use_lseg false: no semantic_proj")
+        notes.append("use_lseg false: no semantic tensors")
     notes.append("pose %s, input_with_pe %s, plucker normalization %s"
                  % (c.pose_representation, c.input_with_pe, c.plucker_norm_mode))
     notes.append("not in the tensors, official defaults: input_masking_mode %s, canonical %s, "
@@ -374,7 +393,7 @@ def infer_config(inp, notes):
     e = _shape(d, "cls_token")[-1]
     pe = _shape(d, "patch_embed.proj.weight", 4)
     heads_q = _shape(d, "rope_embed.periods", 1)[0]
-    sizes = {"embed_dim": e, "depth": _count(d, "blocks.%d.norm1.weight"),
+    sizes = {"embed_dim": e, "depth": _count(d, "blocks"),
              "patch_size": pe[-1], "in_chans": pe[1],
              "n_storage_tokens": _shape(d, "storage_tokens", 3)[1] if "storage_tokens" in d else 0,
              "num_heads": e // (4 * heads_q) if heads_q else 0,
@@ -404,7 +423,7 @@ def infer_config(inp, notes):
         if g * g != npos:
             raise ConvertError("tensor 'pretrained.model.pos_embed' has %d patch positions: not "
                                "a square grid" % npos)
-        sizes = {"width": w, "depth": _count(lg, "pretrained.model.blocks.%d.norm1.weight"),
+        sizes = {"width": w, "depth": _count(lg, "pretrained.model.blocks"),
                  "patch_size": pp, "pretrain_img_size": g * pp,
                  "mlp_ratio": _shape(lg, "pretrained.model.blocks.0.mlp.fc1.weight", 2)[0] / w,
                  "reassemble": [_shape(lg, "pretrained.act_postprocess%d.3.weight" % i, 4)[0]
@@ -430,7 +449,7 @@ def infer_config(inp, notes):
     if k:
         te = _shape(k, "token_embedding.weight", 2)
         sizes = {"width": te[1], "vocab_size": te[0],
-                 "layers": _count(k, "transformer.resblocks.%d.ln_1.weight"),
+                 "layers": _count(k, "transformer.resblocks"),
                  "context_length": _shape(k, "positional_embedding", 2)[0],
                  "embed_dim": _shape(k, "text_projection", 2)[1]}
         base, preset = _match_preset("clip", sizes)
@@ -781,6 +800,12 @@ def _drop_reason(component, key):
     return "not used by the engine (unknown to the converter)", False
 
 
+def _count_planned(pl, src, stack):
+    p = PREFIX[src.component] + stack + "."
+    idx = {int(e.name[len(p):].split(".", 1)[0]) for e in pl.entries if e.name.startswith(p)}
+    return max(idx) + 1 if idx else 0
+
+
 def make_plan(inp, cfg):
     pl = Planner(inp)
     pl.spar(cfg)
@@ -806,6 +831,13 @@ def make_plan(inp, cfg):
                 reason = "semantic branch off (use_lseg false)"
             else:
                 reason, known = _drop_reason(src.component, key)
+                for stack in _STACKS.get(src.component, ()):
+                    m = re.match(re.escape(stack) + r"\.(\d+)\.", key)
+                    if m:
+                        raise ConvertError(
+                            "tensor %r (%s): layer %s is beyond the %d layers of %s in the "
+                            "configuration" % (src.stored(key), src.origin[key].split(":")[0],
+                                               m.group(1), _count_planned(pl, src, stack), stack))
                 if not known:
                     warnings.append(src.origin[key])
             inp.dropped[src.origin[key]] = reason

@@ -398,18 +398,33 @@ def test_refuses_config_with_another_d(work):
     assert_refused(rc, se, str(out), "scene_code", "[16, 64]", "[16, 128]")
 
 
-def test_refuses_missing_tensor(work):
+@pytest.mark.parametrize("key", [
+    "transformer_decoder.1.mlp.mlp.2.weight",
+    "_dino_v3.model.blocks.1.norm1.weight",          # the last layer's first tensor
+    "cv_drp.estimator.dpt_decoder.up_blocks.1.4.running_var",
+    "lseg_model.scratch.refinenet2.resConfUnit1.bn2.weight",
+    "semantic_token_decoder.5.weight",
+    "semantic_proj.weight",
+    "pe_embedder.2.bias",
+])
+def test_refuses_missing_tensor(work, key):
     d = work["dir"]
     sd = dict(work["sd"])
-    del sd["transformer_decoder.1.mlp.mlp.2.weight"]
+    del sd[key]
     torch.save({"model": sd}, d / "missing.pt")
     out = d / "missing.spar"
     rc, so, se = run(d / "missing.pt", "-o", out)
-    assert_refused(rc, se, str(out), "missing tensor", "transformer_decoder.1.mlp.mlp.2.weight")
-    del sd["_dino_v3.model.blocks.1.norm1.weight"]  # a hole in the layer numbering
-    torch.save({"model": sd}, d / "missing2.pt")
-    rc, so, se = run(d / "missing2.pt", "-o", out)
-    assert_refused(rc, se, str(out), "missing tensor")
+    assert_refused(rc, se, str(out), "missing tensor", "'%s'" % key)
+
+
+def test_refuses_layers_beyond_config(work):
+    d = work["dir"]
+    c = tiny()
+    c.decoder_n_layer = 1
+    c.save(str(d / "dec1.json"))
+    out = d / "dec1.spar"
+    rc, so, se = run(work["ckpt"], "-o", out, "--config", d / "dec1.json")
+    assert_refused(rc, se, str(out), "transformer_decoder.1.", "beyond")
 
 
 def test_refuses_bad_dtype(work):
