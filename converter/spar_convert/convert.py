@@ -833,7 +833,7 @@ def make_plan(inp, cfg):
                 reason, known = _drop_reason(src.component, key)
                 for stack in _STACKS.get(src.component, ()):
                     m = re.match(re.escape(stack) + r"\.(\d+)\.", key)
-                    if m:
+                    if m and int(m.group(1)) >= _count_planned(pl, src, stack):
                         raise ConvertError(
                             "tensor %r (%s): layer %s is beyond the %d layers of %s in the "
                             "configuration" % (src.stored(key), src.origin[key].split(":")[0],
@@ -861,7 +861,7 @@ def is_matrix(name, shape):
         name.endswith("text_projection")
 
 
-def _producer(entry, src_dtype_note):
+def _producer(entry):
     def make():
         a = np.asarray(entry.make())
         if entry.dtype == "U8":
@@ -1019,7 +1019,7 @@ def convert(args, out=sys.stdout):
         if inp.bpe is not None:
             say("packed %s: %d bytes (gzip)" % (BPE_NAME, inp.bpe.size))
 
-        specs = [TensorSpec(e.name, e.dtype, e.shape, _producer(e, None)) for e in entries]
+        specs = [TensorSpec(e.name, e.dtype, e.shape, _producer(e)) for e in entries]
         write_safetensors(args.output, specs, metadata)
         size_in = sum(n for _, _, n in inp.files)
         size_out = os.path.getsize(args.output)
