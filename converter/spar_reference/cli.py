@@ -189,30 +189,37 @@ def _state_signature(sd: Dict[str, Any], keys) -> Dict[str, Any]:
     return sig
 
 
-def infer_config(sd: Dict[str, Any]):
-    """The config of a checkpoint: a config helper's inference if the package has one, else
-    the preset (tiny, full) whose tensor sizes the checkpoint matches. Image size and other
-    sizes the tensors do not carry come from the preset."""
+def infer_config(sd: Dict[str, Any], path: str):
+    """The config of a checkpoint: the preset (tiny, full) whose tensor sizes the checkpoint
+    matches (image size and the other sizes the tensors do not carry come from the preset);
+    else the converter's inference from the tensors (spar_convert.convert.infer_config: the
+    sizes the tensors do not carry, image size included, are the official defaults)."""
     from . import config as config_mod
-    for fname in ("infer_config", "config_from_state_dict", "infer_from_state_dict"):
-        fn = getattr(config_mod, fname, None)
-        if callable(fn):
-            try:
-                return fn(sd)
-            except Exception as e:
-                raise CliError(f"cannot infer the model configuration from the checkpoint "
-                               f"({_one_line(e)}); pass --config")
     for name, make in config_mod.PRESETS.items():
         cfg = make()
         want = _preset_signature(cfg)
         if _state_signature(sd, want) == want:
             return cfg
-    raise CliError("cannot infer the model configuration from the checkpoint (its tensor "
-                   "sizes match no preset: " + ", ".join(config_mod.PRESETS) +
-                   "); pass --config tiny|full|PATH")
+    try:
+        from types import SimpleNamespace
+        from spar_convert.convert import infer_config as convert_infer, read_inputs
+    except ImportError:  # pragma: no cover - the converter package is part of the repo
+        raise CliError("cannot infer the model configuration from the checkpoint (its tensor "
+                       "sizes match no preset and the converter's inference is missing); "
+                       "pass --config tiny|full|PATH")
+    try:
+        inp = read_inputs(SimpleNamespace(checkpoint=path, dino=None, lseg=None, clip=None,
+                                          bpe=None))
+        try:
+            return convert_infer(inp, []).validate()
+        finally:
+            inp.close()
+    except Exception as e:
+        raise CliError(f"cannot infer the model configuration from the checkpoint "
+                       f"({_one_line(e)}); pass --config tiny|full|PATH")
 
 
-def get_config(arg: Optional[str], sd: Optional[Dict[str, Any]]):
+def get_config(arg: Optional[str], sd: Optional[Dict[str, Any]], path: str = ""):
     from . import config as config_mod
     if arg:
         if arg not in config_mod.PRESETS and not os.path.isfile(arg):
@@ -224,7 +231,7 @@ def get_config(arg: Optional[str], sd: Optional[Dict[str, Any]]):
             raise CliError(f"bad config {arg}: {_one_line(e)}")
     if sd is None:
         raise CliError("--config is required")
-    return infer_config(sd)
+    return infer_config(sd, path)
 
 
 def split_state_dict(sd: Dict[str, Any]) -> Tuple[Dict[str, Any], Dict[str, Any]]:
@@ -441,7 +448,7 @@ class Run:
         args, timer = self.args, self.timer
         with timer("load_checkpoint"):
             sd = load_checkpoint(args.checkpoint)
-            cfg = get_config(args.config, sd)
+            cfg = get_config(args.config, sd, args.checkpoint)
             model_sd, clip_sd = split_state_dict(sd)
             self.cfg = cfg
             self.model = build_model(cfg, model_sd, self.float64)

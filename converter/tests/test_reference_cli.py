@@ -372,10 +372,31 @@ def test_error_wrong_config(work, tmp_path, capsys):
     assert "does not match" in err
 
 
-def test_help_of_each_subcommand():
+def test_help_of_each_subcommand(capsys):
+    from spar_reference.cli import main
+    p = run("render", "--help")
+    assert "usage: spar-reference render" in p.stdout
     for cmd in ("make-checkpoint", "render", "goldens"):
-        p = run(cmd, "--help")
-        assert "usage: spar-reference " + cmd in p.stdout
+        with pytest.raises(SystemExit) as e:
+            main([cmd, "--help"])
+        assert e.value.code == 0
+        assert "usage: spar-reference " + cmd in capsys.readouterr().out
+
+
+def test_config_inference(work, tmp_path):
+    """Preset checkpoints give the preset (image size included); others the converter's
+    inference from the tensors."""
+    from spar_reference import cli
+    sd = cli.load_checkpoint(work["ckpt"])
+    assert cli.infer_config(sd, work["ckpt"]).to_dict() == CFG.to_dict()
+    c = spar_config.tiny()
+    c.scene_tokens, c.encoder_n_layer = 8, 1
+    cj = tmp_path / "custom.json"
+    c.save(str(cj))
+    ck = tmp_path / "custom.pt"
+    assert cli.main(["make-checkpoint", "--config", str(cj), "-o", str(ck), "--no-optimizer"]) == 0
+    inferred = cli.infer_config(cli.load_checkpoint(str(ck)), str(ck))
+    assert (inferred.scene_tokens, inferred.encoder_n_layer, inferred.d) == (8, 1, c.d)
 
 
 # ----------------------------------------------------------------------------- units
