@@ -269,7 +269,15 @@ def build_model(cfg, sd: Dict[str, Any], float64: bool):
                 f"{list(want[k]) if want[k] else 'absent'}")
         raise CliError(f"checkpoint does not match the model config ({what})")
     try:
-        model = SPAR(cfg)
+        # backbones built on the meta device (no random init: every tensor comes from the
+        # checkpoint, checked below), then given uninitialized CPU storage
+        from .dino_v3 import DinoV3
+        dino = DinoV3(cfg.dino, device="meta").to_empty(device="cpu")
+        lseg = False
+        if cfg.use_lseg:
+            from .lseg import LSegEncoder
+            lseg = LSegEncoder(cfg.lseg, device="meta").to_empty(device="cpu")
+        model = SPAR(cfg, dino=dino, lseg=lseg)
     except Exception as e:
         raise CliError(f"cannot build the model for this config: {_one_line(e)}")
     own = model.state_dict()
@@ -439,6 +447,10 @@ class Run:
             raise CliError(f"cameras file not found: {args.cameras}")
         if args.path is not None and args.path < 1:
             raise CliError("--path needs at least 1 frame")
+        if (self.labels or self.want_features) and not self.targets and args.path is None \
+                and not args.cameras:
+            raise CliError("--labels / --features need views to render (target views, --path "
+                           "or --cameras)")
         self.out_path = check_out_dir(args.out)
 
     # ---------------------------------------------------------------- compute
