@@ -10,7 +10,31 @@ Views are ONE ordered sequence: ``--images A B --targets C D`` is the sequence A
 inputs A B; ``--frames f0 f1 f2 f3 f4 --inputs 0,3,4`` has inputs 0, 3, 4 and targets 1, 2.
 The pose encoder sees the whole sequence; the canonical view is its middle (V//2).
 Image preparation: ``images.py``; camera conventions: ``cameras.py``; golden files:
-``goldens.py``. Errors: one line ``spar-reference: error: ...`` on stderr, exit code 1, and
+``goldens.py``.
+
+  spar-reference make-checkpoint --config tiny|full|PATH -o X.pt [--seed N] [--perturb]
+                                 [--no-optimizer]
+  spar-reference render --checkpoint X.pt [--config tiny|full|PATH]
+        (--images A B ... [--targets C D ...] | --frames f0 f1 ... --inputs 0,3,4)
+        [--cameras transforms.json | --path N] [--labels "a,b"] [--features] [--bpe PATH]
+        [--float64] --out DIR
+  spar-reference goldens  (same view / camera / label options, no --features) --out DIR
+
+render writes view_XX.png (rendered views: the targets, or the --path / --cameras cameras),
+motion_XX.png / mask_XX.png (input views: P(dynamic) as 8-bit grey, mask P > 0.5 as 0/255,
+at the model's H x W), cameras.json (every view's estimated camera in the nerfstudio
+convention that --cameras reads, plus "order", "inputs", "targets", "canonical_index" and
+"render_frames" for --path / --cameras), report.json (device, precision, total_seconds,
+stages that ran with their seconds); with --labels labels_XX.png / .json per rendered view
+(argmax of 1/0.07 * <normalized semantic features, normalized CLIP text embeddings> at H/2 x
+W/2; prompts are comma-separated, so a prompt cannot contain a comma); with --features
+features_XX.npy (C x H/2 x W/2 float32). Without --labels / --features the semantic head and
+the text encoder do not run (the semantic queries still take part in the decoder, as in the
+official evaluation, so RGB does not depend on these options).
+The config comes from --config, else from the checkpoint's tensor sizes: a matching preset
+(tiny, full), else the converter's inference (image size then 256 x 256, the official default).
+CLIP text weights are read from lseg_model.clip_pretrained.* (where the official LSegNet holds
+its CLIP); make-checkpoint writes them there. Errors: one line ``spar-reference: error: ...`` on stderr, exit code 1, and
 no output directory (outputs are written into DIR.tmp-XXXX and renamed at the end).
 """
 
@@ -443,6 +467,11 @@ class Run:
         self.bpe = args.bpe or default_bpe()
         if self.labels and not os.path.isfile(self.bpe):
             raise CliError(f"CLIP merges table not found: {self.bpe} (give --bpe PATH)")
+        if args.config:
+            from .config import PRESETS
+            if args.config not in PRESETS and not os.path.isfile(args.config):
+                raise CliError(f"config not found: {args.config} (a preset: "
+                               f"{', '.join(PRESETS)}, or a YAML/JSON file)")
         if args.cameras and not os.path.isfile(args.cameras):
             raise CliError(f"cameras file not found: {args.cameras}")
         if args.path is not None and args.path < 1:
