@@ -1,0 +1,354 @@
+#include "model/packed_model.h"
+
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <bit>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <utility>
+
+#include "engine/engine.h"
+#include "engine/error.h"
+#include "engine/half.h"
+
+namespace spar {
+
+static_assert(std::endian::native == std::endian::little, "the packed file is little-endian, like this host must be");
+
+namespace {
+
+// Messages are one line: control characters (from a library message or a name in the file)
+// become spaces, and very long quoted parts are shortened.
+std::string oneLine(std::string s) {
+  for (char& c : s)
+    if (static_cast<unsigned char>(c) < 0x20 || c == 0x7f) c = ' ';
+  return s;
+}
+
+std::string quoted(const std::string& name) {
+  std::string n = name.size() > 200 ? name.substr(0, 200) + "..." : name;
+  return "'" + oneLine(n) + "'";
+}
+
+[[noreturn]] void fail(const std::string& path, const std::string& problem) {
+  throw Error(oneLine(path + ": " + problem));
+}
+
+std::string range(uint64_t a, uint64_t b) { return "[" + std::to_string(a) + ", " + std::to_string(b) + ")"; }
+
+bool parseFileDType(const std::string& s, FileDType& out) {
+  static const std::pair<const char*, FileDType> kTypes[] = {
+      {"F32", FileDType::F32}, {"F16", FileDType::F16}, {"I32", FileDType::I32},
+      {"I64", FileDType::I64}, {"U8", FileDType::U8}};
+  for (const auto& [n, t] : kTypes)
+    if (s == n) {
+      out = t;
+      return true;
+    }
+  return false;
+}
+
+}  // namespace
+
+const char* fileDTypeName(FileDType t) {
+  switch (t) {
+    case FileDType::F32: return "F32";
+    case FileDType::F16: return "F16";
+    case FileDType::I32: return "I32";
+    case FileDType::I64: return "I64";
+    case FileDType::U8: return "U8";
+  }
+  return "?";
+}
+
+size_t fileDTypeSize(FileDType t) {
+  switch (t) {
+    case FileDType::F32: return 4;
+    case FileDType::F16: return 2;
+    case FileDType::I32: return 4;
+    case FileDType::I64: return 8;
+    case FileDType::U8: return 1;
+  }
+  return 0;
+}
+
+PackedModel::PackedModel(PackedModel&& o) noexcept { *this = std::move(o); }
+
+PackedModel& PackedModel::operator=(PackedModel&& o) noexcept {
+  if (this != &o) {
+    unmap();
+    path_ = std::move(o.path_);
+    map_ = std::exchange(o.map_, nullptr);
+    size_ = std::exchange(o.size_, 0);
+    dataStart_ = o.dataStart_;
+    names_ = std::move(o.names_);
+    tensors_ = std::move(o.tensors_);
+    metadata_ = std::move(o.metadata_);
+    config_ = std::move(o.config_);
+    components_ = std::move(o.components_);
+  }
+  return *this;
+}
+
+PackedModel::~PackedModel() { unmap(); }
+
+void PackedModel::unmap() {
+  if (map_) munmap(const_cast<uint8_t*>(map_), size_);
+  map_ = nullptr;
+  size_ = 0;
+}
+
+PackedModel PackedModel::open(const std::string& path) {
+  PackedModel m;
+  m.path_ = path;
+
+  // Map the file (read-only). The object owns the mapping from here on, so every throw below
+  // unmaps it.
+  int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) fail(path, std::string("cannot open: ") + std::strerror(errno));
+  struct stat st {};
+  if (fstat(fd, &st) != 0) {
+    int e = errno;
+    ::close(fd);
+    fail(path, std::string("cannot stat: ") + std::strerror(e));
+  }
+  if (!S_ISREG(st.st_mode)) {
+    ::close(fd);
+    fail(path, "not a regular file");
+  }
+  const uint64_t size = static_cast<uint64_t>(st.st_size);
+  if (size < 8) {
+    ::close(fd);
+    fail(path, "file of " + std::to_string(size) + " bytes is too short for a packed model (needs an 8-byte header length)");
+  }
+  void* p = mmap(nullptr, size, PROT_READ, MAP_PRIVATE, fd, 0);
+  int mapErrno = errno;
+  ::close(fd);
+  if (p == MAP_FAILED) fail(path, std::string("cannot memory-map: ") + std::strerror(mapErrno));
+  m.map_ = static_cast<const uint8_t*>(p);
+  m.size_ = size;
+
+  // Header length and JSON.
+  uint64_t headerLen = 0;
+  std::memcpy(&headerLen, m.map_, 8);
+  if (headerLen > size - 8)
+    fail(path, "header length " + std::to_string(headerLen) + " runs past the end of the file (" +
+                   std::to_string(size) + " bytes)");
+  m.dataStart_ = 8 + headerLen;
+  const uint64_t dataBytes = size - m.dataStart_;
+
+  nlohmann::json header;
+  try {
+    const char* h = reinterpret_cast<const char*>(m.map_ + 8);
+    header = nlohmann::json::parse(h, h + headerLen);
+  } catch (const nlohmann::json::exception& e) {
+    fail(path, std::string("header is not valid JSON: ") + e.what());
+  }
+  if (!header.is_object()) fail(path, "header is not a JSON object");
+
+  // Metadata: all strings; format, version, config.
+  auto metaIt = header.find("__metadata__");
+  if (metaIt == header.end()) fail(path, "no __metadata__ in the header (not a spar-vulkan packed model)");
+  if (!metaIt->is_object()) fail(path, "__metadata__ is not a JSON object");
+  for (auto it = metaIt->begin(); it != metaIt->end(); ++it) {
+    if (!it.value().is_string()) fail(path, "__metadata__ value " + quoted(it.key()) + " is not a string");
+    m.metadata_[it.key()] = it.value().get<std::string>();
+  }
+  auto metaValue = [&](const char* key) -> const std::string& {
+    auto it = m.metadata_.find(key);
+    if (it == m.metadata_.end()) fail(path, std::string("__metadata__ has no '") + key + "' (not a spar-vulkan packed model)");
+    return it->second;
+  };
+  if (metaValue("format") != kFormat)
+    fail(path, "format " + quoted(metaValue("format")) + " is not '" + kFormat + "'");
+  if (metaValue("format_version") != kFormatVersion)
+    fail(path, "unsupported format_version " + quoted(metaValue("format_version")) + " (this reader knows '" +
+                   kFormatVersion + "')");
+  try {
+    m.config_ = nlohmann::json::parse(metaValue("config"));
+  } catch (const nlohmann::json::exception& e) {
+    fail(path, std::string("__metadata__ config is not valid JSON: ") + e.what());
+  }
+  if (!m.config_.is_object()) fail(path, "__metadata__ config is not a JSON object");
+  if (auto it = m.metadata_.find("components"); it != m.metadata_.end()) {
+    try {
+      m.components_ = nlohmann::json::parse(it->second);
+    } catch (const nlohmann::json::exception& e) {
+      fail(path, std::string("__metadata__ components is not valid JSON: ") + e.what());
+    }
+    if (!m.components_.is_object()) fail(path, "__metadata__ components is not a JSON object");
+  }
+
+  // Tensors.
+  for (auto it = header.begin(); it != header.end(); ++it) {
+    const std::string& name = it.key();
+    if (name == "__metadata__") continue;
+    const std::string t = "tensor " + quoted(name);
+    if (name.empty()) fail(path, "a tensor has an empty name");
+    const auto& e = it.value();
+    if (!e.is_object()) fail(path, t + ": entry is not a JSON object");
+    PackedTensorInfo info;
+
+    auto dt = e.find("dtype");
+    if (dt == e.end() || !dt->is_string()) fail(path, t + ": no dtype string");
+    if (!parseFileDType(dt->get<std::string>(), info.dtype))
+      fail(path, t + ": unsupported dtype " + quoted(dt->get<std::string>()) + " (known: F32, F16, I32, I64, U8)");
+
+    auto sh = e.find("shape");
+    if (sh == e.end() || !sh->is_array()) fail(path, t + ": no shape list");
+    uint64_t numel = 1;
+    bool overflow = false;
+    for (const auto& d : *sh) {
+      if (!d.is_number_unsigned()) fail(path, t + ": shape " + oneLine(sh->dump()) + " is not a list of non-negative integers");
+      const uint64_t v = d.get<uint64_t>();
+      if (v > static_cast<uint64_t>(std::numeric_limits<int64_t>::max())) overflow = true;
+      overflow = overflow || __builtin_mul_overflow(numel, v, &numel);
+      info.shape.push_back(static_cast<int64_t>(v));
+    }
+    uint64_t want = 0;
+    overflow = overflow || __builtin_mul_overflow(numel, fileDTypeSize(info.dtype), &want);
+    if (overflow) fail(path, t + ": shape " + oneLine(sh->dump()) + " is too large");
+
+    auto off = e.find("data_offsets");
+    if (off == e.end() || !off->is_array() || off->size() != 2 || !(*off)[0].is_number_unsigned() ||
+        !(*off)[1].is_number_unsigned())
+      fail(path, t + ": data_offsets is not a pair of non-negative integers");
+    info.begin = (*off)[0].get<uint64_t>();
+    info.end = (*off)[1].get<uint64_t>();
+    if (info.end < info.begin) fail(path, t + ": data_offsets " + range(info.begin, info.end) + " end before they begin");
+    if (info.end > dataBytes)
+      fail(path, t + " data " + range(info.begin, info.end) + " lies outside the file (its data area holds " +
+                     std::to_string(dataBytes) + " bytes)");
+    if (info.end - info.begin != want)
+      fail(path, t + ": " + fileDTypeName(info.dtype) + " " + shapeString(info.shape) + " needs " + std::to_string(want) +
+                     " bytes but data_offsets " + range(info.begin, info.end) + " span " +
+                     std::to_string(info.end - info.begin));
+    m.names_.push_back(name);
+    m.tensors_.emplace(name, std::move(info));
+  }
+
+  // No two tensors share a byte.
+  std::sort(m.names_.begin(), m.names_.end(), [&](const std::string& a, const std::string& b) {
+    const auto &x = m.tensors_.at(a), &y = m.tensors_.at(b);
+    return x.begin != y.begin ? x.begin < y.begin : (x.end != y.end ? x.end < y.end : a < b);
+  });
+  const std::string* last = nullptr;  // the tensor reaching furthest so far
+  for (const auto& name : m.names_) {
+    const auto& info = m.tensors_.at(name);
+    if (info.bytes() == 0) continue;
+    if (last) {
+      const auto& prev = m.tensors_.at(*last);
+      if (info.begin < prev.end)
+        fail(path, "tensors " + quoted(*last) + " " + range(prev.begin, prev.end) + " and " + quoted(name) + " " +
+                       range(info.begin, info.end) + " overlap");
+      if (info.end <= prev.end) continue;
+    }
+    last = &name;
+  }
+  return m;
+}
+
+const PackedTensorInfo& PackedModel::info(const std::string& name) const {
+  auto it = tensors_.find(name);
+  if (it == tensors_.end()) fail(path_, "no tensor " + quoted(name));
+  return it->second;
+}
+
+std::span<const uint8_t> PackedModel::data(const std::string& name) const {
+  const auto& i = info(name);
+  return {map_ + dataStart_ + i.begin, static_cast<size_t>(i.bytes())};
+}
+
+std::vector<float> PackedModel::floats(const std::string& name) const {
+  const auto& i = info(name);
+  const auto bytes = data(name);
+  const size_t n = static_cast<size_t>(i.numel());
+  std::vector<float> out(n);
+  if (i.dtype == FileDType::F32) {
+    if (n) std::memcpy(out.data(), bytes.data(), n * 4);
+  } else if (i.dtype == FileDType::F16) {
+    for (size_t k = 0; k < n; ++k) {
+      uint16_t h;
+      std::memcpy(&h, bytes.data() + 2 * k, 2);
+      out[k] = halfToFloat(h);
+    }
+  } else {
+    fail(path_, "tensor " + quoted(name) + " is " + fileDTypeName(i.dtype) + ", not floating point");
+  }
+  return out;
+}
+
+DType PackedModel::naturalDType(const std::string& name) const {
+  const auto& i = info(name);
+  switch (i.dtype) {
+    case FileDType::F32: return DType::F32;
+    case FileDType::F16: return DType::F16;
+    case FileDType::I32:
+    case FileDType::I64: return DType::I32;
+    case FileDType::U8: break;
+  }
+  fail(path_, "tensor " + quoted(name) + " is " + fileDTypeName(i.dtype) + " " + shapeString(i.shape) +
+                  ": the engine has no such tensor type (read it with data())");
+}
+
+Tensor PackedModel::upload(Engine& engine, const std::string& name, DType want) const {
+  const auto& i = info(name);
+  const auto bytes = data(name);
+  const size_t n = static_cast<size_t>(i.numel());
+  const bool isFloat = i.dtype == FileDType::F32 || i.dtype == FileDType::F16;
+  const bool isInt = i.dtype == FileDType::I32 || i.dtype == FileDType::I64;
+  const bool wantFloat = want == DType::F32 || want == DType::F16;
+  if (!((isFloat && wantFloat) || (isInt && want == DType::I32)))
+    fail(path_, "tensor " + quoted(name) + " is " + fileDTypeName(i.dtype) + " " + shapeString(i.shape) +
+                    ": cannot upload it as " + dtypeName(want) + " (F32/F16 load as f32 or f16, I32/I64 as i32)");
+
+  auto put = [&](const Tensor& t, const void* src, size_t count) {
+    if (count) engine.write(t, src, count);
+  };
+
+  // Converted on the host first, so a refusal (I64 out of range) allocates nothing.
+  if (i.dtype == FileDType::I64) {
+    std::vector<int32_t> v(n);
+    for (size_t k = 0; k < n; ++k) {
+      int64_t x;
+      std::memcpy(&x, bytes.data() + 8 * k, 8);
+      if (x < std::numeric_limits<int32_t>::min() || x > std::numeric_limits<int32_t>::max())
+        fail(path_, "tensor " + quoted(name) + " element " + std::to_string(k) + " = " + std::to_string(x) +
+                        " does not fit i32");
+      v[k] = static_cast<int32_t>(x);
+    }
+    Tensor t = engine.tensor(i.shape, want);
+    put(t, v.data(), n * 4);
+    return t;
+  }
+  if ((i.dtype == FileDType::F32 && want == DType::F32) || (i.dtype == FileDType::F16 && want == DType::F16) ||
+      (i.dtype == FileDType::I32 && want == DType::I32)) {
+    Tensor t = engine.tensor(i.shape, want);
+    put(t, bytes.data(), bytes.size());
+    return t;
+  }
+  if (i.dtype == FileDType::F16) {  // -> F32
+    Tensor t = engine.tensor(i.shape, want);
+    std::vector<float> v = floats(name);
+    put(t, v.data(), n * 4);
+    return t;
+  }
+  // F32 -> F16, saturating at the fp16 maximum like Engine::upload (NaN stays NaN).
+  std::vector<uint16_t> h(n);
+  for (size_t k = 0; k < n; ++k) {
+    float x;
+    std::memcpy(&x, bytes.data() + 4 * k, 4);
+    h[k] = floatToHalf(std::isnan(x) ? x : std::clamp(x, -65504.0f, 65504.0f));
+  }
+  Tensor t = engine.tensor(i.shape, want);
+  put(t, h.data(), n * 2);
+  return t;
+}
+
+}  // namespace spar

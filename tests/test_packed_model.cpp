@@ -1,0 +1,404 @@
+// The packed weight file reader (model/packed_model.*) and the on-demand weight set
+// (model/weight_set.*): a tiny model made by the converter at test time (CTest fixture
+// tiny_model, path in SPAR_TINY_MODEL), and hand-made valid and corrupt files.
+#include <unistd.h>
+
+#include <cstdint>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <limits>
+#include <nlohmann/json.hpp>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "engine/half.h"
+#include "model/packed_model.h"
+#include "model/weight_set.h"
+#include "tests/test_support.h"
+
+#ifndef SPAR_TINY_MODEL
+#error "SPAR_TINY_MODEL (path of the tiny packed model) must be defined by tests/CMakeLists.txt"
+#endif
+
+namespace spar::test {
+namespace {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+const std::string kTiny = SPAR_TINY_MODEL;
+
+std::vector<uint8_t> readFile(const std::string& path) {
+  std::ifstream f(path, std::ios::binary);
+  return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
+}
+
+void writeFile(const std::string& path, const std::vector<uint8_t>& bytes) {
+  std::ofstream f(path, std::ios::binary | std::ios::trunc);
+  f.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+}
+
+// 8-byte length + header + data; headerLength overrides the stored length when given.
+std::vector<uint8_t> packFile(const std::string& header, const std::vector<uint8_t>& data,
+                              std::optional<uint64_t> headerLength = std::nullopt) {
+  uint64_t n = headerLength ? *headerLength : header.size();
+  std::vector<uint8_t> out(8 + header.size() + data.size());
+  std::memcpy(out.data(), &n, 8);
+  if (!header.empty()) std::memcpy(out.data() + 8, header.data(), header.size());
+  if (!data.empty()) std::memcpy(out.data() + 8 + header.size(), data.data(), data.size());
+  return out;
+}
+
+json goodMetadata() {
+  return {{"format", "spar-vulkan"}, {"format_version", "1"}, {"config", R"({"d": 8})"}};
+}
+
+template <class T>
+void append(std::vector<uint8_t>& data, const std::vector<T>& values) {
+  const auto* p = reinterpret_cast<const uint8_t*>(values.data());
+  data.insert(data.end(), p, p + values.size() * sizeof(T));
+}
+
+class PackedModelTest : public EngineTest {
+ protected:
+  void SetUp() override {
+    EngineTest::SetUp();
+    if (!fs::exists(kTiny))
+      GTEST_SKIP() << kTiny << " is missing: run through ctest (fixture make_tiny_model), or `ctest -R make_tiny_model` first";
+  }
+};
+
+class HandMadeFileTest : public EngineTest {
+ protected:
+  void SetUp() override {
+    EngineTest::SetUp();
+    dir_ = fs::temp_directory_path() / ("spar_packed_model_" + std::to_string(getpid()));
+    fs::create_directories(dir_);
+  }
+  void TearDown() override {
+    std::error_code ec;
+    fs::remove_all(dir_, ec);
+    EngineTest::TearDown();
+  }
+  std::string write(const std::string& name, const std::vector<uint8_t>& bytes) {
+    std::string path = (dir_ / name).string();
+    writeFile(path, bytes);
+    return path;
+  }
+  std::string write(const std::string& name, const json& header, const std::vector<uint8_t>& data) {
+    return write(name, packFile(header.dump(), data));
+  }
+  // Opening `path` must throw spar::Error with one line naming the file and containing `phrase`.
+  void expectRefused(const std::string& path, const std::string& phrase) {
+    SCOPED_TRACE(path);
+    try {
+      PackedModel::open(path);
+      ADD_FAILURE() << "opened without error; expected: " << phrase;
+    } catch (const Error& e) {
+      const std::string msg = e.what();
+      std::cout << "  refused: " << msg << "\n";
+      EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+      EXPECT_EQ(msg.rfind(path + ": ", 0), 0u) << msg;
+      EXPECT_NE(msg.find(phrase), std::string::npos) << "message lacks '" << phrase << "': " << msg;
+    }
+  }
+
+  fs::path dir_;
+};
+
+// ---- the tiny model made by the converter ----
+
+TEST_F(PackedModelTest, HeaderAndConfig) {
+  PackedModel m = PackedModel::open(kTiny);
+  EXPECT_EQ(m.metadata().at("format"), "spar-vulkan");
+  EXPECT_EQ(m.metadata().at("format_version"), "1");
+  ASSERT_TRUE(m.config().is_object());
+  EXPECT_EQ(m.config().at("d").get<int>(), 64);
+  EXPECT_EQ(m.config().at("scene_tokens").get<int>(), 16);
+  EXPECT_TRUE(m.config().at("dino").is_object());
+  EXPECT_TRUE(m.components().at("spar").get<bool>());
+  EXPECT_GT(m.names().size(), 100u);
+  EXPECT_TRUE(m.has("scene_code"));
+  EXPECT_FALSE(m.has("no.such.tensor"));
+  const auto& sc = m.info("scene_code");
+  EXPECT_EQ(sc.dtype, FileDType::F32);
+  EXPECT_EQ(sc.shape, (Shape{16, 64}));
+  EXPECT_EQ(sc.bytes(), 16u * 64 * 4);
+  // names() are in data order.
+  for (size_t i = 1; i < m.names().size(); ++i) EXPECT_LE(m.info(m.names()[i - 1]).end, m.info(m.names()[i]).begin);
+  EXPECT_THROW(m.info("no.such.tensor"), Error);
+}
+
+TEST_F(PackedModelTest, UploadEqualsFileBytes) {
+  PackedModel m = PackedModel::open(kTiny);
+  const std::vector<uint8_t> file = readFile(kTiny);
+  uint64_t headerLen;
+  std::memcpy(&headerLen, file.data(), 8);
+  for (const std::string name : {"scene_code", "transformer_encoder.0.attn.to_qkv.weight"}) {
+    SCOPED_TRACE(name);
+    const auto& info = m.info(name);
+    Tensor t = m.upload(eng(), name, DType::F32);
+    EXPECT_EQ(t.dtype(), DType::F32);
+    EXPECT_EQ(t.shape(), info.shape);
+    std::vector<uint8_t> device(t.bytes());
+    eng().read(t, device.data(), device.size());
+    // The file's bytes, read without the mapping.
+    const uint8_t* expected = file.data() + 8 + headerLen + info.begin;
+    ASSERT_EQ(device.size(), info.bytes());
+    EXPECT_EQ(std::memcmp(device.data(), expected, device.size()), 0);
+    // Not a trivially constant tensor.
+    std::vector<float> v = eng().download(t);
+    EXPECT_NE(v.front(), v.back());
+  }
+  EXPECT_EQ(m.upload(eng(), "transformer_encoder.0.attn.to_qkv.weight", DType::F32).shape(), (Shape{192, 64}));
+}
+
+TEST_F(PackedModelTest, UploadAsHalf) {
+  PackedModel m = PackedModel::open(kTiny);
+  const std::string name = "transformer_encoder.0.attn.to_qkv.weight";
+  Tensor t = m.upload(eng(), name, DType::F16);
+  EXPECT_EQ(t.dtype(), DType::F16);
+  EXPECT_EQ(t.shape(), (Shape{192, 64}));
+  const std::vector<float> expected = roundToHalf(m.floats(name));
+  const std::vector<float> got = eng().download(t);
+  ASSERT_EQ(got.size(), expected.size());
+  EXPECT_EQ(std::memcmp(got.data(), expected.data(), got.size() * 4), 0);
+}
+
+TEST_F(PackedModelTest, WeightSetLoadsOnlyWhatIsRequired) {
+  PackedModel m = PackedModel::open(kTiny);
+  WeightSet w(eng(), m);
+  EXPECT_EQ(w.count(), 0u);
+  EXPECT_EQ(w.bytesLoaded(), 0u);
+  const Tensor& a = w.require("scene_code", {16, 64});
+  EXPECT_EQ(a.shape(), (Shape{16, 64}));
+  const Tensor& b = w.require("scene_code", {-1, 64});  // cached: the same buffer
+  EXPECT_EQ(a.bufferPtr(), b.bufferPtr());
+  EXPECT_EQ(w.count(), 1u);
+  EXPECT_EQ(w.bytesLoaded(), 16u * 64 * 4);
+  w.require("transformer_encoder.0.attn.to_qkv.weight", {192, 64}, DType::F16);
+  EXPECT_EQ(w.count(), 2u);
+  EXPECT_EQ(w.bytesLoaded(), 16u * 64 * 4 + 192u * 64 * 2);
+  ASSERT_EQ(w.loaded().size(), 2u);
+  EXPECT_EQ(w.loaded()[1].first, "transformer_encoder.0.attn.to_qkv.weight");
+  EXPECT_EQ(w.loaded()[1].second, DType::F16);
+  EXPECT_FALSE(w.optional("mask_token_that_is_not_there", {1, 1, 64}).defined());
+  EXPECT_EQ(w.count(), 2u);
+
+  auto expectError = [&](auto&& f, const std::string& name, const std::string& phrase) {
+    try {
+      f();
+      ADD_FAILURE() << "no error for " << name;
+    } catch (const Error& e) {
+      const std::string msg = e.what();
+      std::cout << "  refused: " << msg << "\n";
+      EXPECT_EQ(msg.find('\n'), std::string::npos) << msg;
+      EXPECT_NE(msg.find("'" + name + "'"), std::string::npos) << msg;
+      EXPECT_NE(msg.find(phrase), std::string::npos) << msg;
+    }
+  };
+  expectError([&] { w.require("scene_code", {64, 16}); }, "scene_code", "has shape [16, 64], expected [64, 16]");
+  expectError([&] { w.require("scene_code", {16, 64, 1}); }, "scene_code", "expected [16, 64, 1]");
+  expectError([&] { w.require("transformer_encoder.9.attn.to_qkv.weight", {192, 64}); },
+              "transformer_encoder.9.attn.to_qkv.weight", "missing");
+  EXPECT_EQ(w.count(), 2u);
+  w.clear();
+  EXPECT_EQ(w.count(), 0u);
+  EXPECT_EQ(w.bytesLoaded(), 0u);
+}
+
+TEST_F(PackedModelTest, TruncatedCopyIsRefused) {
+  // Truncated anywhere past the header: the last tensors' data lie outside the file.
+  const std::vector<uint8_t> file = readFile(kTiny);
+  const fs::path dir = fs::temp_directory_path() / ("spar_packed_trunc_" + std::to_string(getpid()));
+  fs::create_directories(dir);
+  const std::string path = (dir / "truncated.spar").string();
+  for (size_t keep : {file.size() - 1, file.size() / 2, size_t{100}, size_t{7}, size_t{0}}) {
+    SCOPED_TRACE(keep);
+    writeFile(path, std::vector<uint8_t>(file.begin(), file.begin() + static_cast<std::ptrdiff_t>(keep)));
+    try {
+      PackedModel::open(path);
+      ADD_FAILURE() << "truncated to " << keep << " bytes and opened";
+    } catch (const Error& e) {
+      std::cout << "  refused: " << e.what() << "\n";
+      EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos);
+      EXPECT_EQ(std::string(e.what()).rfind(path + ": ", 0), 0u);
+    }
+  }
+  fs::remove_all(dir);
+}
+
+// ---- hand-made files ----
+
+TEST_F(HandMadeFileTest, ValidFileAllDtypes) {
+  std::vector<uint8_t> data;
+  json h;
+  h["__metadata__"] = goodMetadata();
+  h["__metadata__"]["components"] = R"({"spar": true})";
+  const std::vector<float> f32 = {1.5f, -2.0f, 1e6f, -1e6f, 0.0f, 3.25f};
+  std::vector<uint16_t> f16;
+  const std::vector<float> f16src = {0.5f, -1.25f, 65504.0f, 1e-3f};
+  for (float x : f16src) f16.push_back(floatToHalf(x));
+  const std::vector<int64_t> i64 = {0, -5, 7, 2147483647, -2147483648LL};
+  const std::vector<int32_t> i32 = {1, -2, 3};
+  const std::vector<uint8_t> u8 = {1, 2, 3};
+  auto add = [&](const std::string& name, const char* dtype, Shape shape, auto values) {
+    uint64_t begin = data.size();
+    append(data, values);
+    h[name] = {{"dtype", dtype}, {"shape", shape}, {"data_offsets", {begin, data.size()}}};
+  };
+  add("u8", "U8", {3}, u8);  // leaves the following tensors unaligned
+  add("f32", "F32", {2, 3}, f32);
+  add("f16", "F16", {4}, f16);
+  add("i64", "I64", {5}, i64);
+  add("i32", "I32", {1, 3}, i32);
+  add("scalar", "F32", {}, std::vector<float>{42.0f});
+  add("empty", "F32", {0, 4}, std::vector<float>{});
+  const std::string path = write("valid.spar", h, data);
+
+  PackedModel m = PackedModel::open(path);
+  EXPECT_EQ(m.config().at("d").get<int>(), 8);
+  EXPECT_EQ(m.names(), (std::vector<std::string>{"u8", "f32", "f16", "i64", "i32", "scalar", "empty"}));
+  EXPECT_EQ(m.info("u8").dtype, FileDType::U8);
+  EXPECT_EQ(std::vector<uint8_t>(m.data("u8").begin(), m.data("u8").end()), u8);
+
+  EXPECT_EQ(eng().download(m.upload(eng(), "f32", DType::F32)), f32);
+  // F32 -> F16 saturates at 65504 (1e6 stays finite).
+  std::vector<float> halfOf = eng().download(m.upload(eng(), "f32", DType::F16));
+  EXPECT_EQ(halfOf, (std::vector<float>{1.5f, -2.0f, 65504.0f, -65504.0f, 0.0f, 3.25f}));
+  // F16 -> F16 and F16 -> F32.
+  const std::vector<float> f16values = roundToHalf(f16src);
+  EXPECT_EQ(eng().download(m.upload(eng(), "f16", DType::F16)), f16values);
+  Tensor f16as32 = m.upload(eng(), "f16", DType::F32);
+  EXPECT_EQ(f16as32.dtype(), DType::F32);
+  EXPECT_EQ(eng().download(f16as32), f16values);
+  EXPECT_EQ(m.floats("f16"), f16values);
+  // Integers.
+  Tensor i64as32 = m.upload(eng(), "i64", DType::I32);
+  std::vector<int32_t> ints(5);
+  eng().read(i64as32, ints.data(), 20);
+  EXPECT_EQ(ints, (std::vector<int32_t>{0, -5, 7, 2147483647, -2147483647 - 1}));
+  Tensor i32t = m.upload(eng(), "i32", DType::I32);
+  EXPECT_EQ(i32t.shape(), (Shape{1, 3}));
+  EXPECT_EQ(eng().download(i32t), (std::vector<float>{1, -2, 3}));
+  EXPECT_EQ(eng().download(m.upload(eng(), "scalar", DType::F32)), std::vector<float>{42.0f});
+  EXPECT_EQ(m.upload(eng(), "empty", DType::F16).numel(), 0);
+
+  // Refused conversions: one line naming the tensor and both types.
+  auto expectRefusal = [&](const std::string& name, DType want, const std::string& phrase) {
+    try {
+      m.upload(eng(), name, want);
+      ADD_FAILURE() << name << " uploaded as " << dtypeName(want);
+    } catch (const Error& e) {
+      const std::string msg = e.what();
+      std::cout << "  refused: " << msg << "\n";
+      EXPECT_EQ(msg.find('\n'), std::string::npos);
+      EXPECT_NE(msg.find("'" + name + "'"), std::string::npos) << msg;
+      EXPECT_NE(msg.find(phrase), std::string::npos) << msg;
+    }
+  };
+  expectRefusal("i64", DType::F32, "I64 [5]: cannot upload it as f32");
+  expectRefusal("i32", DType::F16, "cannot upload it as f16");
+  expectRefusal("f32", DType::I32, "cannot upload it as i32");
+  expectRefusal("u8", DType::F32, "cannot upload it as f32");
+  EXPECT_THROW(m.naturalDType("u8"), Error);
+  EXPECT_THROW(m.floats("i32"), Error);
+
+  WeightSet w(eng(), m);
+  EXPECT_EQ(w.require("f16", {4}).dtype(), DType::F16);
+  EXPECT_EQ(w.require("i64", {5}).dtype(), DType::I32);
+  EXPECT_EQ(w.bytesLoaded(), 4u * 2 + 5u * 4);
+}
+
+TEST_F(HandMadeFileTest, I64OutOfRangeIsRefused) {
+  std::vector<uint8_t> data;
+  append(data, std::vector<int64_t>{1, 1LL << 40});
+  json h;
+  h["__metadata__"] = goodMetadata();
+  h["ids"] = {{"dtype", "I64"}, {"shape", {2}}, {"data_offsets", {0, 16}}};
+  PackedModel m = PackedModel::open(write("i64.spar", h, data));
+  try {
+    m.upload(eng(), "ids", DType::I32);
+    ADD_FAILURE() << "2^40 uploaded as i32";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("'ids' element 1 = 1099511627776 does not fit i32"), std::string::npos)
+        << e.what();
+  }
+}
+
+TEST_F(HandMadeFileTest, CorruptFilesAreRefused) {
+  const std::vector<uint8_t> data(64, 0);
+  auto header = [&](json tensors, json meta = goodMetadata()) {
+    tensors["__metadata__"] = meta;
+    return tensors;
+  };
+  auto tensor = [](const char* dtype, Shape shape, uint64_t a, uint64_t b) {
+    return json{{"dtype", dtype}, {"shape", shape}, {"data_offsets", {a, b}}};
+  };
+
+  expectRefused(write("empty.spar", std::vector<uint8_t>{}), "too short");
+  expectRefused(write("short.spar", std::vector<uint8_t>{1, 2, 3, 4, 5}), "too short");
+  expectRefused(write("headerlen.spar", packFile(header({}).dump(), data, 100000)), "header length 100000 runs past");
+  expectRefused(write("headerlen_huge.spar", packFile(header({}).dump(), data, std::numeric_limits<uint64_t>::max())),
+                "runs past the end of the file");
+  expectRefused(write("badjson.spar", packFile("{\"__metadata__\": {\"format\":\n", data)), "not valid JSON");
+  expectRefused(write("binary.spar", packFile(std::string("\x01\x02\xff\n\x00 ", 6), data)), "not valid JSON");
+  expectRefused(write("array.spar", packFile("[1, 2]", data)), "not a JSON object");
+  expectRefused(write("nometa.spar", json{{"x", tensor("F32", {1}, 0, 4)}}, data), "no __metadata__");
+  json meta = goodMetadata();
+  meta["format"] = "safetensors-other";
+  expectRefused(write("format.spar", header({}, meta), data), "format 'safetensors-other' is not 'spar-vulkan'");
+  meta = goodMetadata();
+  meta.erase("format");
+  expectRefused(write("noformat.spar", header({}, meta), data), "no 'format'");
+  meta = goodMetadata();
+  meta["format_version"] = "2";
+  expectRefused(write("version.spar", header({}, meta), data), "unsupported format_version '2'");
+  meta = goodMetadata();
+  meta["format_version"] = 1;
+  expectRefused(write("version_int.spar", header({}, meta), data), "'format_version' is not a string");
+  meta = goodMetadata();
+  meta["config"] = "{d: 8";
+  expectRefused(write("config.spar", header({}, meta), data), "config is not valid JSON");
+  meta["config"] = "[8]";
+  expectRefused(write("config_array.spar", header({}, meta), data), "config is not a JSON object");
+  meta.erase("config");
+  expectRefused(write("noconfig.spar", header({}, meta), data), "no 'config'");
+
+  expectRefused(write("dtype.spar", header({{"w", tensor("BF16", {2}, 0, 4)}}), data), "tensor 'w': unsupported dtype 'BF16'");
+  expectRefused(write("outside.spar", header({{"w", tensor("F32", {4, 4}, 0, 64)}, {"x", tensor("F32", {2}, 60, 68)}}), data),
+                "tensor 'x' data [60, 68) lies outside the file");
+  expectRefused(write("outside_far.spar", header({{"x", tensor("U8", {1}, (1ull << 62), (1ull << 62) + 1)}}), data),
+                "lies outside the file");
+  expectRefused(write("reversed.spar", header({{"x", tensor("F32", {0}, 8, 4)}}), data), "end before they begin");
+  expectRefused(write("overlap.spar", header({{"a", tensor("F32", {4}, 0, 16)}, {"b", tensor("F32", {4}, 12, 28)}}), data),
+                "tensors 'a' [0, 16) and 'b' [12, 28) overlap");
+  expectRefused(write("contained.spar",
+                      header({{"a", tensor("F32", {8}, 0, 32)}, {"b", tensor("F32", {2}, 40, 48)}, {"c", tensor("F32", {2}, 36, 44)}}),
+                      data),
+                "overlap");
+  expectRefused(write("inside.spar", header({{"a", tensor("F32", {8}, 0, 32)}, {"b", tensor("F16", {2}, 8, 12)}}), data),
+                "overlap");
+  expectRefused(write("mismatch.spar", header({{"w", tensor("F32", {3, 3}, 0, 32)}}), data),
+                "tensor 'w': F32 [3, 3] needs 36 bytes but data_offsets [0, 32) span 32");
+  expectRefused(write("mismatch16.spar", header({{"w", tensor("F16", {4}, 0, 16)}}), data), "needs 8 bytes");
+  expectRefused(write("huge_shape.spar", header({{"w", tensor("F32", {1ull << 40, 1ull << 40}, 0, 16)}}), data), "too large");
+  expectRefused(write("neg_shape.spar", packFile(R"({"__metadata__": )" + goodMetadata().dump() +
+                                                     R"(, "w": {"dtype": "F32", "shape": [-1, 4], "data_offsets": [0, 16]}})",
+                                                 data)),
+                "not a list of non-negative integers");
+  expectRefused(write("float_shape.spar", header({{"w", {{"dtype", "F32"}, {"shape", {1.5}}, {"data_offsets", {0, 4}}}}}), data),
+                "not a list of non-negative integers");
+  expectRefused(write("no_offsets.spar", header({{"w", {{"dtype", "F32"}, {"shape", {1}}}}}), data),
+                "data_offsets is not a pair");
+  expectRefused(write("entry.spar", header({{"w", 5}}), data), "tensor 'w': entry is not a JSON object");
+  expectRefused(write("newline_name.spar", header({{"bad\nname", tensor("X", {1}, 0, 4)}}), data), "unsupported dtype");
+  expectRefused((dir_ / "does_not_exist.spar").string(), "cannot open");
+  expectRefused(dir_.string(), "not a regular file");
+}
+
+}  // namespace
+}  // namespace spar::test
