@@ -1,0 +1,188 @@
+// model/transformer_block against the PyTorch reference Block (converter/spar_reference/
+// transformer.py) run in float64: tests/python/make_block_golden.py writes two perturbed blocks,
+// an input and the float64 output as .npy; the engine runs the same two blocks in fp32.
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+
+#include "model/npy.h"
+#include "model/transformer_block.h"
+#include "tests/test_support.h"
+
+namespace spar::test {
+namespace {
+
+namespace fs = std::filesystem;
+
+constexpr int64_t kD = 64, kHeadDim = 32, kN = 37, kB = 2, kLayers = 2;
+
+// Runs the golden maker for one case into the build tree; returns the directory.
+std::string makeGolden(const std::string& caseName) {
+  const fs::path dir = fs::path(SPAR_TEST_OUT_DIR) / "block_golden" / caseName;
+  fs::remove_all(dir);
+  const std::string cmd = std::string("\"") + SPAR_PYTHON + "\" \"" + SPAR_SOURCE_DIR +
+                          "/tests/python/make_block_golden.py\" --case " + caseName + " --out \"" + dir.string() + "\"";
+  const int rc = std::system(cmd.c_str());
+  if (rc != 0) throw Error("golden maker failed (" + std::to_string(rc) + "): " + cmd);
+  return dir.string();
+}
+
+// Weights straight from the golden directory: <dir>/<key>.npy, uploaded as f32, or with
+// fp16Matrices the tensors of 2 dimensions as f16 (as spar-convert --fp16 stores them).
+WeightLookup npyWeights(Engine& engine, const std::string& dir, bool fp16Matrices) {
+  return [&engine, dir, fp16Matrices](const std::string& key) -> Tensor {
+    const fs::path p = fs::path(dir) / (key + ".npy");
+    if (!fs::exists(p)) return Tensor();
+    const NpyArray a = readNpy(p.string());
+    const DType t = fp16Matrices && a.shape.size() >= 2 ? DType::F16 : DType::F32;
+    return engine.fromFloats(a.shape, a.toFloats(), t);
+  };
+}
+
+std::vector<std::string> readLines(const std::string& path) {
+  std::ifstream in(path);
+  std::vector<std::string> lines;
+  for (std::string s; std::getline(in, s);)
+    if (!s.empty()) lines.push_back(s);
+  return lines;
+}
+
+struct BlockCase {
+  std::string name;
+  TransformerBlockOptions options;
+  bool fp16Matrices = false;  // weight matrices stored f16 (their values are fp16 in the golden too)
+};
+void PrintTo(const BlockCase& c, std::ostream* os) { *os << c.name; }
+
+class TransformerBlockTest : public EngineTest, public ::testing::WithParamInterface<BlockCase> {};
+
+// Two stacked blocks, B=2 sequences of N=37 tokens, D=64 in 2 heads of 32, fp32 on the engine
+// against float64 (parameters and input are fp32 values in both; in spar_f16w the weight
+// matrices are f16 tensors holding exactly the golden's fp16-rounded values). Measured on
+// lavapipe: NMSE 1.8e-14 and max abs 2e-6 in every case. A LayerNorm or QK-norm eps of 1e-6
+// instead of 1e-5 already gives 3e-12, so the threshold is 5e-13 (27x the measured error, 6x
+// below that mistake) and max abs 1e-5.
+TEST_P(TransformerBlockTest, TwoBlocksMatchFloat64Reference) {
+  const BlockCase c = GetParam();
+  const std::string dir = makeGolden(c.name);
+
+  // The reference's state_dict keys are exactly the ones the options ask for.
+  const auto keys = readLines(dir + "/keys.txt");
+  const auto names = TransformerBlock::weightNames(c.options);
+  EXPECT_EQ(std::set<std::string>(keys.begin(), keys.end()), std::set<std::string>(names.begin(), names.end()));
+
+  const WeightLookup weights = npyWeights(eng(), dir, c.fp16Matrices);
+  std::vector<TransformerBlock> blocks;
+  for (int i = 0; i < kLayers; ++i)
+    blocks.emplace_back(eng(), c.options, weights, "blocks." + std::to_string(i));
+
+  const NpyArray x = readNpy(dir + "/x.npy", {kB, kN, kD});
+  const NpyArray y = readNpy(dir + "/y.npy", {kB, kN, kD});
+  ASSERT_EQ(x.type, NpyType::F32);
+  ASSERT_EQ(y.type, NpyType::F64);
+  Tensor tx = eng().fromFloats({kB, kN, kD}, x.toFloats());
+
+  TransformerWorkspace ws;
+  ws.reserve(eng(), kB * kN, c.options);
+  Recorder rec(eng());
+  forwardBlocks(rec, blocks, tx, ws);
+  rec.run();
+  EXPECT_EQ(ws.allocations(), 1);
+  expectClose(eng().download(tx), y.toDoubles(), 5e-13, 1e-5, c.name + " 2 blocks");
+}
+
+INSTANTIATE_TEST_SUITE_P(Stacks, TransformerBlockTest,
+                         ::testing::Values(BlockCase{"spar", TransformerBlockOptions::spar(kD, kHeadDim)},
+                                           BlockCase{"clip", TransformerBlockOptions::clipText(kD, kHeadDim)},
+                                           BlockCase{"dinov3", TransformerBlockOptions::dinov3(kD, kHeadDim)},
+                                           BlockCase{"spar_f16w", TransformerBlockOptions::spar(kD, kHeadDim), true}),
+                         [](const auto& info) { return info.param.name; });
+
+// One workspace serves several stacks and sequence lengths: it grows only when asked for more.
+TEST_F(EngineTest, TransformerWorkspaceAllocatesOnce) {
+  TransformerWorkspace ws;
+  ws.reserve(eng(), 2 * 1280, 768, 3072);
+  const size_t bytes = ws.bytes();
+  EXPECT_EQ(bytes, size_t(2 * 1280) * (768 + 768 + 3072) * 4);
+  ws.reserve(eng(), 2 * 512, 768, 3072);
+  ws.reserve(eng(), 1280, 512, 2048);
+  EXPECT_EQ(ws.allocations(), 1);
+  EXPECT_EQ(ws.bytes(), bytes);
+  EXPECT_EQ(ws.qkv(2, 1280, 768).shape(), (Shape{2, 1280, 3 * 768}));
+  EXPECT_THROW(ws.hidden(3, 1280, 3072), Error);
+  ws.reserve(eng(), 3 * 1280, 768, 3072);
+  EXPECT_EQ(ws.allocations(), 2);
+}
+
+// The RoPE hook point: called once per block, after QK-norm, with the fused qkv [B, N, 3D].
+TEST_F(EngineTest, TransformerBlockCallsRopeHook) {
+  const auto opts = TransformerBlockOptions::spar(kD, kHeadDim);
+  std::map<std::string, Tensor> w;
+  uint32_t seed = 50;
+  auto lookup = [&](const std::string& k) -> Tensor {
+    if (!w.count(k)) {
+      const bool norm = k.find("norm") != std::string::npos;
+      const int64_t d = k.find("_norm") != std::string::npos ? kHeadDim : kD;
+      const Shape s = k == "attn.to_qkv.weight" ? Shape{3 * kD, kD}
+                      : k == "attn.fc.weight"   ? Shape{kD, kD}
+                      : k == "mlp.mlp.0.weight" ? Shape{4 * kD, kD}
+                      : k == "mlp.mlp.2.weight" ? Shape{kD, 4 * kD}
+                                                : Shape{d};
+      w[k] = eng().fromFloats(s, norm ? randomUniform(shapeNumel(s), 0.5f, 1.5f, seed++)
+                                      : randomUniform(shapeNumel(s), -0.1f, 0.1f, seed++));
+    }
+    return w.at(k);
+  };
+  std::vector<TransformerBlock> blocks;
+  for (int i = 0; i < 2; ++i) blocks.emplace_back(eng(), opts, lookup);
+  Tensor x = eng().fromFloats({kB, kN, kD}, randomNormal(kB * kN * kD, 0, 1, 60));
+  TransformerWorkspace ws;
+  ws.reserve(eng(), kB * kN, opts);
+  int calls = 0;
+  Recorder rec(eng());
+  forwardBlocks(rec, blocks, x, ws, [&](Recorder&, const Tensor& qkv, int64_t heads, int64_t headDim) {
+    ++calls;
+    EXPECT_EQ(qkv.shape(), (Shape{kB, kN, 3 * kD}));
+    EXPECT_EQ(heads, kD / kHeadDim);
+    EXPECT_EQ(headDim, kHeadDim);
+  });
+  rec.run();
+  EXPECT_EQ(calls, 2);
+  for (float v : eng().download(x)) ASSERT_TRUE(std::isfinite(v));
+}
+
+// Missing and misshapen weights are reported with their full key.
+TEST_F(EngineTest, TransformerBlockReportsBadWeights) {
+  const auto opts = TransformerBlockOptions::spar(kD, kHeadDim);
+  std::map<std::string, Tensor> w;
+  for (const auto& n : TransformerBlock::weightNames(opts)) {
+    Shape s = n == "attn.to_qkv.weight" ? Shape{3 * kD, kD}
+              : n == "attn.fc.weight"   ? Shape{kD, kD}
+              : n == "mlp.mlp.0.weight" ? Shape{4 * kD, kD}
+              : n == "mlp.mlp.2.weight" ? Shape{kD, 4 * kD}
+              : n.find("_norm") != std::string::npos ? Shape{kHeadDim}
+                                                     : Shape{kD};
+    w["enc.0." + n] = eng().tensor(s);
+  }
+  auto lookup = [&](const std::string& k) { return w.count(k) ? w.at(k) : Tensor(); };
+  EXPECT_NO_THROW(TransformerBlock(eng(), opts, lookup, "enc.0."));
+  EXPECT_NO_THROW(TransformerBlock(eng(), opts, lookup, "enc.0"));
+  try {
+    TransformerBlock(eng(), opts, lookup, "enc.1");
+    ADD_FAILURE() << "no error for a missing prefix";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("missing weight enc.1.norm1.weight"), std::string::npos) << e.what();
+  }
+  w["enc.0.attn.fc.weight"] = eng().tensor({kD, kD + 1});
+  try {
+    TransformerBlock(eng(), opts, lookup, "enc.0");
+    ADD_FAILURE() << "no error for a misshapen weight";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("enc.0.attn.fc.weight is f32[64, 65]"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace spar::test
