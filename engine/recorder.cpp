@@ -51,6 +51,7 @@ void Recorder::begin() {
   recording_ = true;
   queriesUsed_ = 0;
   labels_.clear();
+  stages_.clear();
   writtenSinceBarrier_.clear();
   readSinceBarrier_.clear();
   if (profile_) writeTimestamp();
@@ -197,6 +198,7 @@ void Recorder::dispatch(const Kernel& kernel, const std::vector<Arg>& args, cons
   if (profile_) {
     writeTimestamp();
     labels_.push_back(name);
+    stages_.push_back(stage_);
   }
 }
 
@@ -230,7 +232,7 @@ void Recorder::run() {
     }
     const double period = engine_.device().caps().timestampPeriodNs;
     for (size_t i = 0; i + 1 < stamps.size(); ++i)
-      timings_.push_back({labels_[i], static_cast<double>(stamps[i + 1] - stamps[i]) * period * 1e-6});
+      timings_.push_back({labels_[i], stages_[i], static_cast<double>(stamps[i + 1] - stamps[i]) * period * 1e-6});
   }
   SPAR_VK(vkResetCommandBuffer(cmd_, 0));
   releaseTransient();

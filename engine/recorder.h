@@ -30,6 +30,7 @@ struct Arg {
 
 struct DispatchTiming {
   std::string label;
+  std::string stage;  // the stage set by Recorder::setStage when the dispatch was recorded
   double ms = 0;
 };
 
@@ -49,6 +50,10 @@ class Recorder {
     dispatch(kernel, args, &push, sizeof(Push), gx, gy, gz, label);
   }
 
+  // Names the model stage the following dispatches belong to (per-stage GPU times in
+  // timings(); "" for none).
+  void setStage(const std::string& stage) { stage_ = stage; }
+  const std::string& stage() const { return stage_; }
   // Submits everything recorded so far, waits for it, and makes results readable by the host.
   void run();
 
@@ -87,7 +92,8 @@ class Recorder {
 
   std::vector<VkQueryPool> queryPools_;
   uint32_t queriesUsed_ = 0;
-  std::vector<std::string> labels_;
+  std::vector<std::string> labels_, stages_;
+  std::string stage_;
   std::vector<DispatchTiming> timings_;
 };
 

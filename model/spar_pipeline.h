@@ -1,0 +1,127 @@
+// SPAR's photometric pipeline on the engine, stage by stage as the paper's Figure 2 draws it
+// (reference: converter/spar_reference/spar.py SPAR.forward and SPAR.render):
+//
+//   images -> image tokens (+ spatial-temporal codes)        model/view_tokens.*
+//          -> pose encoder over [camera tokens, image tokens] model/pose_estimator.*
+//          -> rel_head / canonical_k_head -> cameras          model/pose_head.*
+//          -> Plücker rays -> ray tokens                      model/plucker_rays.*, model/view_tokens.*
+//          -> DINOv3 patch tokens                             model/dino_v3.*
+//          -> CV-DRP motion probability per view              model/cv_drp.*
+//          -> mlp_fuse + soft_with_pe gating                  model/gating.*
+//          -> scene encoder -> scene tokens                   model/scene_encoder.*
+//   render: ray queries + scene tokens -> decoder -> RGB head model/renderer.*
+//
+// Work happens in two phases so that rendering cameras may depend on the estimated ones (a path
+// through the input cameras): encode() runs everything up to the scene tokens and leaves the
+// cameras and motion maps on the host; render*() decodes any number of views from the scene
+// tokens kept on the device. Only what a request needs runs: no CV-DRP or DINOv3 with
+// assumeStatic, no CV-DRP over targets unless targetMotion, no target view nobody renders.
+#pragma once
+#include <array>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "engine/engine.h"
+#include "model/packed_model.h"
+#include "model/spar_config.h"
+#include "model/weight_set.h"
+
+namespace spar {
+
+// One ordered sequence of frames (capture order); inputs and targets are positions in it.
+struct ViewPlan {
+  int64_t views = 0;
+  std::vector<int64_t> inputs;   // increasing, at least 1
+  std::vector<int64_t> targets;  // increasing, disjoint from inputs (may be empty)
+  // Throws spar::Error (one line) if the plan is inconsistent.
+  void validate() const;
+};
+
+// Cameras to render instead of the estimated targets: OpenCV camera-to-world in the canonical
+// view's frame (row-major 4x4) and normalized intrinsics (fx/W, fy/H, cx/W, cy/H).
+struct RenderCameras {
+  std::vector<std::array<float, 16>> c2w;
+  std::vector<std::array<float, 4>> fxfycxcy;
+  size_t size() const { return c2w.size(); }
+};
+
+struct SparRequest {
+  std::vector<float> images;  // [V, 3, H, W] prepared images in [0, 1], sequence order
+  int64_t height = 0, width = 0;  // 0: the configuration's image size
+  ViewPlan plan;
+  // Skip DINOv3 and CV-DRP: every input token is treated as static (no gating at all).
+  bool assumeStatic = false;
+  // Also run CV-DRP over the target views (evaluation of motion masks on targets).
+  bool targetMotion = false;
+};
+
+// What encode() leaves on the host.
+struct SparEncoded {
+  std::vector<float> c2w;          // [V, 4, 4] estimated, OpenCV, canonical frame
+  std::vector<float> fxfycxcy;     // [V, 4] normalized intrinsics
+  std::vector<float> motionInput;  // [K, H, W] P(dynamic) of the input views (empty if assumeStatic)
+  std::vector<float> motionTarget; // [T, H, W] with targetMotion (else empty)
+  int64_t canonicalIndex = 0;
+};
+
+// GPU time of one stage (sum of its dispatches' timestamps) and host wall time around it.
+struct StageTime {
+  std::string name;
+  double gpuMs = 0, wallMs = 0;
+};
+
+struct SparPipelineOptions {
+  bool profile = true;            // per-dispatch timestamps -> stageTimes()
+  // Keep every stage's output tensor under its golden name (converter/spar_reference/
+  // goldens.py: "img_tokens", "pose_encoder_out", "c2w", ..., "rgb") for tests; costs memory.
+  bool keepIntermediates = false;
+};
+
+class SparPipeline {
+ public:
+  // Parses the configuration; weights are uploaded lazily as stages first need them.
+  SparPipeline(Engine& engine, const PackedModel& model, const SparPipelineOptions& options = {});
+  ~SparPipeline();
+  SparPipeline(const SparPipeline&) = delete;
+  SparPipeline& operator=(const SparPipeline&) = delete;
+
+  const SparConfig& config() const { return config_; }
+
+  // Phase 1. Throws spar::Error (one line) for bad requests (sizes, plan).
+  const SparEncoded& encode(const SparRequest& request);
+  // Phase 2 (after encode): the plan's targets with their estimated cameras, or explicit
+  // cameras. Returns RGB [R, 3, H, W] in [0, 1].
+  std::vector<float> renderTargets();
+  std::vector<float> render(const RenderCameras& cameras);
+
+  // Stages that ran since construction (in order, accumulated by name).
+  const std::vector<StageTime>& stageTimes() const { return stageTimes_; }
+  uint64_t weightBytesLoaded() const { return weights_.bytesLoaded(); }
+  const WeightSet& weights() const { return weights_; }
+
+  // With keepIntermediates: the device tensor stored under a golden name (throws if absent).
+  const Tensor& intermediate(const std::string& name) const;
+  std::vector<std::string> intermediateNames() const;
+
+ private:
+  struct Stages;
+  void keep(const std::string& name, const Tensor& t);
+  void addStageTimes(const class Recorder& rec, double wallMs);
+  std::vector<float> renderRays(const Tensor& c2w, const Tensor& fxfycxcy, int64_t count);
+
+  Engine& engine_;
+  const PackedModel& model_;
+  SparPipelineOptions options_;
+  SparConfig config_;
+  WeightSet weights_;
+  std::unique_ptr<Stages> stages_;
+  SparEncoded encoded_;
+  SparRequest request_;
+  std::map<std::string, Tensor> kept_;
+  std::vector<StageTime> stageTimes_;
+};
+
+}  // namespace spar

@@ -1,0 +1,34 @@
+#include "golden_support.h"
+
+#include <filesystem>
+#include <fstream>
+
+#include "engine/error.h"
+
+namespace spar::test {
+
+std::string goldenPath(const std::string& rel) { return std::string(SPAR_GOLDENS_DIR) + "/" + rel; }
+std::string tinyModelPath() { return goldenPath("tiny.spar"); }
+
+GoldenCase::GoldenCase(const std::string& name) : name_(name), dir_(goldenPath(name)) {
+  std::ifstream f(dir_ + "/manifest.json");
+  if (!f) throw Error(dir_ + "/manifest.json: cannot open (did the spar_goldens fixture run?)");
+  manifest_ = nlohmann::json::parse(f);
+}
+
+bool GoldenCase::has(const std::string& name) const {
+  return std::filesystem::exists(dir_ + "/" + name + ".npy");
+}
+NpyArray GoldenCase::array(const std::string& name) const { return readNpy(dir_ + "/" + name + ".npy"); }
+std::vector<double> GoldenCase::doubles(const std::string& name) const { return array(name).toDoubles(); }
+std::vector<float> GoldenCase::floats(const std::string& name) const { return array(name).toFloats(); }
+std::vector<int64_t> GoldenCase::shape(const std::string& name) const { return array(name).shape; }
+std::vector<int64_t> GoldenCase::inputs() const { return manifest_.at("inputs").get<std::vector<int64_t>>(); }
+std::vector<int64_t> GoldenCase::targets() const { return manifest_.at("targets").get<std::vector<int64_t>>(); }
+std::vector<std::string> GoldenCase::files() const {
+  std::vector<std::string> out;
+  for (const auto& o : manifest_.at("order")) out.push_back(o.at("file").get<std::string>());
+  return out;
+}
+
+}  // namespace spar::test

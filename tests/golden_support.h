@@ -1,0 +1,39 @@
+// Model-level goldens made by tests/python/make_spar_goldens.py (CTest fixture spar_goldens):
+// the tiny photometric model and, per case directory, the PyTorch reference's float64 output of
+// every stage (converter/spar_reference/goldens.py names: "img_tokens", "c2w", "rgb", ...).
+#pragma once
+#include <nlohmann/json.hpp>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "model/npy.h"
+
+namespace spar::test {
+
+// SPAR_GOLDENS_DIR/<rel>
+std::string goldenPath(const std::string& rel);
+// The packed tiny model (SPAR_GOLDENS_DIR/tiny.spar).
+std::string tinyModelPath();
+
+class GoldenCase {
+ public:
+  // A case directory under SPAR_GOLDENS_DIR ("interleaved", "odd_targets", "path").
+  explicit GoldenCase(const std::string& name);
+  const std::string& dir() const { return dir_; }
+  const nlohmann::json& manifest() const { return manifest_; }
+  bool has(const std::string& name) const;
+  NpyArray array(const std::string& name) const;     // <name>.npy
+  std::vector<double> doubles(const std::string& name) const;
+  std::vector<float> floats(const std::string& name) const;
+  std::vector<int64_t> shape(const std::string& name) const;
+  std::vector<int64_t> inputs() const;   // manifest "inputs"
+  std::vector<int64_t> targets() const;  // manifest "targets"
+  std::vector<std::string> files() const;  // frame files in sequence order
+
+ private:
+  std::string name_, dir_;
+  nlohmann::json manifest_;
+};
+
+}  // namespace spar::test

@@ -1,0 +1,85 @@
+#!/usr/bin/python3
+"""Test fixture for the model-level tests (tests/test_spar_*.cpp): a tiny SPAR without the
+semantic branch (the tiny preset with use_lseg false), perturbed so every bias and statistic
+matters, packed by the converter, and the PyTorch reference's goldens of every stage for a few
+view orders. Everything is made here, at test time, from fixed seeds.
+
+    make_spar_goldens.py OUT_DIR
+
+writes OUT_DIR/
+    tiny_photometric.json     the configuration (SparConfig.to_dict())
+    frame_0.png .. frame_4.png  procedural frames (160x120: resized and cropped to 128x128)
+    tiny.pt, tiny.spar        checkpoint and packed model
+    interleaved/              goldens: frames 0..4, inputs 0,2,4, targets 1,3
+    odd_targets/              goldens: frames 0..4, inputs 1,3, targets 0,2,4 (canonical = target)
+    path/                     goldens: inputs frame_0, frame_2, frame_4, a 3-camera path
+"""
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+from PIL import Image
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(os.path.dirname(HERE))
+CONVERTER = os.path.join(ROOT, "converter")
+sys.path.insert(0, CONVERTER)
+
+from spar_convert.model_config import tiny  # noqa: E402
+
+
+def frames(out_dir, count=5, width=160, height=120, seed=3):
+    """A textured static background and a disk that moves from frame to frame."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:height, 0:width].astype(np.float64)
+    base = np.stack([0.5 + 0.4 * np.sin(xx / 9.0 + c) * np.cos(yy / 13.0 - c) for c in range(3)], -1)
+    base += 0.08 * rng.standard_normal(base.shape)
+    paths = []
+    for i in range(count):
+        img = base.copy()
+        # the camera pans a little: shift the background
+        img = np.roll(img, shift=2 * i, axis=1)
+        cx, cy = 30 + 22 * i, 40 + 8 * i
+        disk = (xx - cx) ** 2 + (yy - cy) ** 2 < 15 ** 2
+        img[disk] = [0.9, 0.2, 0.1]
+        p = os.path.join(out_dir, f"frame_{i}.png")
+        Image.fromarray((np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8)).save(p)
+        paths.append(p)
+    return paths
+
+
+def run(*args):
+    subprocess.run([sys.executable, *args], check=True, env=dict(os.environ, PYTHONPATH=CONVERTER))
+
+
+def main():
+    out = os.path.abspath(sys.argv[1])
+    os.makedirs(out, exist_ok=True)
+    cfg = tiny()
+    cfg.use_lseg = False
+    cfg_path = os.path.join(out, "tiny_photometric.json")
+    with open(cfg_path, "w") as f:
+        json.dump(cfg.validate().to_dict(), f, indent=1)
+    f = frames(out)
+    ck, packed = os.path.join(out, "tiny.pt"), os.path.join(out, "tiny.spar")
+    ref = os.path.join(CONVERTER, "spar-reference")
+    run(ref, "make-checkpoint", "--config", cfg_path, "--seed", "7", "--perturb", "--no-optimizer", "-o", ck)
+    run(os.path.join(CONVERTER, "spar-convert"), "-q", ck, "-o", packed)
+    common = ["--checkpoint", ck, "--config", cfg_path]
+    cases = {
+        "interleaved": ["--frames", *f, "--inputs", "0,2,4"],
+        "odd_targets": ["--frames", *f, "--inputs", "1,3"],
+        "path": ["--images", f[0], f[2], f[4], "--path", "3"],
+    }
+    for name, args in cases.items():
+        d = os.path.join(out, name)
+        if os.path.exists(d):
+            subprocess.run(["rm", "-rf", d], check=True)
+        run(ref, "goldens", *common, *args, "--float64", "--out", d)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
