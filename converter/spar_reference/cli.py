@@ -464,6 +464,7 @@ class Run:
         self.files, self.inputs, self.targets = plan_views(args)
         self.labels = parse_labels(args.labels)
         self.want_features = bool(getattr(args, "features", False))
+        self.assume_static = bool(args.assume_static)
         self.bpe = args.bpe or default_bpe()
         if self.labels and not os.path.isfile(self.bpe):
             raise CliError(f"CLIP merges table not found: {self.bpe} (give --bpe PATH)")
@@ -523,7 +524,7 @@ class Run:
         try:
             with torch.no_grad():
                 out = model(x, self.inputs, self.targets, render=False,
-                            record_layers=self.goldens)
+                            record_layers=self.goldens, assume_static=self.assume_static)
                 if args.path is not None:
                     from .cameras import interpolate_path
                     c2w = out["c2w"][0].double().numpy()
@@ -617,6 +618,7 @@ class Run:
                       "targets": len(self.targets),
                       "rendered": int(self.out["rgb"].shape[1]) if "rgb" in self.out else 0},
             "render": self.render_mode,
+            "assume_static": self.assume_static,
             "total_seconds": total,
             "stages": [{"name": k, "seconds": v} for k, v in self.timer.times.items()],
         }
@@ -629,8 +631,9 @@ class Run:
             rgb = out["rgb"][0].double().numpy() if "rgb" in out else np.zeros((0,))
             for j in range(rgb.shape[0]):
                 save_rgb(os.path.join(d, f"view_{j:02d}.png"), rgb[j])
-            prob = out["cv_drp_input"]["prob"][0, :, 0].double().numpy()
-            binary = out["cv_drp_input"]["binary"][0, :, 0].numpy()
+            motion = out["cv_drp_input"]  # None for --assume-static: no motion maps
+            prob = motion["prob"][0, :, 0].double().numpy() if motion else np.zeros((0,))
+            binary = motion["binary"][0, :, 0].numpy() if motion else np.zeros((0,))
             for j in range(prob.shape[0]):
                 save_grey(os.path.join(d, f"motion_{j:02d}.png"), prob[j])
                 save_mask(os.path.join(d, f"mask_{j:02d}.png"), binary[j])
@@ -675,6 +678,7 @@ class Run:
             "config": self.cfg.to_dict(),
             "order": self.order(), "inputs": list(self.inputs), "targets": list(self.targets),
             "render": self.render_mode,
+            "assume_static": self.assume_static,
             "image_preparation": "images.py: PIL RGB, Lanczos cover-resize, centre crop, /255",
         }
         if self.labels:
@@ -770,6 +774,9 @@ def _add_run_args(p: argparse.ArgumentParser, render: bool) -> None:
                             "(features_XX.npy, C x H/2 x W/2 float32)")
     p.add_argument("--bpe", metavar="PATH",
                    help=f"CLIP BPE merges table (default $SPAR_CLIP_BPE or {DEFAULT_BPE})")
+    p.add_argument("--assume-static", action="store_true",
+                   help="declare the scene static: skip DINOv3 and CV-DRP, gate no token, "
+                        "write no motion maps")
     p.add_argument("--float64", action="store_true", help="run the model in float64")
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output directory (must not exist; written as DIR.tmp-XXXX, renamed)")

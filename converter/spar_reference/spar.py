@@ -587,7 +587,8 @@ class SPAR(nn.Module):
                 semantic_queries: Optional[bool] = None,
                 semantic_head: bool = True,
                 render: bool = True,
-                record_layers: bool = False) -> Dict[str, Any]:
+                record_layers: bool = False,
+                assume_static: bool = False) -> Dict[str, Any]:
         """Run SPAR on one ordered sequence of frames.
 
         Args:
@@ -616,6 +617,9 @@ class SPAR(nn.Module):
             render: False stops after the scene tokens (no render_* / decoder / rgb / semantic
                 entries); ``render(out, ...)`` renders from that dict later, e.g. along cameras
                 derived from the estimated ones.
+            assume_static: the scene is declared static: DINOv3 and CV-DRP do not run (no
+                ``dino`` / ``cv_drp_*`` entries) and no input token is gated (the engine's
+                ``--assume-static``; the same as gating with P(dynamic) = 0 everywhere).
             record_layers: also return every layer's output of the three stacks under
                 ``layers`` = {"transformer_encoder": [...], "transformer_encoder_geom": [...],
                 "transformer_decoder": [...]}.
@@ -702,42 +706,51 @@ class SPAR(nn.Module):
         ray_tokens = self.target_pose_tokenizer(rays).reshape(b, v, n, d)
         out["ray_tokens"] = ray_tokens
 
-        # ---- DINOv3 features (all views)
-        if dino_features is None:
-            if self._dino_v3 is None:
-                raise ValueError("no DINOv3 module and no dino_features given")
-            dino_features = self._dino_v3(images.reshape(b * v, c, h, w))
-        dino_features = dino_features.to(dt).reshape(b, v, n, -1)
-        assert dino_features.shape[-1] == d, "DINO width must equal D"
-        out["dino"] = dino_features
-
-        # ---- CV-DRP (inputs paired (i, i+1), targets (i, T-1-i)); image tokens WITH codes,
-        # ray tokens from target_pose_tokenizer for inputs and targets alike.
-        out["cv_drp_input"] = self.run_cv_drp(_gather(dino_features, in_idx),
-                                              _gather(img_tokens, in_idx),
-                                              _gather(ray_tokens, in_idx), "input")
-        if k_tg > 0:
-            out["cv_drp_target"] = self.run_cv_drp(_gather(dino_features, tg_idx),
-                                                   _gather(img_tokens, tg_idx),
-                                                   _gather(ray_tokens, tg_idx), "target")
+        # ---- DINOv3 features and CV-DRP, left out for a scene declared static
+        if assume_static:
+            out["cv_drp_input"] = out["cv_drp_target"] = None
         else:
-            out["cv_drp_target"] = None
+            if dino_features is None:
+                if self._dino_v3 is None:
+                    raise ValueError("no DINOv3 module and no dino_features given")
+                dino_features = self._dino_v3(images.reshape(b * v, c, h, w))
+            dino_features = dino_features.to(dt).reshape(b, v, n, -1)
+            assert dino_features.shape[-1] == d, "DINO width must equal D"
+            out["dino"] = dino_features
 
-        # ---- gating of the input tokens
-        dyn = out["cv_drp_input"]["prob"] if dynamic_mask is None else dynamic_mask.to(dt)
-        out["dynamic_mask_input"] = dyn
-        ps = cfg.patch_size
-        dyn_patch = F.avg_pool2d(dyn.reshape(b * k_in, 1, h, w), kernel_size=ps, stride=ps)
-        dyn_patch = dyn_patch.reshape(b, k_in * n)
-        out["dynamic_patch"] = dyn_patch
-        out["static_patch"] = 1.0 - dyn_patch
+            # CV-DRP (inputs paired (i, i+1), targets (i, T-1-i)); image tokens WITH codes,
+            # ray tokens from target_pose_tokenizer for inputs and targets alike.
+            out["cv_drp_input"] = self.run_cv_drp(_gather(dino_features, in_idx),
+                                                  _gather(img_tokens, in_idx),
+                                                  _gather(ray_tokens, in_idx), "input")
+            if k_tg > 0:
+                out["cv_drp_target"] = self.run_cv_drp(_gather(dino_features, tg_idx),
+                                                       _gather(img_tokens, tg_idx),
+                                                       _gather(ray_tokens, tg_idx), "target")
+            else:
+                out["cv_drp_target"] = None
+
+        # ---- gating of the input tokens (none for a static scene)
+        dyn = dyn_patch = None
+        if dynamic_mask is not None:
+            dyn = dynamic_mask.to(dt)
+        elif not assume_static:
+            dyn = out["cv_drp_input"]["prob"]
+        if dyn is not None:
+            out["dynamic_mask_input"] = dyn
+            ps = cfg.patch_size
+            dyn_patch = F.avg_pool2d(dyn.reshape(b * k_in, 1, h, w), kernel_size=ps, stride=ps)
+            dyn_patch = dyn_patch.reshape(b, k_in * n)
+            out["dynamic_patch"] = dyn_patch
+            out["static_patch"] = 1.0 - dyn_patch
 
         fused = self.mlp_fuse(torch.cat([_gather(img_tokens, in_idx).reshape(b, k_in * n, d),
                                          _gather(ray_tokens, in_idx).reshape(b, k_in * n, d)],
                                         dim=-1))
         fused = fused + self.view_type_embedding.weight[0]
         out["fused_tokens"] = fused
-        gated = self.gate(fused, dyn_patch, k_in, cfg.patches_h, cfg.patches_w)
+        gated = fused if dyn_patch is None else self.gate(fused, dyn_patch, k_in, cfg.patches_h,
+                                                          cfg.patches_w)
         out["gated_tokens"] = gated
 
         # ---- semantic input tokens
@@ -760,10 +773,13 @@ class SPAR(nn.Module):
             sem = self.semantic_proj(sem) + self.view_type_embedding.weight[0]
             out["semantic_tokens"] = sem
             # OFFICIAL: pooled with a fixed 16x16 kernel (h_sem = H // 16), not patch_size.
-            dyn_sem = F.avg_pool2d(dyn.reshape(b * k_in, 1, h, w), kernel_size=16, stride=16)
-            dyn_sem = dyn_sem.reshape(b, k_in * hs * ws)
-            out["dynamic_patch_sem"] = dyn_sem
-            sem_gated = self.gate(sem, dyn_sem, k_in, hs, ws)
+            if dyn is None:
+                sem_gated = sem
+            else:
+                dyn_sem = F.avg_pool2d(dyn.reshape(b * k_in, 1, h, w), kernel_size=16, stride=16)
+                dyn_sem = dyn_sem.reshape(b, k_in * hs * ws)
+                out["dynamic_patch_sem"] = dyn_sem
+                sem_gated = self.gate(sem, dyn_sem, k_in, hs, ws)
             out["gated_semantic_tokens"] = sem_gated
 
         # ---- scene encoder over [scene_code, gated image tokens, gated semantic tokens]

@@ -13,6 +13,7 @@ writes OUT_DIR/
     interleaved/              goldens: frames 0..4, inputs 0,2,4, targets 1,3
     odd_targets/              goldens: frames 0..4, inputs 1,3, targets 0,2,4 (canonical = target)
     path/                     goldens: inputs frame_0, frame_2, frame_4, a 3-camera path
+    static/                   goldens: as interleaved with --assume-static (no DINOv3, CV-DRP, gating)
 """
 import json
 import os
@@ -66,12 +67,13 @@ def main():
     ck, packed = os.path.join(out, "tiny.pt"), os.path.join(out, "tiny.spar")
     ref = os.path.join(CONVERTER, "spar-reference")
     run(ref, "make-checkpoint", "--config", cfg_path, "--seed", "7", "--perturb", "--no-optimizer", "-o", ck)
-    run(os.path.join(CONVERTER, "spar-convert"), "-q", ck, "-o", packed)
+    run(os.path.join(CONVERTER, "spar-convert"), "-q", ck, "--config", cfg_path, "-o", packed)
     common = ["--checkpoint", ck, "--config", cfg_path]
     cases = {
         "interleaved": ["--frames", *f, "--inputs", "0,2,4"],
         "odd_targets": ["--frames", *f, "--inputs", "1,3"],
         "path": ["--images", f[0], f[2], f[4], "--path", "3"],
+        "static": ["--frames", *f, "--inputs", "0,2,4", "--assume-static"],
     }
     for name, args in cases.items():
         d = os.path.join(out, name)

@@ -1,0 +1,80 @@
+// Token fusion and gating (model/gating.h); kernel shaders/token_gate.comp.
+#include "model/gating.h"
+
+#include "engine/ops/binary.h"
+#include "engine/ops/copy2d.h"
+#include "engine/ops/dispatch_helpers.h"
+#include "engine/ops/linear.h"
+#include "engine/ops/norm.h"
+#include "engine/ops/pool.h"
+#include "model/sincos_codes.h"
+
+namespace spar {
+namespace {
+struct GatePush {
+  uint32_t tokens, dim, perView, mode;
+};
+}  // namespace
+
+TokenGating::TokenGating(Engine& engine, WeightSet& weights, const SparConfig& config)
+    : engine_(engine), config_(config) {
+  const int64_t d = config.d;
+  lnW_ = weights.require("mlp_fuse.0.weight", {2 * d}, DType::F32);
+  w1_ = weights.require("mlp_fuse.1.weight", {d, 2 * d});
+  b1_ = weights.require("mlp_fuse.1.bias", {d}, DType::F32);
+  w2_ = weights.require("mlp_fuse.3.weight", {d, d});
+  b2_ = weights.require("mlp_fuse.3.bias", {d}, DType::F32);
+  viewType0_ = weights.require("view_type_embedding.weight", {2, d}, DType::F32).view(0, {d});
+  if (config.inputMaskingMode == "soft_with_pe") {
+    mask_ = weights.require("mask_token", {1, 1, d}, DType::F32).reshape({d});
+    const std::vector<float> code = gatingCode(d, config.patchesH(), config.patchesW());
+    code_ = engine.fromFloats({config.tokensPerView(), d}, code);
+  }
+}
+
+void TokenGating::fuse(Recorder& rec, const Tensor& img, const Tensor& ray, const std::vector<int64_t>& inputs,
+                       const Tensor& fused) {
+  const int64_t d = config_.d, n = img.dim(-2), k = int64_t(inputs.size());
+  if (!concat_.defined() || concat_.numel() != k * n * 2 * d) {
+    concat_ = engine_.tensor({k * n, 2 * d});
+    hidden_ = engine_.tensor({k * n, d});
+  }
+  // concat(image token, ray token) of the input views, gathered view by view.
+  for (int64_t j = 0; j < k; ++j) {
+    const int64_t v = inputs[j];
+    const Tensor rows = concat_.view(j * n * 2 * d, {n, 2 * d});
+    copy2d(rec, img.view(v * n * d, {n, d}), d, 0, rows, 2 * d, 0, n, d);
+    copy2d(rec, ray.view(v * n * d, {n, d}), d, 0, rows, 2 * d, d, n, d);
+  }
+  layerNorm(rec, concat_, lnW_, Tensor(), concat_, 1e-5f);
+  linear(rec, concat_, w1_, b1_, hidden_, Activation::Silu);
+  linear(rec, hidden_, w2_, b2_, fused);
+  add(rec, fused, viewType0_, fused);
+}
+
+void TokenGating::gate(Recorder& rec, const Tensor& fused, const Tensor& prob, const Tensor& dynPatch,
+                       const Tensor& gated) {
+  const std::string op = "tokenGate";
+  const int64_t d = config_.d, n = config_.tokensPerView();
+  const int64_t tokens = fused.numel() / d;
+  avgPool2d(rec, prob, dynPatch, int(config_.patchSize));
+  if (dynPatch.numel() != tokens) throw Error(op + ": pooled map " + dynPatch.describe() + " does not match the tokens");
+  if (config_.inputMaskingMode == "none") {
+    copy2d(rec, fused, d, 0, gated, d, 0, tokens, d);
+    return;
+  }
+  const bool soft = config_.inputMaskingMode == "soft_with_pe";
+  const Kernel& kernel = engine_.kernel({"token_gate",
+                                         {Bind::Read, Bind::Read, Bind::Read, Bind::Read, Bind::Write},
+                                         sizeof(GatePush),
+                                         {ops::kElementLocalX, 1, 1}});
+  const GatePush push{uint32_t(tokens), uint32_t(d), uint32_t(n), soft ? 0u : 1u};
+  const ops::Grid grid =
+      ops::linearGrid(engine_.caps(), ops::ceilDiv(uint64_t(tokens * d), uint64_t(ops::kElementLocalX)), op);
+  // zero_out binds the token tensor in place of the unused mask and code.
+  const Tensor mask = soft ? mask_ : fused, code = soft ? code_ : fused;
+  rec.dispatch(kernel, {Arg::in(fused), Arg::in(dynPatch), Arg::in(mask), Arg::in(code), Arg::out(gated)}, push,
+               grid.x, grid.y, 1, op);
+}
+
+}  // namespace spar

@@ -1,0 +1,275 @@
+// SPAR's photometric pipeline (model/spar_pipeline.h): the stages in order, each recorded and
+// run as one submission so that its GPU time (timestamps) and wall time are known.
+#include "model/spar_pipeline.h"
+
+#include <algorithm>
+#include <chrono>
+#include <set>
+
+#include "engine/error.h"
+#include "engine/ops/copy2d.h"
+#include "engine/recorder.h"
+#include "model/gating.h"
+#include "model/plucker_rays.h"
+#include "model/pose_estimator.h"
+#include "model/renderer.h"
+#include "model/scene_encoder.h"
+#include "model/stack.h"
+#include "model/view_tokens.h"
+
+namespace spar {
+
+void ViewPlan::validate() const {
+  if (views < 1) throw Error("no views given");
+  if (inputs.empty()) throw Error("at least one input view is needed");
+  std::set<int64_t> seen;
+  for (const auto* list : {&inputs, &targets})
+    for (size_t i = 0; i < list->size(); ++i) {
+      const int64_t v = (*list)[i];
+      if (v < 0 || v >= views)
+        throw Error("view position " + std::to_string(v) + " is outside the sequence of " + std::to_string(views) +
+                    " frames");
+      if (i > 0 && v <= (*list)[i - 1]) throw Error("view positions must be increasing");
+      if (!seen.insert(v).second) throw Error("view " + std::to_string(v) + " is both an input and a target");
+    }
+}
+
+// Everything built from the weights, constructed on first use so that a request that skips a
+// stage never uploads its weights.
+struct SparPipeline::Stages {
+  std::unique_ptr<ViewTokenizer> tokenizer;
+  std::unique_ptr<PoseEstimator> pose;
+  std::unique_ptr<TokenGating> gating;
+  std::unique_ptr<SceneEncoder> scene;
+  std::unique_ptr<Renderer> renderer;
+  TransformerWorkspace ws;
+  // Device state between encode() and render*().
+  Tensor c2w, fxfycxcy, sceneSeq, sceneTokens;
+  bool encoded = false;
+};
+
+SparPipeline::SparPipeline(Engine& engine, const PackedModel& model, const SparPipelineOptions& options)
+    : engine_(engine),
+      model_(model),
+      options_(options),
+      config_(SparConfig::fromJson(model.config(), model.path())),
+      weights_(engine, model),
+      stages_(std::make_unique<Stages>()) {
+  if (config_.useLseg)
+    throw Error(model.path() + ": this model has the semantic branch (use_lseg), which the engine does not run yet");
+}
+
+SparPipeline::~SparPipeline() = default;
+
+void SparPipeline::keep(const std::string& name, const Tensor& t) {
+  if (options_.keepIntermediates) kept_[name] = t;
+}
+
+const Tensor& SparPipeline::intermediate(const std::string& name) const {
+  auto it = kept_.find(name);
+  if (it == kept_.end()) throw Error("no intermediate '" + name + "' (keepIntermediates off, or the stage did not run)");
+  return it->second;
+}
+
+std::vector<std::string> SparPipeline::intermediateNames() const {
+  std::vector<std::string> out;
+  for (const auto& [k, v] : kept_) out.push_back(k);
+  return out;
+}
+
+namespace {
+using Clock = std::chrono::steady_clock;
+double msSince(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+}  // namespace
+
+void SparPipeline::addStageTimes(const Recorder& rec, double wallMs) {
+  const std::string& name = rec.stage();
+  double gpu = 0;
+  for (const DispatchTiming& t : rec.timings()) gpu += t.ms;
+  auto it = std::find_if(stageTimes_.begin(), stageTimes_.end(), [&](const StageTime& s) { return s.name == name; });
+  if (it == stageTimes_.end()) {
+    stageTimes_.push_back({name, gpu, wallMs});
+  } else {
+    it->gpuMs += gpu;
+    it->wallMs += wallMs;
+  }
+}
+
+
+const SparEncoded& SparPipeline::encode(const SparRequest& request) {
+  Stages& st = *stages_;
+  const SparConfig& c = config_;
+  request.plan.validate();
+  const int64_t h = request.height ? request.height : c.imageHeight;
+  const int64_t w = request.width ? request.width : c.imageWidth;
+  if (h % c.patchSize || w % c.patchSize || h <= 0 || w <= 0)
+    throw Error("image size " + std::to_string(w) + "x" + std::to_string(h) + " is not a multiple of the patch size " +
+                std::to_string(c.patchSize));
+  const int64_t v = request.plan.views, k = int64_t(request.plan.inputs.size()), d = c.d;
+  const int64_t gh = h / c.patchSize, gw = w / c.patchSize, n = gh * gw;
+  if (int64_t(request.images.size()) != v * 3 * h * w)
+    throw Error("expected " + std::to_string(v) + " images of 3x" + std::to_string(h) + "x" + std::to_string(w) +
+                " values, got " + std::to_string(request.images.size()) + " values");
+  if (request.assumeStatic && request.targetMotion) throw Error("target motion masks need CV-DRP (not --assume-static)");
+  request_ = request;
+  request_.height = h;
+  request_.width = w;
+  encoded_ = SparEncoded{};
+  st.encoded = false;
+
+  if (!st.tokenizer) st.tokenizer = std::make_unique<ViewTokenizer>(engine_, weights_, c);
+  Recorder rec(engine_, options_.profile);
+  auto finish = [&](const auto t0) { addStageTimes(rec, msSince(t0)); };
+
+  // ---- image tokens (all views) and camera tokens
+  const Tensor images = engine_.fromFloats({v, 3, h, w}, request.images);
+  const Tensor raw = engine_.tensor({v, n, d}), imgTokens = engine_.tensor({v, n, d});
+  const Tensor code = options_.keepIntermediates ? engine_.tensor({v, n, d}) : Tensor();
+  const Tensor cam = engine_.tensor({v, d});
+  auto t0 = Clock::now();
+  rec.setStage("image_tokens");
+  st.tokenizer->imageTokens(rec, images, raw, imgTokens, code);
+  st.tokenizer->cameraTokens(rec, v, cam);
+  rec.run();
+  finish(t0);
+  keep("images", images);
+  keep("img_tokens_raw", raw);
+  keep("pe_code", code);
+  keep("img_tokens", imgTokens);
+  keep("cam_tokens_in", cam);
+
+  // ---- pose estimator -> cameras
+  if (!st.pose) st.pose = std::make_unique<PoseEstimator>(engine_, weights_, c);
+  const Tensor enc = engine_.tensor({v + v * n, d});
+  st.c2w = engine_.tensor({v, 4, 4});
+  st.fxfycxcy = engine_.tensor({v, 4});
+  t0 = Clock::now();
+  rec.setStage("pose_estimator");
+  st.pose->forward(rec, cam, imgTokens, enc, st.c2w, st.fxfycxcy, st.ws);
+  rec.run();
+  finish(t0);
+  keep("pose_encoder_out", enc);
+  keep("cam_tokens", enc.view(0, {v, d}));
+  keep("c2w", st.c2w);
+  keep("fxfycxcy", st.fxfycxcy);
+
+  // ---- Plücker rays and ray tokens (all views: CV-DRP sees the targets' too)
+  const Tensor rays = engine_.tensor({v, 6, h, w}), rayTokens = engine_.tensor({v, n, d});
+  t0 = Clock::now();
+  rec.setStage("rays");
+  pluckerRays(rec, st.c2w, st.fxfycxcy, rays);
+  st.tokenizer->rayTokens(rec, "target_pose_tokenizer", rays, rayTokens);
+  rec.run();
+  finish(t0);
+  keep("plucker", rays);
+  keep("ray_tokens", rayTokens);
+
+  // ---- motion: DINOv3 + CV-DRP (left out for a scene declared static)
+  Tensor probInput;
+  if (!request.assumeStatic) {
+    throw Error("CV-DRP is not on the engine yet: run with --assume-static");
+  }
+
+  // ---- mlp_fuse and gating of the input tokens
+  if (!st.gating) st.gating = std::make_unique<TokenGating>(engine_, weights_, c);
+  const Tensor fused = engine_.tensor({k * n, d});
+  Tensor gated = fused;
+  t0 = Clock::now();
+  rec.setStage("gating");
+  st.gating->fuse(rec, imgTokens, rayTokens, request.plan.inputs, fused);
+  if (probInput.defined()) {
+    gated = engine_.tensor({k * n, d});
+    const Tensor dynPatch = engine_.tensor({k, 1, gh, gw});
+    st.gating->gate(rec, fused, probInput, dynPatch, gated);
+    keep("dynamic_patch", dynPatch);
+  }
+  rec.run();
+  finish(t0);
+  keep("fused_tokens", fused);
+  keep("gated_tokens", gated);
+
+  // ---- scene encoder
+  if (!st.scene) st.scene = std::make_unique<SceneEncoder>(engine_, weights_, c);
+  const int64_t rows = c.sceneTokens + k * n;
+  st.sceneSeq = engine_.tensor({rows, d});
+  const Tensor sceneIn = options_.keepIntermediates ? engine_.tensor({rows, d}) : Tensor();
+  t0 = Clock::now();
+  rec.setStage("scene_encoder");
+  st.scene->forward(rec, {gated}, st.sceneSeq, st.ws, sceneIn);
+  rec.run();
+  finish(t0);
+  st.sceneTokens = st.sceneSeq.view(0, {c.sceneTokens, d});
+  keep("scene_encoder_in", sceneIn);
+  keep("scene_encoder_out", st.sceneSeq);
+  keep("scene_tokens", st.sceneTokens);
+
+  // ---- host copies
+  encoded_.c2w = engine_.download(st.c2w);
+  encoded_.fxfycxcy = engine_.download(st.fxfycxcy);
+  if (probInput.defined()) encoded_.motionInput = engine_.download(probInput);
+  encoded_.canonicalIndex = c.canonicalIndex(v);
+  st.encoded = true;
+  return encoded_;
+}
+
+std::vector<float> SparPipeline::renderRays(const Tensor& c2w, const Tensor& fxfycxcy, int64_t count) {
+  Stages& st = *stages_;
+  const int64_t h = request_.height, w = request_.width;
+  if (!st.renderer) st.renderer = std::make_unique<Renderer>(engine_, weights_, config_, *st.tokenizer);
+  Recorder rec(engine_, options_.profile);
+  const Tensor rays = engine_.tensor({count, 6, h, w}), rgb = engine_.tensor({count, 3, h, w});
+  auto t0 = Clock::now();
+  rec.setStage("render_rays");
+  pluckerRays(rec, c2w, fxfycxcy, rays);
+  rec.run();
+  addStageTimes(rec, msSince(t0));
+  t0 = Clock::now();
+  rec.setStage("renderer");
+  RenderTrace trace;
+  st.renderer->forward(rec, rays, st.sceneTokens, rgb, st.ws, options_.keepIntermediates ? &trace : nullptr);
+  rec.run();
+  addStageTimes(rec, msSince(t0));
+  keep("render_c2w", c2w);
+  keep("render_fxfycxcy", fxfycxcy);
+  keep("render_plucker", rays);
+  keep("rgb_queries", trace.rgbQueries);
+  keep("decoder_in", trace.decoderIn);
+  keep("decoder_out", trace.decoderOut);
+  keep("rgb_tokens", trace.rgbTokens);
+  keep("rgb", rgb);
+  return engine_.download(rgb);
+}
+
+std::vector<float> SparPipeline::renderTargets() {
+  Stages& st = *stages_;
+  if (!st.encoded) throw Error("render before encode");
+  const auto& targets = request_.plan.targets;
+  const int64_t t = int64_t(targets.size());
+  if (t == 0) return {};
+  // The targets' estimated cameras, gathered on the device.
+  const Tensor c2w = engine_.tensor({t, 4, 4}), k = engine_.tensor({t, 4});
+  Recorder rec(engine_, false);
+  for (int64_t j = 0; j < t; ++j) {
+    copy2d(rec, st.c2w.reshape({request_.plan.views, 16}).view(targets[j] * 16, {1, 16}), 16, 0, c2w.view(j * 16, {1, 16}), 16, 0, 1, 16);
+    copy2d(rec, st.fxfycxcy.view(targets[j] * 4, {1, 4}), 4, 0, k.view(j * 4, {1, 4}), 4, 0, 1, 4);
+  }
+  rec.run();
+  return renderRays(c2w, k, t);
+}
+
+std::vector<float> SparPipeline::render(const RenderCameras& cameras) {
+  if (!stages_->encoded) throw Error("render before encode");
+  const int64_t r = int64_t(cameras.size());
+  if (r == 0) return {};
+  if (cameras.fxfycxcy.size() != cameras.c2w.size()) throw Error("render cameras: as many intrinsics as poses needed");
+  std::vector<float> c2w, k;
+  for (int64_t j = 0; j < r; ++j) {
+    c2w.insert(c2w.end(), cameras.c2w[j].begin(), cameras.c2w[j].end());
+    k.insert(k.end(), cameras.fxfycxcy[j].begin(), cameras.fxfycxcy[j].end());
+  }
+  return renderRays(engine_.fromFloats({r, 4, 4}, c2w), engine_.fromFloats({r, 4}, k), r);
+}
+
+}  // namespace spar
