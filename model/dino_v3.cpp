@@ -27,13 +27,20 @@ struct BlockKey {
   Dims dims;
 };
 constexpr BlockKey kBlockKeys[] = {
-    {"norm1.weight", "norm1.weight", Dims::E},          {"norm1.bias", "norm1.bias", Dims::E},
-    {"attn.to_qkv.weight", "attn.qkv.weight", Dims::ThreeE_E}, {"attn.to_qkv.bias", "attn.qkv.bias", Dims::ThreeE},
-    {"attn.fc.weight", "attn.proj.weight", Dims::E_E},  {"attn.fc.bias", "attn.proj.bias", Dims::E},
-    {"norm2.weight", "norm2.weight", Dims::E},          {"norm2.bias", "norm2.bias", Dims::E},
-    {"mlp.mlp.0.weight", "mlp.fc1.weight", Dims::F_E},  {"mlp.mlp.0.bias", "mlp.fc1.bias", Dims::F},
-    {"mlp.mlp.2.weight", "mlp.fc2.weight", Dims::E_F},  {"mlp.mlp.2.bias", "mlp.fc2.bias", Dims::E},
-    {"ls1.gamma", "ls1.gamma", Dims::E},                {"ls2.gamma", "ls2.gamma", Dims::E},
+    {"norm1.weight", "norm1.weight", Dims::E},
+    {"norm1.bias", "norm1.bias", Dims::E},
+    {"attn.to_qkv.weight", "attn.qkv.weight", Dims::ThreeE_E},
+    {"attn.to_qkv.bias", "attn.qkv.bias", Dims::ThreeE},
+    {"attn.fc.weight", "attn.proj.weight", Dims::E_E},
+    {"attn.fc.bias", "attn.proj.bias", Dims::E},
+    {"norm2.weight", "norm2.weight", Dims::E},
+    {"norm2.bias", "norm2.bias", Dims::E},
+    {"mlp.mlp.0.weight", "mlp.fc1.weight", Dims::F_E},
+    {"mlp.mlp.0.bias", "mlp.fc1.bias", Dims::F},
+    {"mlp.mlp.2.weight", "mlp.fc2.weight", Dims::E_F},
+    {"mlp.mlp.2.bias", "mlp.fc2.bias", Dims::E},
+    {"ls1.gamma", "ls1.gamma", Dims::E},
+    {"ls2.gamma", "ls2.gamma", Dims::E},
 };
 
 Shape shapeOf(Dims d, int64_t E, int64_t F) {
