@@ -30,7 +30,8 @@ class DinoV3 {
   DinoV3(Engine& engine, WeightSet& weights, const DinoConfig& config);
 
   // images: [V, 3, H, W] f32 in [0, 1] with H and W multiples of the patch size (else a
-  // one-line spar::Error); tokens: [V, (H/p) * (W/p), E] f32, written. Records dispatches
+  // one-line spar::Error; the reference would resize such images bilinearly, which SPAR's
+  // prepared images never need); tokens: [V, (H/p) * (W/p), E] f32, written. Records dispatches
   // into rec; ws grows to V * (prefix + patches) tokens if it is smaller. Buffers for one
   // image size are allocated on its first call and reused by later calls of that size.
   void forward(Recorder& rec, const Tensor& images, const Tensor& tokens, TransformerWorkspace& ws);
