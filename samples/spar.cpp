@@ -1,0 +1,92 @@
+// spar: the command-line tool of the engine.
+//   spar render --model M.spar (--images A B [--targets C D] | --frames f0 .. --inputs 0,3,4)
+//               [--cameras transforms.json | --path N] [--assume-static] [--device D] --out DIR
+// Exit codes: 0 done, 1 something found wrong on the way (files, model, device), 2 a command
+// line that cannot mean anything. Every error is one line "spar: error: <message>" on stderr.
+#include <CLI/CLI.hpp>
+
+#include <cstdio>
+#include <iostream>
+#include <string>
+
+#include "samples/spar_cli/errors.h"
+#include "samples/spar_cli/render_command.h"
+
+namespace {
+
+// Messages of exceptions may span lines (a file's own text inside); the contract is one line.
+std::string oneLine(std::string s) {
+  for (char& c : s)
+    if (c == '\n' || c == '\r') c = ' ';
+  while (!s.empty() && s.back() == ' ') s.pop_back();
+  return s.empty() ? "unknown error" : s;
+}
+
+int fail(const std::string& message, int code) {
+  std::fprintf(stderr, "spar: error: %s\n", oneLine(message).c_str());
+  return code;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace spar::cli;
+  CLI::App app{"spar: SPAR on Vulkan: cameras, motion masks and novel views from a few photos"};
+  app.require_subcommand(1);
+  RenderArgs a;
+  std::string inputs;
+  int path = 0;
+
+  CLI::App* render = app.add_subcommand(
+      "render",
+      "Run SPAR on one ordered sequence of views and write view_XX.png (rendered views), motion_XX.png / "
+      "mask_XX.png (input views), cameras.json and report.json into a new directory");
+  render->add_option("--model", a.model, "packed model (.spar, made by converter/spar-convert)")->required();
+  auto* images = render->add_option("--images", a.views.images, "input views; the sequence is these, then --targets");
+  auto* frames = render->add_option("--frames", a.views.frames,
+                                    "all frames in capture order; --inputs says which are inputs, the rest are targets");
+  frames->excludes(images);
+  auto* targets = render->add_option("--targets", a.views.targets, "target views (evaluation: rendered with "
+                                                                   "their estimated cameras)");
+  render->add_option("--inputs", inputs, "with --frames: positions of the input views, e.g. 0,3,4");
+  auto* cameras = render->add_option("--cameras", a.cameras,
+                                     "render these cameras instead of the targets (nerfstudio transforms.json, "
+                                     "OpenGL camera-to-world in the canonical view's frame)");
+  auto* pathOpt = render->add_option("--path", path,
+                                     "render N cameras along the estimated input cameras (slerp rotations, "
+                                     "lerp positions) instead of the targets");
+  pathOpt->excludes(cameras);
+  render->add_flag("--assume-static", a.assumeStatic,
+                   "the scene is static: skip DINOv3 and CV-DRP, gate no token, write no motion maps");
+  render->add_option("--out", a.out, "output directory (must not exist; written as DIR.tmp-XXXXXX, then renamed)")
+      ->required();
+  render->add_option("--device", a.device, "Vulkan device index or part of its name (default: SPAR_DEVICE, else "
+                                           "the first GPU)");
+  std::string labelsText;
+  auto* labels = render->add_option("--labels", labelsText,
+                                    "comma-separated prompts: open-vocabulary label maps (models with the semantic "
+                                    "branch; not implemented yet)")
+                     ->type_name("\"a,b,...\"");
+  render->add_flag("--features", a.features,
+                   "semantic features of the rendered views (models with the semantic branch; not implemented yet)");
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    if (e.get_exit_code() == 0) return app.exit(e);  // --help
+    return fail(std::string(e.what()) + " (see --help)", kExitUsage);
+  }
+  a.views.inputs = inputs;
+  a.views.targetsGiven = targets->count() > 0;
+  if (pathOpt->count() > 0) a.path = path;
+  if (labels->count() > 0) a.labels = labelsText;
+
+  try {
+    runRender(a);
+    return kExitOk;
+  } catch (const UsageError& e) {
+    return fail(std::string(e.what()) + " (see spar render --help)", kExitUsage);
+  } catch (const std::exception& e) {
+    return fail(e.what(), kExitRuntime);
+  }
+}

@@ -1,0 +1,240 @@
+#include "samples/spar_cli/render_command.h"
+
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+#include <memory>
+
+#include "engine/engine.h"
+#include "model/cameras.h"
+#include "model/image_prep.h"
+#include "model/packed_model.h"
+#include "model/spar_config.h"
+#include "model/spar_pipeline.h"
+#include "samples/spar_cli/errors.h"
+#include "samples/spar_cli/render_outputs.h"
+#include "samples/spar_cli/staged_dir.h"
+
+namespace spar::cli {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+double msSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+
+// Progress on stderr: one line per phase; on a terminal the line is rewritten in place so the
+// run shows as a single updating line.
+class Progress {
+ public:
+  Progress() : tty_(::isatty(STDERR_FILENO) == 1) {}
+  ~Progress() { finish(); }
+  void step(const std::string& text) {
+    if (tty_) {
+      std::fprintf(stderr, "\r\033[Kspar: %s", text.c_str());
+      open_ = true;
+    } else {
+      std::fprintf(stderr, "spar: %s\n", text.c_str());
+    }
+    std::fflush(stderr);
+  }
+  // Ends the updating line (before an error message or at the end).
+  void finish() {
+    if (open_) std::fputc('\n', stderr);
+    open_ = false;
+  }
+
+ private:
+  bool tty_ = false, open_ = false;
+};
+
+// Everything checked before any device work: the command line, then the files it names.
+struct Validated {
+  PlannedViews views;
+  std::string outDir;
+  std::unique_ptr<PackedModel> model;
+  SparConfig config;
+  std::vector<float> images;  // [V, 3, H, W]
+  std::vector<CameraD> cameras;  // --cameras
+  double loadModelMs = 0, prepareMs = 0;
+};
+
+Validated validate(const RenderArgs& a) {
+  Validated v;
+  // 1. The command line alone (exit 2).
+  if (a.model.empty()) throw UsageError("--model is required");
+  v.views = planViews(a.views);
+  if (a.path && *a.path < 1) throw UsageError("--path needs at least 1 frame, got " + std::to_string(*a.path));
+  if (a.path && !a.cameras.empty()) throw UsageError("--cameras and --path exclude each other");
+  if (a.out.empty()) throw UsageError("--out is required");
+  if (a.labels && a.labels->find_first_not_of(" ,") == std::string::npos)
+    throw UsageError("--labels needs at least one prompt");
+
+  // 2. Files and directories (exit 1), cheapest first: nothing is loaded before all exist.
+  for (const auto& f : v.views.files) {
+    std::error_code ec;
+    if (!fs::exists(f, ec)) throw Error("image not found: " + f);
+    if (fs::is_directory(f, ec)) throw Error("cannot read image " + f + ": it is a directory");
+  }
+  if (!a.cameras.empty() && !fs::exists(a.cameras)) throw Error("cameras file not found: " + a.cameras);
+  if (!fs::exists(a.model)) throw Error("model not found: " + a.model);
+  v.outDir = checkOutDir(a.out);
+
+  auto t = Clock::now();
+  v.model = std::make_unique<PackedModel>(PackedModel::open(a.model));
+  v.config = SparConfig::fromJson(v.model->config(), v.model->path());
+  v.loadModelMs = msSince(t);
+  if (a.labels || a.features) {
+    if (!v.config.useLseg) throw Error("this model has no semantic branch: --labels / --features are not available");
+    throw Error("--labels / --features are not implemented yet");
+  }
+
+  t = Clock::now();
+  const int h = int(v.config.imageHeight), w = int(v.config.imageWidth);
+  for (const auto& f : v.views.files) {
+    const std::vector<float> img = loadPreparedImage(f, h, w);
+    v.images.insert(v.images.end(), img.begin(), img.end());
+  }
+  if (!a.cameras.empty()) v.cameras = readTransforms(a.cameras, w, h);
+  v.prepareMs = msSince(t);
+  return v;
+}
+
+CameraD estimatedCamera(const SparEncoded& e, int64_t i) {
+  CameraD c;
+  for (int k = 0; k < 16; ++k) c.c2w[k] = e.c2w[size_t(i) * 16 + k];
+  for (int k = 0; k < 4; ++k) c.k[k] = e.fxfycxcy[size_t(i) * 4 + k];
+  return c;
+}
+
+// The reference's --path: N cameras along the estimated input cameras, all with the first
+// input's intrinsics.
+RenderCameras pathCameras(const SparEncoded& e, const std::vector<int64_t>& inputs, int n) {
+  std::vector<Mat4d> c2w;
+  for (int64_t i : inputs) c2w.push_back(estimatedCamera(e, i).c2w);
+  const auto path = interpolatePath(c2w, n);
+  std::vector<CameraD> cams(path.size());
+  for (size_t j = 0; j < path.size(); ++j) {
+    cams[j].c2w = path[j];
+    cams[j].k = estimatedCamera(e, inputs.front()).k;
+  }
+  return toRenderCameras(cams);
+}
+
+std::string viewsText(const PlannedViews& p) {
+  return std::to_string(p.files.size()) + " views (" + std::to_string(p.inputs.size()) + " inputs, " +
+         std::to_string(p.targets.size()) + " targets)";
+}
+
+}  // namespace
+
+void runRender(const RenderArgs& a) {
+  const auto start = Clock::now();
+  Validated v = validate(a);
+  const SparConfig& cfg = v.config;
+  const int h = int(cfg.imageHeight), w = int(cfg.imageWidth);
+  const std::string mode = !a.cameras.empty() ? "cameras" : (a.path ? "path" : "targets");
+
+  Progress progress;
+  nlohmann::ordered_json host = nlohmann::ordered_json::array();
+  host.push_back({{"name", "load_model"}, {"wall_ms", v.loadModelMs}});
+  host.push_back({{"name", "prepare_images"}, {"wall_ms", v.prepareMs}});
+  try {
+    progress.step("opening the Vulkan device");
+    auto t = Clock::now();
+    EngineOptions eo;
+    eo.device.select = a.device;
+    Engine engine(eo);
+    host.push_back({{"name", "device"}, {"wall_ms", msSince(t)}});
+
+    SparPipelineOptions po;
+    po.profile = true;
+    SparPipeline pipeline(engine, *v.model, po);
+    SparRequest req;
+    req.images = std::move(v.images);
+    req.height = h;
+    req.width = w;
+    req.plan.views = int64_t(v.views.files.size());
+    req.plan.inputs = v.views.inputs;
+    req.plan.targets = v.views.targets;
+    req.assumeStatic = a.assumeStatic;
+    req.plan.validate();
+
+    progress.step("encoding " + viewsText(v.views) + " at " + std::to_string(w) + "x" + std::to_string(h) + " on " +
+                  engine.caps().name + (a.assumeStatic ? " (assume static)" : ""));
+    const SparEncoded& enc = pipeline.encode(req);
+
+    RenderResult r;
+    r.width = w;
+    r.height = h;
+    RenderCameras renderCams;
+    if (mode == "path") renderCams = pathCameras(enc, v.views.inputs, *a.path);
+    if (mode == "cameras") renderCams = toRenderCameras(v.cameras);
+    const int64_t count = mode == "targets" ? int64_t(v.views.targets.size()) : int64_t(renderCams.size());
+    if (count > 0) {
+      progress.step("rendering " + std::to_string(count) + (mode == "targets" ? " target" : " " + mode) +
+                    (count == 1 ? " view" : " views"));
+      r.rgb = mode == "targets" ? pipeline.renderTargets() : pipeline.render(renderCams);
+    }
+    r.rendered = count;
+    if (!a.assumeStatic) {
+      r.motion = enc.motionInput;
+      r.motionViews = int64_t(v.views.inputs.size());
+    }
+    r.maskThreshold = cfg.maskThreshold;
+
+    CamerasDocument& cd = r.cameras;
+    cd.width = w;
+    cd.height = h;
+    cd.files = v.views.files;
+    cd.inputs = v.views.inputs;
+    cd.targets = v.views.targets;
+    cd.canonicalIndex = enc.canonicalIndex;
+    for (size_t i = 0; i < v.views.files.size(); ++i) cd.cameras.push_back(estimatedCamera(enc, int64_t(i)));
+    cd.render = mode;
+    if (mode != "targets") cd.renderCameras = fromRenderCameras(renderCams);
+
+    progress.step("writing " + v.outDir);
+    t = Clock::now();
+    StagedDir staged(v.outDir);
+    int written = writeRenderOutputs(staged.path(), r);
+    host.push_back({{"name", "write_outputs"}, {"wall_ms", msSince(t)}});
+
+    nlohmann::ordered_json stages = nlohmann::ordered_json::array();
+    for (const auto& s : pipeline.stageTimes())
+      stages.push_back({{"name", s.name}, {"gpu_ms", s.gpuMs}, {"wall_ms", s.wallMs}});
+    nlohmann::ordered_json report = {
+        {"tool", "spar"},
+        {"command", "render"},
+        {"model", absolutePath(a.model)},
+        {"device", engine.caps().name},
+        {"precision", "fp32"},
+        {"views",
+         {{"total", v.views.files.size()},
+          {"inputs", v.views.inputs.size()},
+          {"targets", v.views.targets.size()},
+          {"rendered", count}}},
+        {"render", mode},
+        {"assume_static", a.assumeStatic},
+        // from the start of the command to here: everything but writing this file
+        {"total_seconds", msSince(start) / 1000.0},
+        {"stages", stages},          // GPU stages that ran (pipeline.stageTimes())
+        {"host_stages", host},       // CPU-side phases of the command
+        {"weights_bytes_loaded", pipeline.weightBytesLoaded()},
+    };
+    writeJson((fs::path(staged.path()) / "report.json").string(), report);
+    ++written;
+    staged.commit();
+    char done[64];
+    std::snprintf(done, sizeof(done), " in %.2f s", msSince(start) / 1000.0);
+    progress.step("wrote " + std::to_string(written) + " files to " + v.outDir + done);
+    progress.finish();
+  } catch (...) {
+    progress.finish();
+    throw;
+  }
+}
+
+}  // namespace spar::cli

@@ -1,0 +1,33 @@
+// `spar render`: one SPAR run on a sequence of views, written as the reference's
+// `spar-reference render` writes it (converter/spar_reference/cli.py Run.write_render):
+//   view_XX.png    rendered views (targets, --path or --cameras cameras), in order
+//   motion_XX.png  P(dynamic) of each input view, 8-bit grey   (not with --assume-static)
+//   mask_XX.png    P(dynamic) > mask threshold as 0 / 255       (not with --assume-static)
+//   cameras.json   every view's estimated camera (nerfstudio convention), order, render cameras
+//   report.json    device, precision, views, total time, the stages that ran with GPU times
+// Everything the command line names is checked before any work; the directory appears only
+// when complete (StagedDir).
+#pragma once
+#include <optional>
+#include <string>
+
+#include "samples/spar_cli/view_plan.h"
+
+namespace spar::cli {
+
+struct RenderArgs {
+  std::string model;
+  ViewArgs views;
+  std::string cameras;             // --cameras transforms.json
+  std::optional<int> path;         // --path N
+  bool assumeStatic = false;
+  std::string out;
+  std::string device;              // index or part of the name; "" = SPAR_DEVICE / default
+  std::optional<std::string> labels;
+  bool features = false;
+};
+
+// Throws UsageError (exit 2) or spar::Error (exit 1); prints progress on stderr.
+void runRender(const RenderArgs& args);
+
+}  // namespace spar::cli

@@ -1,0 +1,56 @@
+#include "samples/spar_cli/render_outputs.h"
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include "engine/error.h"
+#include "model/image_prep.h"
+
+namespace spar::cli {
+
+namespace {
+
+std::string numbered(const std::string& dir, const char* stem, int64_t j) {
+  char name[64];
+  std::snprintf(name, sizeof(name), "%s_%02lld.png", stem, static_cast<long long>(j));
+  return (std::filesystem::path(dir) / name).string();
+}
+
+}  // namespace
+
+void writeJson(const std::string& path, const nlohmann::ordered_json& doc) {
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
+    if (!f) throw Error("cannot write " + tmp);
+    f << doc.dump(1) << "\n";
+    f.flush();
+    if (!f) throw Error("cannot write " + tmp);
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) throw Error("cannot rename " + tmp + " to " + path + ": " + ec.message());
+}
+
+int writeRenderOutputs(const std::string& dir, const RenderResult& r) {
+  const size_t plane = size_t(r.width) * r.height;
+  int files = 0;
+  if (r.rgb.size() != size_t(r.rendered) * 3 * plane) throw Error("render result: wrong number of RGB values");
+  if (r.motion.size() != size_t(r.motionViews) * plane) throw Error("render result: wrong number of motion values");
+  for (int64_t j = 0; j < r.rendered; ++j, ++files)
+    writePng(numbered(dir, "view", j), r.rgb.data() + size_t(j) * 3 * plane, 3, r.height, r.width);
+  std::vector<float> mask(plane);
+  for (int64_t j = 0; j < r.motionViews; ++j) {
+    const float* p = r.motion.data() + size_t(j) * plane;
+    writePng(numbered(dir, "motion", j), p, 1, r.height, r.width);
+    // The reference's binary mask: prob > threshold, written as 0 / 255.
+    for (size_t i = 0; i < plane; ++i) mask[i] = p[i] > r.maskThreshold ? 1.0f : 0.0f;
+    writePng(numbered(dir, "mask", j), mask.data(), 1, r.height, r.width);
+    files += 2;
+  }
+  writeJson((std::filesystem::path(dir) / "cameras.json").string(), camerasJson(r.cameras));
+  return files + 1;
+}
+
+}  // namespace spar::cli

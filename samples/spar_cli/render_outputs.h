@@ -1,0 +1,31 @@
+// Writing a finished `spar render` run into a directory (the staged temporary one): the file
+// names, formats and JSON documents of the reference's Run.write_render / cameras_json / report.
+#pragma once
+#include <nlohmann/json.hpp>
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "model/cameras.h"
+
+namespace spar::cli {
+
+struct RenderResult {
+  int width = 0, height = 0;
+  std::vector<float> rgb;      // [R, 3, H, W] rendered views
+  int64_t rendered = 0;
+  std::vector<float> motion;   // [K, H, W] P(dynamic) of the inputs (empty: --assume-static)
+  int64_t motionViews = 0;
+  float maskThreshold = 0.5f;
+  CamerasDocument cameras;     // cameras.json
+};
+
+// Writes the images and cameras.json into `dir` (report.json is the caller's, written last
+// so that it can count the time spent here); returns the number of files written.
+int writeRenderOutputs(const std::string& dir, const RenderResult& result);
+
+// A JSON document, written whole (temporary name + rename) with a trailing newline.
+void writeJson(const std::string& path, const nlohmann::ordered_json& doc);
+
+}  // namespace spar::cli
