@@ -2,6 +2,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -22,6 +23,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
+constexpr size_t kRenderChunk = 8;  // views per render call for --path / --cameras
 
 double msSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
 
@@ -174,9 +176,24 @@ void runRender(const RenderArgs& a) {
     if (mode == "cameras") renderCams = toRenderCameras(v.cameras);
     const int64_t count = mode == "targets" ? int64_t(v.views.targets.size()) : int64_t(renderCams.size());
     if (count > 0) {
-      progress.step("rendering " + std::to_string(count) + (mode == "targets" ? " target" : " " + mode) +
-                    (count == 1 ? " view" : " views"));
-      r.rgb = mode == "targets" ? pipeline.renderTargets() : pipeline.render(renderCams);
+      const std::string views = count == 1 ? " view" : " views";
+      const std::string what = mode == "targets" ? " target" + views
+                               : mode == "path"  ? views + " along the input cameras"
+                                                 : views + " from " + a.cameras;
+      progress.step("rendering " + std::to_string(count) + what);
+      if (mode == "targets") {
+        r.rgb = pipeline.renderTargets();
+      } else {
+        // A long path in chunks: device memory for a few views at a time, not for all N.
+        for (size_t j0 = 0; j0 < renderCams.size(); j0 += kRenderChunk) {
+          const size_t j1 = std::min(renderCams.size(), j0 + kRenderChunk);
+          RenderCameras chunk;
+          chunk.c2w.assign(renderCams.c2w.begin() + j0, renderCams.c2w.begin() + j1);
+          chunk.fxfycxcy.assign(renderCams.fxfycxcy.begin() + j0, renderCams.fxfycxcy.begin() + j1);
+          const std::vector<float> rgb = pipeline.render(chunk);
+          r.rgb.insert(r.rgb.end(), rgb.begin(), rgb.end());
+        }
+      }
     }
     r.rendered = count;
     if (!a.assumeStatic) {
