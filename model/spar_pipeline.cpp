@@ -9,6 +9,8 @@
 #include "engine/error.h"
 #include "engine/ops/copy2d.h"
 #include "engine/recorder.h"
+#include "model/cv_drp.h"
+#include "model/dino_v3.h"
 #include "model/gating.h"
 #include "model/plucker_rays.h"
 #include "model/pose_estimator.h"
@@ -39,6 +41,8 @@ void ViewPlan::validate() const {
 struct SparPipeline::Stages {
   std::unique_ptr<ViewTokenizer> tokenizer;
   std::unique_ptr<PoseEstimator> pose;
+  std::unique_ptr<DinoV3> dino;
+  std::unique_ptr<CvDrp> cvDrp;
   std::unique_ptr<TokenGating> gating;
   std::unique_ptr<SceneEncoder> scene;
   std::unique_ptr<Renderer> renderer;
@@ -167,9 +171,37 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
   keep("ray_tokens", rayTokens);
 
   // ---- motion: DINOv3 + CV-DRP (left out for a scene declared static)
-  Tensor probInput;
+  Tensor probInput, probTarget;
   if (!request.assumeStatic) {
-    throw Error("CV-DRP is not on the engine yet: run with --assume-static");
+    if (!st.dino) st.dino = std::make_unique<DinoV3>(engine_, weights_, c.dino);
+    const Tensor dino = engine_.tensor({v, n, d});
+    t0 = Clock::now();
+    rec.setStage("dino_v3");
+    st.dino->forward(rec, images, dino, st.ws);
+    rec.run();
+    finish(t0);
+    keep("dino", dino);
+
+    if (!st.cvDrp) st.cvDrp = std::make_unique<CvDrp>(engine_, weights_, c);
+    t0 = Clock::now();
+    rec.setStage("cv_drp");
+    const Tensor logitsInput = engine_.tensor({k, 1, h, w});
+    probInput = engine_.tensor({k, 1, h, w});
+    st.cvDrp->forward(rec, dino, imgTokens, rayTokens, request.plan.inputs, CvDrpMode::Input, gh, gw, logitsInput,
+                      probInput, st.ws);
+    keep("cv_drp_input.logits", logitsInput);
+    keep("cv_drp_input.prob", probInput);
+    const int64_t t = int64_t(request.plan.targets.size());
+    if (request.targetMotion && t > 0) {
+      const Tensor logitsTarget = engine_.tensor({t, 1, h, w});
+      probTarget = engine_.tensor({t, 1, h, w});
+      st.cvDrp->forward(rec, dino, imgTokens, rayTokens, request.plan.targets, CvDrpMode::Target, gh, gw,
+                        logitsTarget, probTarget, st.ws);
+      keep("cv_drp_target.logits", logitsTarget);
+      keep("cv_drp_target.prob", probTarget);
+    }
+    rec.run();
+    finish(t0);
   }
 
   // ---- mlp_fuse and gating of the input tokens
@@ -209,6 +241,7 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
   encoded_.c2w = engine_.download(st.c2w);
   encoded_.fxfycxcy = engine_.download(st.fxfycxcy);
   if (probInput.defined()) encoded_.motionInput = engine_.download(probInput);
+  if (probTarget.defined()) encoded_.motionTarget = engine_.download(probTarget);
   encoded_.canonicalIndex = c.canonicalIndex(v);
   st.encoded = true;
   return encoded_;

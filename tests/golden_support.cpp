@@ -9,8 +9,10 @@ namespace spar::test {
 
 std::string goldenPath(const std::string& rel) { return std::string(SPAR_GOLDENS_DIR) + "/" + rel; }
 std::string tinyModelPath() { return goldenPath("tiny.spar"); }
+std::string fullGoldenPath(const std::string& rel) { return std::string(SPAR_FULL_GOLDENS_DIR) + "/" + rel; }
 
-GoldenCase::GoldenCase(const std::string& name) : name_(name), dir_(goldenPath(name)) {
+GoldenCase::GoldenCase(const std::string& name)
+    : name_(name), dir_(!name.empty() && name[0] == '/' ? name : goldenPath(name)) {
   std::ifstream f(dir_ + "/manifest.json");
   if (!f) throw Error(dir_ + "/manifest.json: cannot open (did the spar_goldens fixture run?)");
   manifest_ = nlohmann::json::parse(f);

@@ -15,10 +15,13 @@ namespace spar::test {
 std::string goldenPath(const std::string& rel);
 // The packed tiny model (SPAR_GOLDENS_DIR/tiny.spar).
 std::string tinyModelPath();
+// The full-size case (fixture spar_goldens_full): SPAR_FULL_GOLDENS_DIR/<rel>.
+std::string fullGoldenPath(const std::string& rel);
 
 class GoldenCase {
  public:
-  // A case directory under SPAR_GOLDENS_DIR ("interleaved", "odd_targets", "path").
+  // A case directory under SPAR_GOLDENS_DIR ("interleaved", "odd_targets", "path"), or an
+  // absolute path.
   explicit GoldenCase(const std::string& name);
   const std::string& dir() const { return dir_; }
   const nlohmann::json& manifest() const { return manifest_; }

@@ -5,6 +5,7 @@ matters, packed by the converter, and the PyTorch reference's goldens of every s
 view orders. Everything is made here, at test time, from fixed seeds.
 
     make_spar_goldens.py OUT_DIR
+    make_spar_goldens.py --full OUT_DIR    (the full-size case, see main_full)
 
 writes OUT_DIR/
     tiny_photometric.json     the configuration (SparConfig.to_dict())
@@ -13,6 +14,13 @@ writes OUT_DIR/
     interleaved/              goldens: frames 0..4, inputs 0,2,4, targets 1,3
     odd_targets/              goldens: frames 0..4, inputs 1,3, targets 0,2,4 (canonical = target)
     path/                     goldens: inputs frame_0, frame_2, frame_4, a 3-camera path
+    static/                   goldens: as interleaved with --assume-static (no DINOv3, CV-DRP, gating)
+  stiff cases (the model-level ones of engineering.md), each a goldens directory:
+    identical_views/          all five frames the same image
+    black_view/               frame 2 (an input, the canonical view) all black
+    all_dynamic/, all_static/ a model whose CV-DRP head bias is +40 / -40: P(dynamic) = 1 / ~0
+                              everywhere (gating with s = 0 everywhere / s = 1)
+    focal_large/, focal_small/ a model whose canonical_k_head predicts focal 1001.25 / 0.001
     static/                   goldens: as interleaved with --assume-static (no DINOv3, CV-DRP, gating)
 """
 import json
@@ -28,7 +36,7 @@ ROOT = os.path.dirname(os.path.dirname(HERE))
 CONVERTER = os.path.join(ROOT, "converter")
 sys.path.insert(0, CONVERTER)
 
-from spar_convert.model_config import tiny  # noqa: E402
+from spar_convert.model_config import full, tiny  # noqa: E402
 
 
 def frames(out_dir, count=5, width=160, height=120, seed=3):
@@ -51,11 +59,47 @@ def frames(out_dir, count=5, width=160, height=120, seed=3):
     return paths
 
 
+def variant(ck, out, changes):
+    """A copy of checkpoint ``ck`` with some tensors replaced: name -> function(tensor)."""
+    import torch
+    sd = torch.load(ck, map_location="cpu")
+    model = sd["model"]
+    for name, fn in changes.items():
+        model[name] = fn(model[name].clone())
+    torch.save(sd, out)
+
+
 def run(*args):
     subprocess.run([sys.executable, *args], check=True, env=dict(os.environ, PYTHONPATH=CONVERTER))
 
 
+def main_full(out):
+    """The full-size comparison (issue: one run of the official configuration with random
+    weights, 2 input + 1 target view at 256x256, stage by stage): full() without the semantic
+    branch, perturbed weights, float64 goldens of frames 0, 1, 2 with inputs 0, 2."""
+    os.makedirs(out, exist_ok=True)
+    cfg = full()
+    cfg.use_lseg = False
+    cfg_path = os.path.join(out, "full_photometric.json")
+    with open(cfg_path, "w") as f:
+        json.dump(cfg.validate().to_dict(), f, indent=1)
+    f = frames(out, count=3, width=320, height=240)
+    ck, packed = os.path.join(out, "full.pt"), os.path.join(out, "full.spar")
+    ref = os.path.join(CONVERTER, "spar-reference")
+    run(ref, "make-checkpoint", "--config", cfg_path, "--seed", "11", "--perturb", "--no-optimizer", "-o", ck)
+    run(os.path.join(CONVERTER, "spar-convert"), "-q", ck, "--config", cfg_path, "-o", packed)
+    d = os.path.join(out, "full_2in_1out")
+    if os.path.exists(d):
+        subprocess.run(["rm", "-rf", d], check=True)
+    run(ref, "goldens", "--checkpoint", ck, "--config", cfg_path, "--frames", *f, "--inputs", "0,2",
+        "--float64", "--out", d)
+    os.unlink(ck)  # 1.4 GB: only the packed file is needed from here on
+    return 0
+
+
 def main():
+    if sys.argv[1:2] == ["--full"]:
+        return main_full(os.path.abspath(sys.argv[2]))
     out = os.path.abspath(sys.argv[1])
     os.makedirs(out, exist_ok=True)
     cfg = tiny()
@@ -68,18 +112,41 @@ def main():
     ref = os.path.join(CONVERTER, "spar-reference")
     run(ref, "make-checkpoint", "--config", cfg_path, "--seed", "7", "--perturb", "--no-optimizer", "-o", ck)
     run(os.path.join(CONVERTER, "spar-convert"), "-q", ck, "--config", cfg_path, "-o", packed)
-    common = ["--checkpoint", ck, "--config", cfg_path]
     cases = {
         "interleaved": ["--frames", *f, "--inputs", "0,2,4"],
         "odd_targets": ["--frames", *f, "--inputs", "1,3"],
         "path": ["--images", f[0], f[2], f[4], "--path", "3"],
         "static": ["--frames", *f, "--inputs", "0,2,4", "--assume-static"],
     }
+    # stiff inputs
+    same = [f[0]] * 5
+    black = os.path.join(out, "black.png")
+    Image.new("RGB", (160, 120)).save(black)
+    cases["identical_views"] = ["--frames", *same, "--inputs", "0,2,4"]
+    cases["black_view"] = ["--frames", f[0], f[1], black, f[3], f[4], "--inputs", "0,2,4"]
+    # stiff models
+    head = "cv_drp.estimator.dpt_decoder.head.bias"
+    kw, kb = "pose_predictor.canonical_k_head.2.weight", "pose_predictor.canonical_k_head.2.bias"
+    models = {
+        "all_dynamic": {head: lambda t: t.fill_(40.0)},
+        "all_static": {head: lambda t: t.fill_(-40.0)},
+        "focal_large": {kw: lambda t: t.zero_(), kb: lambda t: t.fill_(1000.0)},
+        "focal_small": {kw: lambda t: t.zero_(), kb: lambda t: t.fill_(-1.249)},
+    }
+    model_ck = {}
+    for name, changes in models.items():
+        mck = os.path.join(out, f"{name}.pt")
+        variant(ck, mck, changes)
+        run(os.path.join(CONVERTER, "spar-convert"), "-q", mck, "--config", cfg_path,
+            "-o", os.path.join(out, f"{name}.spar"))
+        model_ck[name] = mck
+        cases[name] = ["--frames", *f, "--inputs", "0,2,4"]
     for name, args in cases.items():
         d = os.path.join(out, name)
         if os.path.exists(d):
             subprocess.run(["rm", "-rf", d], check=True)
-        run(ref, "goldens", *common, *args, "--float64", "--out", d)
+        this = ["--checkpoint", model_ck.get(name, ck), "--config", cfg_path]
+        run(ref, "goldens", *this, *args, "--float64", "--out", d)
     return 0
 
 

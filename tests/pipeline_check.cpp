@@ -1,0 +1,133 @@
+#include "pipeline_check.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cstdio>
+
+#include "model/image_prep.h"
+#include "model/packed_model.h"
+#include "test_support.h"
+
+namespace spar::test {
+namespace {
+
+// Thresholds from measurement (fp32 engine vs float64 reference on the tiny perturbed model:
+// every stage measured <= 6e-13), with more than 100x margin. Stages are compared as the chain
+// runs (each fed by the engine's previous stages), so these bound the accumulated error.
+const std::vector<StageCheck> kEncodeChecks = {
+    {"img_tokens_raw", 1e-11},   {"pe_code", 1e-13},      {"img_tokens", 1e-11},   {"cam_tokens_in", 1e-11},
+    {"pose_encoder_out", 1e-10}, {"cam_tokens", 1e-10},   {"c2w", 1e-10},          {"fxfycxcy", 1e-10},
+    {"plucker", 1e-10},          {"ray_tokens", 1e-10},   {"fused_tokens", 1e-10}, {"gated_tokens", 1e-10},
+    {"scene_encoder_in", 1e-10}, {"scene_encoder_out", 1e-10}, {"scene_tokens", 1e-10},
+};
+const std::vector<StageCheck> kMotionChecks = {
+    {"dino", 1e-10}, {"cv_drp_input.logits", 1e-10}, {"cv_drp_input.prob", 1e-10}, {"dynamic_patch", 1e-10},
+};
+const std::vector<StageCheck> kTargetMotionChecks = {
+    {"cv_drp_target.logits", 1e-10}, {"cv_drp_target.prob", 1e-10},
+};
+const std::vector<StageCheck> kRenderChecks = {
+    {"render_c2w", 1e-10}, {"render_fxfycxcy", 1e-10}, {"render_plucker", 1e-10}, {"rgb_queries", 1e-10},
+    {"decoder_in", 1e-10}, {"decoder_out", 1e-10},     {"rgb_tokens", 1e-10},     {"rgb", 1e-10},
+};
+
+void expectStage(Engine& engine, const SparPipeline& pipe, const GoldenCase& g, const StageCheck& check,
+                 double scale) {
+  SCOPED_TRACE(check.name);
+  ASSERT_TRUE(g.has(check.name)) << "no golden " << check.name;
+  const std::vector<double> want = g.doubles(check.name);
+  const std::vector<float> got = engine.download(pipe.intermediate(check.name));
+  ASSERT_EQ(got.size(), want.size()) << check.name;
+  const ErrorStats e = compare(got, want);
+  std::printf("  %-22s NMSE %.3e  max abs %.3e\n", check.name, e.nmse, e.maxAbs);
+  EXPECT_EQ(e.nonFinite, 0u) << check.name;
+  EXPECT_LE(e.nmse, check.maxNmse * scale) << check.name;
+}
+
+// The binary motion mask: identical except where the reference probability is within 1e-4 of
+// the threshold (a near-tie either side may round either way).
+void expectMask(Engine& engine, const SparPipeline& pipe, const GoldenCase& g, const std::string& prefix,
+                float threshold) {
+  const std::vector<float> prob = engine.download(pipe.intermediate(prefix + ".prob"));
+  const std::vector<double> want = g.doubles(prefix + ".prob");
+  const std::vector<double> binary = g.doubles(prefix + ".binary");
+  ASSERT_EQ(prob.size(), binary.size());
+  size_t differ = 0, ties = 0;
+  for (size_t i = 0; i < prob.size(); ++i) {
+    const bool mine = prob[i] > threshold, theirs = binary[i] != 0.0;
+    if (mine == theirs) continue;
+    if (std::abs(want[i] - threshold) < 1e-4) ++ties;
+    else ++differ;
+  }
+  std::printf("  %-22s mask pixels differing %zu (+%zu near-ties of %zu)\n", (prefix + ".binary").c_str(), differ,
+              ties, prob.size());
+  EXPECT_EQ(differ, 0u) << prefix;
+}
+
+}  // namespace
+
+std::vector<float> prepareFrames(const GoldenCase& g, int64_t h, int64_t w) {
+  std::vector<float> all;
+  for (const std::string& f : g.files()) {
+    std::vector<float> one = loadPreparedImage(f, int(h), int(w));
+    all.insert(all.end(), one.begin(), one.end());
+  }
+  return all;
+}
+
+std::vector<StageTime> runGoldenCase(Engine& engine, const std::string& caseName, const CaseOptions& o) {
+  GoldenCase g(caseName);
+  PackedModel model = PackedModel::open(o.model.empty() ? tinyModelPath() : o.model);
+  SparPipeline pipe(engine, model, {.profile = true, .keepIntermediates = true});
+  const SparConfig& c = pipe.config();
+  SparRequest req;
+  req.images = prepareFrames(g, c.imageHeight, c.imageWidth);
+  req.plan.views = int64_t(g.files().size());
+  req.plan.inputs = g.inputs();
+  req.plan.targets = g.targets();
+  req.assumeStatic = o.assumeStatic;
+  req.targetMotion = o.targetMotion && !o.assumeStatic && !req.plan.targets.empty();
+  // The prepared images are bit-exact with the reference's (x / 255 rounded to float).
+  const std::vector<double> images = g.doubles("images");
+  EXPECT_EQ(images.size(), req.images.size());
+  size_t differ = 0;
+  for (size_t i = 0; i < std::min(images.size(), req.images.size()); ++i) differ += req.images[i] != float(images[i]);
+  EXPECT_EQ(differ, 0u) << "prepared images";
+
+  pipe.encode(req);
+  for (const StageCheck& s : kEncodeChecks) expectStage(engine, pipe, g, s, o.scale);
+  if (!o.assumeStatic) {
+    for (const StageCheck& s : kMotionChecks) expectStage(engine, pipe, g, s, o.scale);
+    expectMask(engine, pipe, g, "cv_drp_input", c.maskThreshold);
+    if (req.targetMotion) {
+      for (const StageCheck& s : kTargetMotionChecks) expectStage(engine, pipe, g, s, o.scale);
+      expectMask(engine, pipe, g, "cv_drp_target", c.maskThreshold);
+    }
+  }
+  if (o.pathCameras) {
+    RenderCameras cams;
+    const std::vector<float> c2w = g.floats("render_c2w"), k = g.floats("render_fxfycxcy");
+    for (size_t j = 0; j < k.size() / 4; ++j) {
+      std::array<float, 16> m;
+      std::array<float, 4> kk;
+      std::copy_n(c2w.begin() + j * 16, 16, m.begin());
+      std::copy_n(k.begin() + j * 4, 4, kk.begin());
+      cams.c2w.push_back(m);
+      cams.fxfycxcy.push_back(kk);
+    }
+    pipe.render(cams);
+  } else {
+    pipe.renderTargets();
+  }
+  for (const StageCheck& s : kRenderChecks) expectStage(engine, pipe, g, s, o.scale);
+  for (const StageTime& t : pipe.stageTimes()) {
+    EXPECT_GE(t.gpuMs, 0.0) << t.name;
+    if (o.assumeStatic) {
+      EXPECT_TRUE(t.name != "dino_v3" && t.name != "cv_drp") << t.name << " ran for a static scene";
+    }
+  }
+  return pipe.stageTimes();
+}
+
+}  // namespace spar::test

@@ -1,0 +1,33 @@
+// Runs the photometric pipeline on one golden case (tests/golden_support.h) and compares every
+// stage the pipeline keeps with the reference's float64 golden of the same name, each with its
+// own NMSE threshold. Shared by test_spar_pipeline (the plain cases) and test_spar_stiff.
+#pragma once
+#include <string>
+#include <vector>
+
+#include "engine/engine.h"
+#include "golden_support.h"
+#include "model/spar_pipeline.h"
+
+namespace spar::test {
+
+struct StageCheck {
+  const char* name;
+  double maxNmse;
+};
+
+struct CaseOptions {
+  std::string model;           // packed model path ("" = the tiny model)
+  bool assumeStatic = false;
+  bool targetMotion = true;    // also CV-DRP over the targets (compared when the case has them)
+  bool pathCameras = false;    // render the golden's render_c2w instead of the targets
+  double scale = 1.0;          // multiplies every threshold (stiff cases document theirs)
+};
+
+// Runs the case and checks all stages; returns the pipeline's stage times for further checks.
+std::vector<StageTime> runGoldenCase(Engine& engine, const std::string& caseName, const CaseOptions& options);
+
+// The input images of a case, prepared by the engine (model/image_prep.h).
+std::vector<float> prepareFrames(const GoldenCase& g, int64_t h, int64_t w);
+
+}  // namespace spar::test

@@ -1,0 +1,31 @@
+// The full-size comparison: the official configuration (D 768, 12/8/12/4 layers, 768 scene tokens,
+// DINOv3 ViT-B/16, 256x256) with random perturbed weights from the reference, 3 frames in order
+// with inputs 0, 2 and target 1 (the canonical view), every stage against the float64 reference
+// (fixture spar_goldens_full: tests/python/make_spar_goldens.py --full). Label "full".
+#include <cstdio>
+
+#include "pipeline_check.h"
+#include "test_support.h"
+
+namespace spar::test {
+namespace {
+
+class SparFullTest : public EngineTest {};
+
+// Thresholds: the tiny model's times kFullScale. Measured here at full size: see the printout;
+// the deeper stacks over 1280 tokens accumulate more fp32 rounding than the tiny model's.
+constexpr double kFullScale = 10.0;
+
+TEST_F(SparFullTest, TwoInputsOneTargetMatchesReference) {
+  const auto times = runGoldenCase(eng(), fullGoldenPath("full_2in_1out"),
+                                   {.model = fullGoldenPath("full.spar"), .scale = kFullScale});
+  double total = 0;
+  for (const StageTime& t : times) {
+    std::printf("  stage %-16s GPU %9.1f ms  wall %9.1f ms\n", t.name.c_str(), t.gpuMs, t.wallMs);
+    total += t.wallMs;
+  }
+  std::printf("  total wall %.1f ms\n", total);
+}
+
+}  // namespace
+}  // namespace spar::test
