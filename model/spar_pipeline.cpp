@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdio>
+#include <cstdlib>
 #include <set>
 
 #include "engine/error.h"
@@ -91,7 +93,12 @@ double msSince(Clock::time_point t0) {
 void SparPipeline::addStageTimes(const Recorder& rec, double wallMs) {
   const std::string& name = rec.stage();
   double gpu = 0;
-  for (const DispatchTiming& t : rec.timings()) gpu += t.ms;
+  // SPAR_PROFILE=1: every dispatch's GPU time on stderr (what a stage spends its time on).
+  static const bool profile = std::getenv("SPAR_PROFILE") && std::string(std::getenv("SPAR_PROFILE")) != "0";
+  for (const DispatchTiming& t : rec.timings()) {
+    gpu += t.ms;
+    if (profile) std::fprintf(stderr, "profile %-16s %-28s %10.3f ms\n", name.c_str(), t.label.c_str(), t.ms);
+  }
   auto it = std::find_if(stageTimes_.begin(), stageTimes_.end(), [&](const StageTime& s) { return s.name == name; });
   if (it == stageTimes_.end()) {
     stageTimes_.push_back({name, gpu, wallMs});
