@@ -286,8 +286,7 @@ ojson readJson(const fs::path& p) {
   return ojson::parse(in);
 }
 
-// Runs both tools with the same view options; returns false (and skips) when the engine
-// reports that a stage the case needs is not on it yet.
+// Runs both tools with the same view options (nullopt, with the failure recorded, if either fails).
 struct Outputs {
   fs::path ours, ref;
 };
@@ -299,7 +298,6 @@ std::optional<Outputs> runBoth(const std::string& name, const std::vector<std::s
   fs::remove_all(o.ours);
   fs::remove_all(o.ref);
   const RunResult ours = spar(cat({"--model", model}, cat(viewArgs, {"--out", o.ours.string()})));
-  if (ours.code != 0 && ours.err.find("not on the engine yet") != std::string::npos) return std::nullopt;
   EXPECT_EQ(ours.code, 0) << ours.err;
   const RunResult ref = reference(cat(viewArgs, {"--out", o.ref.string()}), checkpoint);
   EXPECT_EQ(ref.code, 0) << ref.err;
@@ -446,14 +444,12 @@ TEST(spar_render, InputsOnlyRendersNothing) {
 
 TEST(spar_render, InterleavedFramesMatchesReference) {
   const auto o = runBoth("frames", cat(cat({"--frames"}, frames()), {"--inputs", "0,2,4"}));
-  if (!o && !HasFailure()) GTEST_SKIP() << "CV-DRP is not on the engine yet (spar render says so)";
   ASSERT_TRUE(o);
   compareOutputs("frames", *o, false, fixtureProb("interleaved"), 2, "targets");
 }
 
 TEST(spar_render, PathMatchesReference) {
   const auto o = runBoth("path", {"--images", frame(0), frame(2), frame(4), "--path", "3"});
-  if (!o && !HasFailure()) GTEST_SKIP() << "CV-DRP is not on the engine yet (spar render says so)";
   ASSERT_TRUE(o);
   compareOutputs("path", *o, false, fixtureProb("path"), 3, "path");
 }
@@ -470,7 +466,6 @@ TEST(spar_render, MixedMasksMatchReference) {
   const std::string pt = (dir / "masked.pt").string(), packed = (dir / "masked.spar").string();
   const auto views = cat(cat({"--frames"}, frames()), {"--inputs", "0,2,4"});
   const auto o = runBoth("masked", views, packed, pt);
-  if (!o && !HasFailure()) GTEST_SKIP() << "CV-DRP is not on the engine yet (spar render says so)";
   ASSERT_TRUE(o);
   // the reference's float32 P(dynamic) of this run, from its goldens command
   const fs::path g = scratch() / "masked_goldens";
