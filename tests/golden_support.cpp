@@ -10,6 +10,10 @@ namespace spar::test {
 std::string goldenPath(const std::string& rel) { return std::string(SPAR_GOLDENS_DIR) + "/" + rel; }
 std::string tinyModelPath() { return goldenPath("tiny.spar"); }
 std::string fullGoldenPath(const std::string& rel) { return std::string(SPAR_FULL_GOLDENS_DIR) + "/" + rel; }
+std::string semanticGoldenPath(const std::string& rel) {
+  return std::string(SPAR_SEMANTIC_GOLDENS_DIR) + "/" + rel;
+}
+std::string clipBpePath() { return std::filesystem::exists(SPAR_CLIP_BPE) ? std::string(SPAR_CLIP_BPE) : std::string(); }
 
 GoldenCase::GoldenCase(const std::string& name)
     : name_(name), dir_(!name.empty() && name[0] == '/' ? name : goldenPath(name)) {

@@ -17,6 +17,12 @@ std::string goldenPath(const std::string& rel);
 std::string tinyModelPath();
 // The full-size case (fixture spar_goldens_full): SPAR_FULL_GOLDENS_DIR/<rel>.
 std::string fullGoldenPath(const std::string& rel);
+// The semantic branch's goldens (fixture spar_goldens_semantic): SPAR_SEMANTIC_GOLDENS_DIR/<rel>
+// (tiny_semantic.spar, labels.json, case dirs "semantic" and "semantic_path").
+std::string semanticGoldenPath(const std::string& rel);
+// The CLIP BPE merges table the fixture packed, or "" when it is not on this machine (then the
+// model has no tokenizer and the goldens no label maps: text-side tests GTEST_SKIP, saying why).
+std::string clipBpePath();
 
 class GoldenCase {
  public:

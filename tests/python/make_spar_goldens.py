@@ -6,6 +6,7 @@ view orders. Everything is made here, at test time, from fixed seeds.
 
     make_spar_goldens.py OUT_DIR
     make_spar_goldens.py --full OUT_DIR    (the full-size case, see main_full)
+    make_spar_goldens.py --semantic OUT_DIR BPE.txt.gz   (the semantic branch, see main_semantic)
 
 writes OUT_DIR/
     tiny_photometric.json     the configuration (SparConfig.to_dict())
@@ -97,9 +98,45 @@ def main_full(out):
     return 0
 
 
+LABELS = ["sofa", "window", "person", "floor", "ünïcödé chäir",
+          "a " + "very " * 90 + "long prompt that CLIP truncates at 77 tokens"]
+
+
+def main_semantic(out, bpe):
+    """The semantic branch (issue: LSeg features, semantic tokens and head, CLIP text, label
+    maps): the tiny preset as it is (use_lseg true, semantic queries in the decoder), perturbed,
+    packed with the CLIP BPE table, float64 goldens with --labels."""
+    os.makedirs(out, exist_ok=True)
+    cfg = tiny()
+    cfg_path = os.path.join(out, "tiny_semantic.json")
+    with open(cfg_path, "w") as f:
+        json.dump(cfg.validate().to_dict(), f, indent=1)
+    f = frames(out)
+    ck, packed = os.path.join(out, "tiny_semantic.pt"), os.path.join(out, "tiny_semantic.spar")
+    ref = os.path.join(CONVERTER, "spar-reference")
+    run(ref, "make-checkpoint", "--config", cfg_path, "--seed", "7", "--perturb", "--no-optimizer", "-o", ck)
+    # Without the CLIP BPE table (it is data outside the repository: ../shared/data/clip) the
+    # model has no tokenizer and the goldens no label maps; the text-side tests then skip.
+    has_bpe = bool(bpe) and os.path.isfile(bpe)
+    run(os.path.join(CONVERTER, "spar-convert"), "-q", ck, "--config", cfg_path,
+        *(["--bpe", bpe] if has_bpe else []), "-o", packed)
+    with open(os.path.join(out, "labels.json"), "w") as fh:
+        json.dump(LABELS, fh, ensure_ascii=False)
+    for name, args in {"semantic": ["--frames", *f, "--inputs", "0,2,4"],
+                       "semantic_path": ["--images", f[0], f[2], f[4], "--path", "3"]}.items():
+        d = os.path.join(out, name)
+        if os.path.exists(d):
+            subprocess.run(["rm", "-rf", d], check=True)
+        labels = ["--labels", ",".join(LABELS), "--bpe", bpe] if has_bpe else []
+        run(ref, "goldens", "--checkpoint", ck, "--config", cfg_path, *args, *labels, "--float64", "--out", d)
+    return 0
+
+
 def main():
     if sys.argv[1:2] == ["--full"]:
         return main_full(os.path.abspath(sys.argv[2]))
+    if sys.argv[1:2] == ["--semantic"]:
+        return main_semantic(os.path.abspath(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "")
     out = os.path.abspath(sys.argv[1])
     os.makedirs(out, exist_ok=True)
     cfg = tiny()
