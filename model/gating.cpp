@@ -27,9 +27,15 @@ TokenGating::TokenGating(Engine& engine, WeightSet& weights, const SparConfig& c
   viewType0_ = weights.require("view_type_embedding.weight", {2, d}, DType::F32).view(0, {d});
   if (config.inputMaskingMode == "soft_with_pe") {
     mask_ = weights.require("mask_token", {1, 1, d}, DType::F32).reshape({d});
-    const std::vector<float> code = gatingCode(d, config.patchesH(), config.patchesW());
-    code_ = engine.fromFloats({config.tokensPerView(), d}, code);
   }
+}
+
+const Tensor& TokenGating::code(int64_t gh, int64_t gw) {
+  auto it = codes_.find({gh, gw});
+  if (it == codes_.end())
+    it = codes_.emplace(std::make_pair(gh, gw), engine_.fromFloats({gh * gw, config_.d}, gatingCode(config_.d, gh, gw)))
+             .first;
+  return it->second;
 }
 
 void TokenGating::fuse(Recorder& rec, const Tensor& img, const Tensor& ray, const std::vector<int64_t>& inputs,
@@ -55,9 +61,12 @@ void TokenGating::fuse(Recorder& rec, const Tensor& img, const Tensor& ray, cons
 void TokenGating::gate(Recorder& rec, const Tensor& fused, const Tensor& prob, const Tensor& dynPatch,
                        const Tensor& gated) {
   const std::string op = "tokenGate";
-  const int64_t d = config_.d, n = config_.tokensPerView();
+  const int64_t d = config_.d;
   const int64_t tokens = fused.numel() / d;
-  avgPool2d(rec, prob, dynPatch, int(config_.patchSize));
+  const int64_t gh = dynPatch.dim(-2), gw = dynPatch.dim(-1), n = gh * gw;
+  if (prob.dim(-2) != 16 * gh || prob.dim(-1) != 16 * gw)
+    throw Error(op + ": pooled map " + dynPatch.describe() + " is not " + prob.describe() + " pooled by 16");
+  avgPool2d(rec, prob, dynPatch, 16);
   if (dynPatch.numel() != tokens) throw Error(op + ": pooled map " + dynPatch.describe() + " does not match the tokens");
   if (config_.inputMaskingMode == "none") {
     copy2d(rec, fused, d, 0, gated, d, 0, tokens, d);
@@ -72,8 +81,8 @@ void TokenGating::gate(Recorder& rec, const Tensor& fused, const Tensor& prob, c
   const ops::Grid grid =
       ops::linearGrid(engine_.caps(), ops::ceilDiv(uint64_t(tokens * d), uint64_t(ops::kElementLocalX)), op);
   // zero_out binds the token tensor in place of the unused mask and code.
-  const Tensor mask = soft ? mask_ : fused, code = soft ? code_ : fused;
-  rec.dispatch(kernel, {Arg::in(fused), Arg::in(dynPatch), Arg::in(mask), Arg::in(code), Arg::out(gated)}, push,
+  const Tensor mask = soft ? mask_ : fused, codes = soft ? code(gh, gw) : fused;
+  rec.dispatch(kernel, {Arg::in(fused), Arg::in(dynPatch), Arg::in(mask), Arg::in(codes), Arg::out(gated)}, push,
                grid.x, grid.y, 1, op);
 }
 

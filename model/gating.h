@@ -9,6 +9,8 @@
 //   gated  = fused * (1 - p) + (mask_token + 2D sin-cos code) * p  (soft_with_pe)
 #pragma once
 #include <cstdint>
+#include <map>
+#include <utility>
 #include <vector>
 
 #include "engine/engine.h"
@@ -25,14 +27,17 @@ class TokenGating {
   // img, ray: [V, n, D] tokens of all views; inputs: the input positions; fused: [K*n, D] out.
   void fuse(Recorder& rec, const Tensor& img, const Tensor& ray, const std::vector<int64_t>& inputs,
             const Tensor& fused);
-  // prob: [K, 1, H, W] P(dynamic) of the inputs; dynPatch: [K, 1, gh, gw] out (the pooled p);
-  // gated: [K*n, D] out. With masking mode "none" gated is a copy of fused.
+  // prob: [K, 1, H, W] P(dynamic) of the inputs; dynPatch: [K, 1, gh, gw] out (the pooled p,
+  // one value per 16x16 pixels: the photometric tokens' patches, and the semantic tokens' fixed
+  // 16x16 pooling); gated: [K*gh*gw, D] out. With masking mode "none" gated is a copy of fused.
   void gate(Recorder& rec, const Tensor& fused, const Tensor& prob, const Tensor& dynPatch, const Tensor& gated);
 
  private:
   Engine& engine_;
   const SparConfig& config_;
-  Tensor lnW_, w1_, b1_, w2_, b2_, viewType0_, mask_, code_;
+  const Tensor& code(int64_t gh, int64_t gw);
+  Tensor lnW_, w1_, b1_, w2_, b2_, viewType0_, mask_;
+  std::map<std::pair<int64_t, int64_t>, Tensor> codes_;  // 2D sin-cos code per token grid
   Tensor concat_, hidden_;  // scratch [K*n, 2D] and [K*n, D], kept for the next call of that size
 };
 

@@ -18,6 +18,7 @@
 #include "model/pose_estimator.h"
 #include "model/renderer.h"
 #include "model/scene_encoder.h"
+#include "model/semantic_tokens.h"
 #include "model/stack.h"
 #include "model/view_tokens.h"
 
@@ -46,6 +47,7 @@ struct SparPipeline::Stages {
   std::unique_ptr<DinoV3> dino;
   std::unique_ptr<CvDrp> cvDrp;
   std::unique_ptr<TokenGating> gating;
+  std::unique_ptr<SemanticTokens> semantic;
   std::unique_ptr<SceneEncoder> scene;
   std::unique_ptr<Renderer> renderer;
   TransformerWorkspace ws;
@@ -59,16 +61,14 @@ SparPipeline::SparPipeline(Engine& engine, const PackedModel& model, const SparP
       model_(model),
       options_(options),
       config_(SparConfig::fromJson(model.config(), model.path())),
-      weights_(engine, model),
+      weights_(engine, model, options.weightType),
       stages_(std::make_unique<Stages>()) {
-  if (config_.useLseg)
-    throw Error(model.path() + ": this model has the semantic branch (use_lseg), which the engine does not run yet");
 }
 
 SparPipeline::~SparPipeline() = default;
 
 void SparPipeline::keep(const std::string& name, const Tensor& t) {
-  if (options_.keepIntermediates) kept_[name] = t;
+  if (options_.keepIntermediates && t.defined()) kept_[name] = t;
 }
 
 const Tensor& SparPipeline::intermediate(const std::string& name) const {
@@ -124,6 +124,12 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
     throw Error("expected " + std::to_string(v) + " images of 3x" + std::to_string(h) + "x" + std::to_string(w) +
                 " values, got " + std::to_string(request.images.size()) + " values");
   if (request.assumeStatic && request.targetMotion) throw Error("target motion masks need CV-DRP (not --assume-static)");
+  if (request.semanticFeatures && !c.semanticDecoding())
+    throw Error("this model has no semantic decoding (use_lseg / semantic loss weight): no semantic features");
+  const int64_t featureValues = k * c.semanticDim * (h / 2) * (w / 2);
+  if (!request.lsegFeatures.empty() && (!c.useLseg || int64_t(request.lsegFeatures.size()) != featureValues))
+    throw Error("precomputed LSeg features: expected " + std::to_string(c.useLseg ? featureValues : 0) + " values, got " +
+                std::to_string(request.lsegFeatures.size()));
   request_ = request;
   request_.height = h;
   request_.width = w;
@@ -229,14 +235,48 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
   keep("fused_tokens", fused);
   keep("gated_tokens", gated);
 
+  // ---- semantic tokens (models with the semantic branch): LSeg features of the inputs with their
+  // rays, pooled per 16x16 pixels, projected, gated like the image tokens.
+  Tensor gatedSem;
+  if (c.useLseg) {
+    Tensor features;
+    if (!request.lsegFeatures.empty()) {
+      features = engine_.fromFloats({k, c.semanticDim, h / 2, w / 2}, request.lsegFeatures);
+    } else {
+      throw Error("the LSeg encoder is not on the engine yet: give precomputed LSeg features");
+    }
+    keep("lseg_features", features);
+    if (!st.semantic) st.semantic = std::make_unique<SemanticTokens>(engine_, weights_, c);
+    const int64_t hs = h / 16, ws = w / 16;
+    const Tensor semTokens = engine_.tensor({k * hs * ws, d});
+    const Tensor pooled = options_.keepIntermediates ? engine_.tensor({k, c.semanticDim + 6, hs, ws}) : Tensor();
+    gatedSem = semTokens;
+    t0 = Clock::now();
+    rec.setStage("semantic_tokens");
+    st.semantic->forward(rec, features, rays, request.plan.inputs, semTokens, pooled);
+    if (probInput.defined()) {
+      gatedSem = engine_.tensor({k * hs * ws, d});
+      const Tensor dynSem = engine_.tensor({k, 1, hs, ws});
+      st.gating->gate(rec, semTokens, probInput, dynSem, gatedSem);
+      keep("dynamic_patch_sem", dynSem);
+    }
+    rec.run();
+    finish(t0);
+    keep("semantic_in", pooled);
+    keep("semantic_tokens", semTokens);
+    keep("gated_semantic_tokens", gatedSem);
+  }
+
   // ---- scene encoder
   if (!st.scene) st.scene = std::make_unique<SceneEncoder>(engine_, weights_, c);
-  const int64_t rows = c.sceneTokens + k * n;
+  const int64_t rows = c.sceneTokens + k * n + (gatedSem.defined() ? gatedSem.numel() / d : 0);
   st.sceneSeq = engine_.tensor({rows, d});
   const Tensor sceneIn = options_.keepIntermediates ? engine_.tensor({rows, d}) : Tensor();
   t0 = Clock::now();
   rec.setStage("scene_encoder");
-  st.scene->forward(rec, {gated}, st.sceneSeq, st.ws, sceneIn);
+  std::vector<Tensor> parts{gated};
+  if (gatedSem.defined()) parts.push_back(gatedSem);
+  st.scene->forward(rec, parts, st.sceneSeq, st.ws, sceneIn);
   rec.run();
   finish(t0);
   st.sceneTokens = st.sceneSeq.view(0, {c.sceneTokens, d});
@@ -268,7 +308,9 @@ std::vector<float> SparPipeline::renderRays(const Tensor& c2w, const Tensor& fxf
   t0 = Clock::now();
   rec.setStage("renderer");
   RenderTrace trace;
-  st.renderer->forward(rec, rays, st.sceneTokens, rgb, st.ws, options_.keepIntermediates ? &trace : nullptr);
+  features_ = request_.semanticFeatures ? engine_.tensor({count, config_.semanticDim, h / 2, w / 2}) : Tensor();
+  st.renderer->forward(rec, rays, st.sceneTokens, rgb, st.ws, features_,
+                       options_.keepIntermediates ? &trace : nullptr);
   rec.run();
   addStageTimes(rec, msSince(t0));
   keep("render_c2w", c2w);
@@ -278,6 +320,10 @@ std::vector<float> SparPipeline::renderRays(const Tensor& c2w, const Tensor& fxf
   keep("decoder_in", trace.decoderIn);
   keep("decoder_out", trace.decoderOut);
   keep("rgb_tokens", trace.rgbTokens);
+  keep("semantic_queries", trace.semanticQueries);
+  keep("semantic_out_tokens", trace.semanticOutTokens);
+  keep("semantic_hidden", trace.semanticHidden);
+  keep("semantic_features", features_);
   keep("rgb", rgb);
   return engine_.download(rgb);
 }

@@ -8,6 +8,7 @@
 //          -> DINOv3 patch tokens                             model/dino_v3.*
 //          -> CV-DRP motion probability per view              model/cv_drp.*
 //          -> mlp_fuse + soft_with_pe gating                  model/gating.*
+//          -> (semantic models) LSeg features -> semantic tokens, gated  model/lseg.*, model/semantic_tokens.*
 //          -> scene encoder -> scene tokens                   model/scene_encoder.*
 //   render: ray queries + scene tokens -> decoder -> RGB head model/renderer.*
 //
@@ -56,6 +57,12 @@ struct SparRequest {
   bool assumeStatic = false;
   // Also run CV-DRP over the target views (evaluation of motion masks on targets).
   bool targetMotion = false;
+  // Semantic models: run the semantic head when rendering (features for labels or output).
+  // Without it the semantic queries still take part in the decoder (the model was trained so).
+  bool semanticFeatures = false;
+  // Semantic models: precomputed LSeg features of the input views [K, C, H/2, W/2] instead of
+  // running the LSeg encoder (tests; features computed elsewhere). Empty: the engine runs LSeg.
+  std::vector<float> lsegFeatures;
 };
 
 // What encode() leaves on the host.
@@ -78,6 +85,10 @@ struct SparPipelineOptions {
   // Keep every stage's output tensor under its golden name (converter/spar_reference/
   // goldens.py: "img_tokens", "pose_encoder_out", "c2w", ..., "rgb") for tests; costs memory.
   bool keepIntermediates = false;
+  // Weight matrices on the device: F32 as the file stores them (F16 in a `spar-convert --fp16`
+  // pack); F16 as fp16 even from an F32 file, with the values that pack would hold. Norms,
+  // biases, learned tokens and codes stay F32; activations are F32 either way.
+  DType weightType = DType::F32;
 };
 
 class SparPipeline {
@@ -96,6 +107,9 @@ class SparPipeline {
   // cameras. Returns RGB [R, 3, H, W] in [0, 1].
   std::vector<float> renderTargets();
   std::vector<float> render(const RenderCameras& cameras);
+  // The semantic features [R, C, H/2, W/2] of the last render*() call on the device (undefined
+  // unless the request asked for semanticFeatures); valid until the next render*() call.
+  const Tensor& renderedFeatures() const { return features_; }
 
   // Stages that ran since construction (in order, accumulated by name).
   const std::vector<StageTime>& stageTimes() const { return stageTimes_; }
@@ -121,6 +135,7 @@ class SparPipeline {
   SparEncoded encoded_;
   SparRequest request_;
   std::map<std::string, Tensor> kept_;
+  Tensor features_;
   std::vector<StageTime> stageTimes_;
 };
 

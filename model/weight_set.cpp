@@ -1,11 +1,30 @@
 #include "model/weight_set.h"
 
+#include <cmath>
+
 #include "engine/engine.h"
 #include "engine/error.h"
+#include "engine/half.h"
 
 namespace spar {
+namespace {
 
-WeightSet::WeightSet(Engine& engine, const PackedModel& model) : engine_(engine), model_(model) {}
+bool endsWith(const std::string& s, const std::string& tail) {
+  return s.size() >= tail.size() && s.compare(s.size() - tail.size(), tail.size(), tail) == 0;
+}
+
+}  // namespace
+
+WeightSet::WeightSet(Engine& engine, const PackedModel& model, DType matrixType)
+    : engine_(engine), model_(model), matrixType_(matrixType) {
+  if (matrixType != DType::F32 && matrixType != DType::F16)
+    throw Error(std::string("weight matrices can be f32 or f16, not ") + dtypeName(matrixType));
+}
+
+bool WeightSet::isMatrix(const std::string& name, const Shape& shape) {
+  if (shape.size() < 2 || endsWith(name, "view_type_embedding.weight")) return false;
+  return endsWith(name, ".weight") || endsWith(name, "in_proj_weight") || endsWith(name, "text_projection");
+}
 
 void WeightSet::checkShape(const std::string& name, const Shape& shape) const {
   if (!model_.has(name)) throw Error(model_.errorPrefix() + "tensor '" + name + "' is missing (expected " + shapeString(shape) + ")");
@@ -19,14 +38,31 @@ void WeightSet::checkShape(const std::string& name, const Shape& shape) const {
 
 const Tensor& WeightSet::require(const std::string& name, const Shape& shape) {
   checkShape(name, shape);
-  return require(name, shape, model_.naturalDType(name));
+  const bool half = matrixType_ == DType::F16 && isMatrix(name, model_.info(name).shape) &&
+                    model_.info(name).dtype == FileDType::F32;
+  return require(name, shape, half ? DType::F16 : model_.naturalDType(name));
+}
+
+Tensor WeightSet::uploadRounded(const std::string& name, DType want) const {
+  std::vector<float> v = model_.floats(name);
+  // As `spar-convert --fp16` does: a value fp16 cannot hold refuses, it is not saturated.
+  for (float& x : v) {
+    if (!(std::abs(x) <= 65504.0f))
+      throw Error(model_.errorPrefix() + "tensor '" + name + "' has the value " + std::to_string(x) +
+                  ", beyond float16's range: run it with f32 weights");
+    x = halfToFloat(floatToHalf(x));
+  }
+  return engine_.fromFloats(model_.info(name).shape, v, want);
 }
 
 const Tensor& WeightSet::require(const std::string& name, const Shape& shape, DType want) {
   checkShape(name, shape);
   auto key = std::make_pair(name, want);
   if (auto it = loaded_.find(key); it != loaded_.end()) return it->second;
-  Tensor t = model_.upload(engine_, name, want);
+  const PackedTensorInfo& info = model_.info(name);
+  const bool rounded = matrixType_ == DType::F16 && info.dtype == FileDType::F32 && isMatrix(name, info.shape) &&
+                       (want == DType::F32 || want == DType::F16);
+  Tensor t = rounded ? uploadRounded(name, want) : model_.upload(engine_, name, want);
   bytes_ += t.bytes();
   order_.push_back(key);
   return loaded_.emplace(std::move(key), std::move(t)).first->second;
@@ -35,6 +71,12 @@ const Tensor& WeightSet::require(const std::string& name, const Shape& shape, DT
 Tensor WeightSet::optional(const std::string& name, const Shape& shape) {
   if (!model_.has(name)) return {};
   return require(name, shape);
+}
+
+const Tensor& WeightSet::loadedTensor(const std::string& name, DType dtype) const {
+  auto it = loaded_.find({name, dtype});
+  if (it == loaded_.end()) throw Error("weight '" + name + "' was not loaded as " + dtypeName(dtype));
+  return it->second;
 }
 
 void WeightSet::clear() {

@@ -2,6 +2,10 @@
 // name: a stage asks for each tensor it reads with require(), so a tensor no stage asks for
 // never reaches the device. bytesLoaded() / loaded() say what was uploaded (the "leave out
 // what a scene does not need" reports).
+//
+// Weight precision: with matrixType F16 every weight matrix (the tensors `spar-convert --fp16`
+// stores as F16, converter/FORMAT.md) reaches the device with fp16 values even when the file
+// holds F32, so one F32 file serves both precisions and gives what its --fp16 pack would.
 #pragma once
 #include <cstdint>
 #include <map>
@@ -18,17 +22,20 @@ class Engine;
 
 class WeightSet {
  public:
-  // The model must outlive the set.
-  WeightSet(Engine& engine, const PackedModel& model);
+  // The model must outlive the set. matrixType F32: matrices as the file stores them; F16:
+  // matrices as fp16 (norms, biases, tokens and codes are never touched).
+  WeightSet(Engine& engine, const PackedModel& model, DType matrixType = DType::F32);
 
   const PackedModel& model() const { return model_; }
   bool available(const std::string& name) const { return model_.has(name); }
 
   // The tensor `name` on the device, uploaded on first use. `shape` is what the caller
-  // expects (a dimension of -1 matches any size). Uploaded in the stored dtype (I64 as i32).
+  // expects (a dimension of -1 matches any size). Uploaded in the stored dtype (I64 as i32),
+  // a matrix as F16 under matrixType F16.
   // Throws one line naming the tensor when it is missing or shaped differently.
   const Tensor& require(const std::string& name, const Shape& shape);
-  // Same, in a given dtype (F32 <-> F16 converted; see PackedModel::upload).
+  // Same, in a given dtype (F32 <-> F16 converted; see PackedModel::upload). Under matrixType
+  // F16 a matrix asked for as F32 (an op that reads only f32) holds the fp16-rounded values.
   const Tensor& require(const std::string& name, const Shape& shape, DType want);
   // Same as require when the file has the tensor; an undefined Tensor when it has not.
   Tensor optional(const std::string& name, const Shape& shape);
@@ -36,16 +43,26 @@ class WeightSet {
   // Drops every uploaded tensor (the device memory returns once no Tensor copy holds it).
   void clear();
 
+  DType matrixType() const { return matrixType_; }
+  // The --fp16 rule (converter/spar_convert/convert.py is_matrix): a float tensor of 2 or more
+  // dimensions named *.weight / *in_proj_weight / *text_projection, except the view-type table.
+  static bool isMatrix(const std::string& name, const Shape& shape);
+
   size_t count() const { return loaded_.size(); }
   uint64_t bytesLoaded() const { return bytes_; }
+  // An uploaded tensor (throws if `name` was not loaded in `dtype`).
+  const Tensor& loadedTensor(const std::string& name, DType dtype) const;
   // Names (with the dtype they were uploaded in) in the order they were loaded.
   const std::vector<std::pair<std::string, DType>>& loaded() const { return order_; }
 
  private:
   void checkShape(const std::string& name, const Shape& shape) const;
+  // An F32 file's matrix with fp16 values, in `want` (matrixType F16 only).
+  Tensor uploadRounded(const std::string& name, DType want) const;
 
   Engine& engine_;
   const PackedModel& model_;
+  DType matrixType_;
   std::map<std::pair<std::string, DType>, Tensor> loaded_;
   std::vector<std::pair<std::string, DType>> order_;
   uint64_t bytes_ = 0;

@@ -27,13 +27,23 @@ const std::vector<StageCheck> kMotionChecks = {
 const std::vector<StageCheck> kTargetMotionChecks = {
     {"cv_drp_target.logits", 1e-10}, {"cv_drp_target.prob", 1e-10},
 };
+const std::vector<StageCheck> kSemanticEncodeChecks = {
+    {"lseg_features", 1e-10},   {"semantic_in", 1e-10}, {"semantic_tokens", 1e-10},
+    {"dynamic_patch_sem", 1e-10}, {"gated_semantic_tokens", 1e-10},
+};
+const std::vector<StageCheck> kSemanticRenderChecks = {
+    {"semantic_queries", 1e-10}, {"semantic_out_tokens", 1e-10}, {"semantic_hidden", 1e-10},
+    {"semantic_features", 1e-10},
+};
 const std::vector<StageCheck> kRenderChecks = {
     {"render_c2w", 1e-10}, {"render_fxfycxcy", 1e-10}, {"render_plucker", 1e-10}, {"rgb_queries", 1e-10},
     {"decoder_in", 1e-10}, {"decoder_out", 1e-10},     {"rgb_tokens", 1e-10},     {"rgb", 1e-10},
 };
 
 void expectStage(Engine& engine, const SparPipeline& pipe, const GoldenCase& g, const StageCheck& check,
-                 double scale) {
+                 const CaseOptions& o) {
+  const auto own = o.thresholds.find(check.name);
+  const double maxNmse = (own == o.thresholds.end() ? check.maxNmse : own->second) * o.scale;
   SCOPED_TRACE(check.name);
   ASSERT_TRUE(g.has(check.name)) << "no golden " << check.name;
   const std::vector<double> want = g.doubles(check.name);
@@ -42,13 +52,13 @@ void expectStage(Engine& engine, const SparPipeline& pipe, const GoldenCase& g, 
   const ErrorStats e = compare(got, want);
   std::printf("  %-22s NMSE %.3e  max abs %.3e\n", check.name, e.nmse, e.maxAbs);
   EXPECT_EQ(e.nonFinite, 0u) << check.name;
-  EXPECT_LE(e.nmse, check.maxNmse * scale) << check.name;
+  EXPECT_LE(e.nmse, maxNmse) << check.name;
 }
 
-// The binary motion mask: identical except where the reference probability is within 1e-4 of
-// the threshold (a near-tie either side may round either way).
+// The binary motion mask: identical except where the reference probability is within tieBand
+// of the threshold (a near-tie either side may round either way).
 void expectMask(Engine& engine, const SparPipeline& pipe, const GoldenCase& g, const std::string& prefix,
-                float threshold) {
+                float threshold, double tieBand) {
   const std::vector<float> prob = engine.download(pipe.intermediate(prefix + ".prob"));
   const std::vector<double> want = g.doubles(prefix + ".prob");
   const std::vector<double> binary = g.doubles(prefix + ".binary");
@@ -57,7 +67,7 @@ void expectMask(Engine& engine, const SparPipeline& pipe, const GoldenCase& g, c
   for (size_t i = 0; i < prob.size(); ++i) {
     const bool mine = prob[i] > threshold, theirs = binary[i] != 0.0;
     if (mine == theirs) continue;
-    if (std::abs(want[i] - threshold) < 1e-4) ++ties;
+    if (std::abs(want[i] - threshold) < tieBand) ++ties;
     else ++differ;
   }
   std::printf("  %-22s mask pixels differing %zu (+%zu near-ties of %zu)\n", (prefix + ".binary").c_str(), differ,
@@ -79,7 +89,7 @@ std::vector<float> prepareFrames(const GoldenCase& g, int64_t h, int64_t w) {
 std::vector<StageTime> runGoldenCase(Engine& engine, const std::string& caseName, const CaseOptions& o) {
   GoldenCase g(caseName);
   PackedModel model = PackedModel::open(o.model.empty() ? tinyModelPath() : o.model);
-  SparPipeline pipe(engine, model, {.profile = true, .keepIntermediates = true});
+  SparPipeline pipe(engine, model, {.profile = true, .keepIntermediates = true, .weightType = o.weightType});
   const SparConfig& c = pipe.config();
   SparRequest req;
   req.images = prepareFrames(g, c.imageHeight, c.imageWidth);
@@ -95,14 +105,24 @@ std::vector<StageTime> runGoldenCase(Engine& engine, const std::string& caseName
   for (size_t i = 0; i < std::min(images.size(), req.images.size()); ++i) differ += req.images[i] != float(images[i]);
   EXPECT_EQ(differ, 0u) << "prepared images";
 
+  if (o.semantic) {
+    req.semanticFeatures = true;
+    if (o.goldenLseg) req.lsegFeatures = g.floats("lseg_features");
+  }
   pipe.encode(req);
-  for (const StageCheck& s : kEncodeChecks) expectStage(engine, pipe, g, s, o.scale);
+  for (const StageCheck& s : kEncodeChecks) expectStage(engine, pipe, g, s, o);
+  if (o.semantic) {
+    for (const StageCheck& s : kSemanticEncodeChecks) {
+      if (o.assumeStatic && std::string(s.name) == "dynamic_patch_sem") continue;
+      expectStage(engine, pipe, g, s, o);
+    }
+  }
   if (!o.assumeStatic) {
-    for (const StageCheck& s : kMotionChecks) expectStage(engine, pipe, g, s, o.scale);
-    expectMask(engine, pipe, g, "cv_drp_input", c.maskThreshold);
+    for (const StageCheck& s : kMotionChecks) expectStage(engine, pipe, g, s, o);
+    expectMask(engine, pipe, g, "cv_drp_input", c.maskThreshold, o.maskTieBand);
     if (req.targetMotion) {
-      for (const StageCheck& s : kTargetMotionChecks) expectStage(engine, pipe, g, s, o.scale);
-      expectMask(engine, pipe, g, "cv_drp_target", c.maskThreshold);
+      for (const StageCheck& s : kTargetMotionChecks) expectStage(engine, pipe, g, s, o);
+      expectMask(engine, pipe, g, "cv_drp_target", c.maskThreshold, o.maskTieBand);
     }
   }
   if (o.pathCameras) {
@@ -120,7 +140,9 @@ std::vector<StageTime> runGoldenCase(Engine& engine, const std::string& caseName
   } else {
     pipe.renderTargets();
   }
-  for (const StageCheck& s : kRenderChecks) expectStage(engine, pipe, g, s, o.scale);
+  for (const StageCheck& s : kRenderChecks) expectStage(engine, pipe, g, s, o);
+  if (o.semantic)
+    for (const StageCheck& s : kSemanticRenderChecks) expectStage(engine, pipe, g, s, o);
   for (const StageTime& t : pipe.stageTimes()) {
     EXPECT_GE(t.gpuMs, 0.0) << t.name;
     if (o.assumeStatic) {

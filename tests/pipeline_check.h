@@ -2,6 +2,7 @@
 // stage the pipeline keeps with the reference's float64 golden of the same name, each with its
 // own NMSE threshold. Shared by test_spar_pipeline (the plain cases) and test_spar_stiff.
 #pragma once
+#include <map>
 #include <string>
 #include <vector>
 
@@ -22,6 +23,16 @@ struct CaseOptions {
   bool targetMotion = true;    // also CV-DRP over the targets (compared when the case has them)
   bool pathCameras = false;    // render the golden's render_c2w instead of the targets
   double scale = 1.0;          // multiplies every threshold (stiff cases document theirs)
+  // Semantic models: compare the semantic stages too and render the semantic features; with
+  // goldenLseg the reference's LSeg features are fed in (the semantic tokens onwards are then
+  // compared without LSeg's own error).
+  bool semantic = false;
+  bool goldenLseg = false;
+  DType weightType = DType::F32;  // SparPipelineOptions::weightType
+  // Stage -> NMSE threshold replacing the fp32 one (test_spar_precision's fp16 table).
+  std::map<std::string, double> thresholds;
+  // Mask pixels may differ where the reference's probability is this close to the threshold.
+  double maskTieBand = 1e-4;
 };
 
 // Runs the case and checks all stages; returns the pipeline's stage times for further checks.
