@@ -1,0 +1,37 @@
+#version 450
+// Embedding lookup (nn.Embedding, CLIP's token_embedding): out[t][d] = table[ids[t]][d] for
+// t < tokens, d < dim. Host side: engine/ops/embedding.cpp.
+//
+// The table is a texel buffer, so one kernel reads f32 and f16 tables alike (the view's format
+// converts). A table larger than one binding is bound in row ranges, one dispatch each: an
+// invocation writes only when its id falls in the bound rows; ids outside [0, vocab) get
+// zeros from the dispatch flagged zeroInvalid (the first).
+//! variant embedding
+#extension GL_GOOGLE_include_directive : require
+#include "common.glsl"
+
+layout(local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in;
+
+layout(binding = 0) uniform samplerBuffer table;
+layout(binding = 1) readonly buffer Ids { int ids[]; };
+layout(binding = 2) writeonly buffer Out { float outv[]; };
+
+layout(push_constant) uniform Push {
+  int tokens, dim, vocab;
+  int rowBegin, rowCount;  // table rows this dispatch sees
+  int tableBase;           // texel of row rowBegin, element 0, in the bound view
+  int zeroInvalid;
+} p;
+
+void main() {
+  const uint group = gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x;  // 2-D grid, x fastest
+  const uint i = group * gl_WorkGroupSize.x + gl_LocalInvocationID.x;
+  if (i >= uint(p.tokens) * uint(p.dim)) return;
+  const int t = int(i / uint(p.dim)), d = int(i % uint(p.dim));
+  const int id = ids[t];
+  if (id >= p.rowBegin && id < p.rowBegin + p.rowCount) {
+    outv[i] = texelFetch(table, p.tableBase + (id - p.rowBegin) * p.dim + d).x;
+  } else if (p.zeroInvalid != 0 && (id < 0 || id >= p.vocab)) {
+    outv[i] = 0.0;
+  }
+}
