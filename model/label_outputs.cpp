@@ -1,0 +1,126 @@
+#include "model/label_outputs.h"
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+
+#include "engine/error.h"
+
+namespace spar {
+namespace {
+
+constexpr std::array<std::array<uint8_t, 3>, 20> kPalette = {{
+    {230, 25, 75}, {60, 180, 75}, {255, 225, 25}, {0, 130, 200}, {245, 130, 48},
+    {145, 30, 180}, {70, 240, 240}, {240, 50, 230}, {210, 245, 60}, {250, 190, 212},
+    {0, 128, 128}, {220, 190, 255}, {170, 110, 40}, {255, 250, 200}, {128, 0, 0},
+    {170, 255, 195}, {128, 128, 0}, {255, 215, 180}, {0, 0, 128}, {128, 128, 128},
+}};
+
+constexpr int kLegendRow = 14;  // pixels per legend row (save_label_map's `row`)
+
+void checkMap(const std::vector<int32_t>& map, int h, int w, size_t labels) {
+  if (h <= 0 || w <= 0 || map.size() != size_t(h) * size_t(w))
+    throw Error("label map: " + std::to_string(map.size()) + " values for " + std::to_string(h) + " x " +
+                std::to_string(w));
+  for (int32_t v : map)
+    if (v < 0 || size_t(v) >= labels)
+      throw Error("label map: label " + std::to_string(v) + " outside [0, " + std::to_string(labels) + ")");
+}
+
+// PIL's NEAREST resize: output pixel i samples input floor((i + 0.5) * in / out).
+int nearestSource(int i, int in, int out) {
+  const int s = static_cast<int>(std::floor((i + 0.5) * static_cast<double>(in) / static_cast<double>(out)));
+  return std::min(std::max(s, 0), in - 1);
+}
+
+void writeFileAtomically(const std::string& path, const std::string& bytes) {
+  const std::string tmp = path + ".tmp";
+  {
+    std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
+    if (!f) throw Error(path + ": cannot write");
+    f << bytes;
+    if (!f) throw Error(path + ": write failed");
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) throw Error(path + ": cannot rename into place: " + ec.message());
+}
+
+}  // namespace
+
+std::array<uint8_t, 3> paletteColour(int64_t k) {
+  const int64_t n = static_cast<int64_t>(kPalette.size());
+  return kPalette[size_t(((k % n) + n) % n)];
+}
+
+RgbImage labelImage(const std::vector<int32_t>& map, int h, int w, const std::vector<std::string>& names, int outH,
+                    int outW) {
+  checkMap(map, h, w, names.size());
+  if (outH <= 0 || outW <= 0) throw Error("label map: output size must be positive");
+  RgbImage img;
+  img.width = outW;
+  img.height = outH + kLegendRow * static_cast<int>(names.size()) + 4;
+  img.pixels.assign(size_t(img.width) * size_t(img.height) * 3, 0);
+  auto put = [&img](int x, int y, const std::array<uint8_t, 3>& c) {
+    if (x < 0 || y < 0 || x >= img.width || y >= img.height) return;
+    std::copy(c.begin(), c.end(), img.pixels.begin() + (ptrdiff_t(y) * img.width + x) * 3);
+  };
+  for (int y = 0; y < outH; ++y) {
+    const int sy = nearestSource(y, h, outH);
+    for (int x = 0; x < outW; ++x) put(x, y, paletteColour(map[size_t(sy) * size_t(w) + size_t(nearestSource(x, w, outW))]));
+  }
+  // Swatches: PIL's rectangle([2, y + 1, 12, y + row - 3]) includes both corners.
+  for (size_t k = 0; k < names.size(); ++k) {
+    const int y = outH + 2 + kLegendRow * static_cast<int>(k);
+    for (int yy = y + 1; yy <= y + kLegendRow - 3; ++yy)
+      for (int xx = 2; xx <= 12; ++xx) put(xx, yy, paletteColour(int64_t(k)));
+  }
+  return img;
+}
+
+void writeLabelPng(const std::string& path, const std::vector<int32_t>& map, int h, int w,
+                   const std::vector<std::string>& names, int outH, int outW) {
+  writePng(path, labelImage(map, h, w, names, outH, outW));
+}
+
+nlohmann::ordered_json labelJson(const std::vector<int32_t>& map, int h, int w, const std::vector<std::string>& names,
+                                 int64_t view, double logitScale) {
+  checkMap(map, h, w, names.size());
+  std::vector<int64_t> counts(names.size(), 0);
+  for (int32_t v : map) ++counts[size_t(v)];
+  nlohmann::ordered_json doc;
+  doc["view"] = view;
+  doc["resolution"] = {h, w};
+  doc["logit_scale"] = logitScale;
+  nlohmann::ordered_json legend = nlohmann::ordered_json::object();
+  nlohmann::ordered_json labels = nlohmann::ordered_json::array();
+  for (size_t k = 0; k < names.size(); ++k) {
+    const auto c = paletteColour(int64_t(k));
+    char hex[8];
+    std::snprintf(hex, sizeof hex, "#%02x%02x%02x", c[0], c[1], c[2]);
+    legend[names[k]] = hex;
+    nlohmann::ordered_json entry;
+    entry["index"] = k;
+    entry["label"] = names[k];
+    entry["colour"] = {c[0], c[1], c[2]};
+    entry["pixels"] = counts[k];
+    entry["share"] = static_cast<double>(counts[k]) / static_cast<double>(map.size());
+    labels.push_back(entry);
+  }
+  doc["legend"] = legend;
+  doc["labels"] = labels;
+  return doc;
+}
+
+std::string labelJsonText(const nlohmann::ordered_json& doc) {
+  // Python's json.dump(indent=1): one space per level, ", " never at line ends, ": " after
+  // keys, ASCII only (ensure_ascii). nlohmann's dump(1, ' ', true) has the same layout.
+  return doc.dump(1, ' ', true);
+}
+
+void writeLabelJson(const std::string& path, const nlohmann::ordered_json& doc) {
+  writeFileAtomically(path, labelJsonText(doc));
+}
+
+}  // namespace spar

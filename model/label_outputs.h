@@ -1,0 +1,42 @@
+// The label outputs of `spar render --labels`, as the reference writes them
+// (converter/spar_reference/cli.py write_render, images.py save_label_map / palette_colour):
+//
+//   labels_XX.png   the map [h, w] in palette colours, scaled (nearest, PIL's rule) to the
+//                   model's H x W, above a legend strip: 14 rows per label on black, each a
+//                   colour swatch at x 2..12, y+1..y+11 (y = H + 2 + 14 k), image H + 14 P + 4 tall
+//   labels_XX.json  {"view", "resolution": [h, w], "logit_scale", "legend": {label: "#rrggbb"},
+//                    "labels": [{"index", "label", "colour": [r, g, b], "pixels", "share"}]},
+//                   Python's json.dump(indent=1) layout (keys in this order, non-ASCII as \uXXXX)
+//
+// Not reproduced: the prompt text the reference draws beside each swatch with PIL's built-in
+// bitmap font (its glyph data is Pillow's); the legend's text area stays black, the JSON has
+// the names.
+#pragma once
+#include <nlohmann/json.hpp>
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "model/image_prep.h"
+
+namespace spar {
+
+// Label k's colour: the reference's fixed palette of 20, repeated.
+std::array<uint8_t, 3> paletteColour(int64_t k);
+
+// The labels_XX.png image: map [h, w] (values in [0, names.size())) scaled to outH x outW.
+RgbImage labelImage(const std::vector<int32_t>& map, int h, int w, const std::vector<std::string>& names, int outH,
+                    int outW);
+void writeLabelPng(const std::string& path, const std::vector<int32_t>& map, int h, int w,
+                   const std::vector<std::string>& names, int outH, int outW);
+
+// The labels_XX.json document of view `view` (ordered as the reference writes it).
+nlohmann::ordered_json labelJson(const std::vector<int32_t>& map, int h, int w, const std::vector<std::string>& names,
+                                 int64_t view, double logitScale);
+// Serialized as Python's json.dump(doc, f, indent=1) does (no trailing newline).
+std::string labelJsonText(const nlohmann::ordered_json& doc);
+void writeLabelJson(const std::string& path, const nlohmann::ordered_json& doc);
+
+}  // namespace spar

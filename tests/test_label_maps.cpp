@@ -1,0 +1,249 @@
+// model/label_maps (label logits and maps on the engine, fp32) against the semantic fixture's
+// float64 goldens (semantic_features.npy + text_embeddings.npy -> label_logits.npy,
+// label_maps.npy, made by spar-reference goldens --labels), plus random odd-sized cases and ties
+// against a float64 CPU reference; and model/label_outputs (labels_XX.png / .json) against the
+// files spar-reference render --labels writes for the fixture. Skips without the BPE table
+// (then the fixture has no labels).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <system_error>
+
+#include <unistd.h>
+
+#include "model/image_prep.h"
+#include "model/label_maps.h"
+#include "model/label_outputs.h"
+#include "model/npy.h"
+#include "tests/golden_support.h"
+#include "tests/test_support.h"
+
+namespace spar::test {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct LabelResult {
+  std::vector<float> logits;
+  std::vector<int32_t> maps;
+};
+
+LabelResult runLabels(Engine& engine, const std::vector<float>& features, const Shape& fshape,
+                      const std::vector<float>& text, const Shape& tshape) {
+  const int64_t R = fshape[0], h = fshape[2], w = fshape[3], P = tshape[0];
+  GuardedOutput logits(engine, {R, P, h, w});
+  const Tensor maps = engine.tensor({R, h, w}, DType::I32);
+  Recorder rec(engine);
+  labelMaps(rec, engine.fromFloats(fshape, features), engine.fromFloats(tshape, text), maps, logits.tensor());
+  rec.run();
+  logits.expectAllWritten();
+  LabelResult r{logits.read(), std::vector<int32_t>(size_t(maps.numel()))};
+  engine.read(maps, r.maps.data(), r.maps.size() * sizeof(int32_t));
+  return r;
+}
+
+// clip_text.label_logits in float64.
+std::vector<double> logitsRef(const std::vector<double>& f, const Shape& fs, const std::vector<double>& t, int64_t P) {
+  const int64_t R = fs[0], C = fs[1], n = fs[2] * fs[3];
+  std::vector<double> tn(t.size()), out(size_t(R * P * n));
+  for (int64_t p = 0; p < P; ++p) {
+    double s = 0;
+    for (int64_t c = 0; c < C; ++c) s += t[size_t(p * C + c)] * t[size_t(p * C + c)];
+    for (int64_t c = 0; c < C; ++c) tn[size_t(p * C + c)] = t[size_t(p * C + c)] / std::sqrt(s);
+  }
+  for (int64_t r = 0; r < R; ++r)
+    for (int64_t i = 0; i < n; ++i) {
+      double s = 0;
+      for (int64_t c = 0; c < C; ++c) s += f[size_t((r * C + c) * n + i)] * f[size_t((r * C + c) * n + i)];
+      const double norm = std::sqrt(s);
+      for (int64_t p = 0; p < P; ++p) {
+        double d = 0;
+        for (int64_t c = 0; c < C; ++c) d += f[size_t((r * C + c) * n + i)] / norm * tn[size_t(p * C + c)];
+        out[size_t((r * P + p) * n + i)] = kLsegLogitScale * d;
+      }
+    }
+  return out;
+}
+
+// Maps must equal the reference's except where its top two logits are closer than `tie`.
+void expectMapsMatch(const std::vector<int32_t>& got, const std::vector<int64_t>& want, const std::vector<double>& logits,
+                     int64_t R, int64_t P, int64_t n, double tie, const std::string& what) {
+  int64_t differ = 0, nearTies = 0;
+  for (int64_t r = 0; r < R; ++r)
+    for (int64_t i = 0; i < n; ++i) {
+      const int64_t k = r * n + i;
+      if (got[size_t(k)] == want[size_t(k)]) continue;
+      ++differ;
+      std::vector<double> v;
+      for (int64_t p = 0; p < P; ++p) v.push_back(logits[size_t((r * P + p) * n + i)]);
+      std::sort(v.rbegin(), v.rend());
+      if (P > 1 && v[0] - v[1] < tie) ++nearTies;
+      else ADD_FAILURE() << what << ": view " << r << " pixel " << i << " label " << got[size_t(k)] << ", reference "
+                         << want[size_t(k)];
+    }
+  std::printf("%s: %lld of %lld labels differ (%lld near-ties, top-2 gap < %g)\n", what.c_str(), (long long)differ,
+              (long long)(R * n), (long long)nearTies, tie);
+}
+
+class LabelMapsTest : public EngineTest {
+ protected:
+  void SetUp() override {
+    EngineTest::SetUp();
+    if (clipBpePath().empty())
+      GTEST_SKIP() << "CLIP BPE merges table not found (SPAR_CLIP_BPE=" << SPAR_CLIP_BPE
+                   << "): the fixture has no label maps on this machine";
+  }
+};
+
+TEST_F(LabelMapsTest, MatchesFixtureGoldens) {
+  const GoldenCase g(semanticGoldenPath("semantic"));
+  Shape fs = g.shape("semantic_features");  // [1, R, C, h, w]: the reference keeps the batch
+  if (fs.size() == 5 && fs[0] == 1) fs.erase(fs.begin());
+  const Shape ts = g.shape("text_embeddings");
+  const int64_t R = fs[0], P = ts[0], n = fs[2] * fs[3];
+  ASSERT_EQ(g.shape("label_logits"), (Shape{R, P, fs[2], fs[3]}));
+  const LabelResult r = runLabels(eng(), g.floats("semantic_features"), fs, g.floats("text_embeddings"), ts);
+  const std::vector<double> want = g.doubles("label_logits");
+  expectClose(r.logits, want, 1e-11, 1e-4, "label logits vs float64 goldens");
+  expectMapsMatch(r.maps, g.array("label_maps").toInt64s(), want, R, P, n, 1e-4, "label maps vs goldens");
+}
+
+// Random features with a large mean and odd sizes, and prompts of which two are identical
+// (exact ties: argmax takes the first, as torch does).
+TEST_F(LabelMapsTest, OddSizesAndTies) {
+  const Shape fs = {3, 61, 7, 9};
+  const int64_t P = 5, C = fs[1], n = fs[2] * fs[3];
+  std::vector<float> f = randomNormal(size_t(shapeNumel(fs)), 3.0f, 1.0f, 401);
+  std::vector<float> t = randomNormal(size_t(P * C), 0.0f, 1.0f, 402);
+  std::copy_n(t.begin() + C, C, t.begin() + 3 * C);  // prompt 3 == prompt 1
+  const LabelResult r = runLabels(eng(), f, fs, t, {P, C});
+  const std::vector<double> want = logitsRef(toDouble(f), fs, toDouble(t), P);
+  expectClose(r.logits, want, 1e-11, 1e-4, "label logits, random");
+  std::vector<int64_t> wantMaps;
+  for (int64_t q = 0; q < fs[0]; ++q)
+    for (int64_t i = 0; i < n; ++i) {
+      int64_t best = 0;
+      for (int64_t p = 1; p < P; ++p)
+        if (want[size_t((q * P + p) * n + i)] > want[size_t((q * P + best) * n + i)]) best = p;
+      wantMaps.push_back(best);
+    }
+  expectMapsMatch(r.maps, wantMaps, want, fs[0], P, n, 1e-4, "label maps, random");
+  for (int32_t m : r.maps) EXPECT_NE(m, 3) << "an exact tie must go to the first prompt";
+}
+
+TEST_F(LabelMapsTest, OnePromptAndBadShapes) {
+  const Shape fs = {1, 8, 4, 4};
+  const LabelResult r = runLabels(eng(), randomUniform(size_t(shapeNumel(fs)), -1, 1, 403), fs,
+                                  randomUniform(8, -1, 1, 404), {1, 8});
+  for (int32_t m : r.maps) EXPECT_EQ(m, 0);
+  Recorder rec(eng());
+  EXPECT_THROW(labelMaps(rec, eng().tensor(fs), eng().tensor({2, 7}), eng().tensor({1, 4, 4}, DType::I32)), Error);
+  EXPECT_THROW(labelMaps(rec, eng().tensor(fs), eng().tensor({2, 8}), eng().tensor({1, 4, 4})), Error);
+}
+
+// ---------------------------------------------------------------------------------------------
+// labels_XX.png / .json against spar-reference render --labels on the fixture.
+
+struct ReferenceRender {
+  std::string dir;
+  ReferenceRender() {
+    const fs::path d = fs::path(SPAR_TEST_OUT_DIR) / ("label_render_" + std::to_string(::getpid()));
+    fs::remove_all(d);
+    std::ifstream lf(semanticGoldenPath("labels.json"));
+    const std::vector<std::string> labels = nlohmann::json::parse(lf).get<std::vector<std::string>>();
+    std::string joined;
+    for (const std::string& l : labels) joined += (joined.empty() ? "" : ",") + l;
+    std::string cmd = "PYTHONPATH=\"" + std::string(SPAR_SOURCE_DIR) + "/converter\" \"" + SPAR_PYTHON + "\" \"" +
+                      SPAR_SOURCE_DIR + "/converter/spar-reference\" render --checkpoint \"" +
+                      semanticGoldenPath("tiny_semantic.pt") + "\" --config \"" +
+                      semanticGoldenPath("tiny_semantic.json") + "\" --frames";
+    for (int i = 0; i < 5; ++i) cmd += " \"" + semanticGoldenPath("frame_" + std::to_string(i) + ".png") + "\"";
+    cmd += " --inputs 0,2,4 --labels '" + joined + "' --bpe \"" + clipBpePath() + "\" --out \"" + d.string() + "\"";
+    const int rc = std::system(cmd.c_str());
+    if (rc != 0) throw Error("spar-reference render failed (" + std::to_string(rc) + "): " + cmd);
+    dir = d.string();
+  }
+  ~ReferenceRender() {
+    std::error_code ec;
+    fs::remove_all(dir, ec);
+  }
+};
+
+std::string readText(const std::string& path) {
+  std::ifstream f(path, std::ios::binary);
+  std::stringstream s;
+  s << f.rdbuf();
+  return s.str();
+}
+
+TEST_F(LabelMapsTest, WritersMatchReferenceRender) {
+  static const ReferenceRender ref;
+  std::ifstream lf(semanticGoldenPath("labels.json"));
+  const std::vector<std::string> labels = nlohmann::json::parse(lf).get<std::vector<std::string>>();
+  int views = 0;
+  for (; fs::exists(ref.dir + "/labels_" + std::string(views < 10 ? "0" : "") + std::to_string(views) + ".png"); ++views) {
+    const std::string stem = ref.dir + "/labels_" + std::string(views < 10 ? "0" : "") + std::to_string(views);
+    const RgbImage png = loadImageRGB(stem + ".png");
+    const nlohmann::json doc = nlohmann::json::parse(readText(stem + ".json"));
+    const int h = doc.at("resolution")[0].get<int>(), w = doc.at("resolution")[1].get<int>();
+    const int H = png.width * 0 + 2 * h, W = png.width;  // the model's size (features are at half)
+    ASSERT_EQ(png.height, H + 14 * int(labels.size()) + 4);
+    // The reference's map, read back from its PNG (every input pixel covers 2 x 2 outputs).
+    std::vector<int32_t> map(size_t(h * w), -1);
+    for (int y = 0; y < h; ++y)
+      for (int x = 0; x < w; ++x) {
+        const uint8_t* px = &png.pixels[(size_t(2 * y) * png.width + size_t(2 * x)) * 3];
+        for (size_t k = 0; k < labels.size(); ++k) {
+          const auto c = paletteColour(int64_t(k));
+          if (px[0] == c[0] && px[1] == c[1] && px[2] == c[2]) map[size_t(y * w + x)] = int32_t(k);
+        }
+        ASSERT_GE(map[size_t(y * w + x)], 0) << "pixel " << x << "," << y << " has no palette colour";
+      }
+    // Every pixel equal except the legend's text (drawn by the reference with PIL's font).
+    const RgbImage mine = labelImage(map, h, w, labels, H, W);
+    ASSERT_EQ(mine.width, png.width);
+    ASSERT_EQ(mine.height, png.height);
+    int64_t differ = 0, text = 0;
+    for (int y = 0; y < png.height; ++y)
+      for (int x = 0; x < png.width; ++x) {
+        const size_t i = (size_t(y) * png.width + size_t(x)) * 3;
+        const bool same = std::equal(&mine.pixels[i], &mine.pixels[i] + 3, &png.pixels[i]);
+        if (y >= H && x >= 14) {
+          text += !same;
+          continue;
+        }
+        differ += !same;
+      }
+    EXPECT_EQ(differ, 0) << "view " << views;
+    std::printf("labels_%02d.png: %lld pixels differ outside the legend text (%lld text pixels not drawn)\n", views,
+                (long long)differ, (long long)text);
+    // The JSON, byte for byte.
+    const std::string json = labelJsonText(labelJson(map, h, w, labels, views, kLsegLogitScale));
+    EXPECT_EQ(json, readText(stem + ".json")) << "labels_" << views << ".json";
+    // And through the file writers.
+    const std::string out = std::string(SPAR_TEST_OUT_DIR) + "/labels_writer_" + std::to_string(::getpid());
+    writeLabelPng(out + ".png", map, h, w, labels, H, W);
+    writeLabelJson(out + ".json", labelJson(map, h, w, labels, views, kLsegLogitScale));
+    EXPECT_EQ(loadImageRGB(out + ".png").pixels, mine.pixels);
+    EXPECT_EQ(readText(out + ".json"), json);
+    fs::remove(out + ".png");
+    fs::remove(out + ".json");
+  }
+  EXPECT_GT(views, 0) << "the reference wrote no labels_XX.png";
+}
+
+TEST(LabelOutputs, PaletteAndChecks) {
+  EXPECT_EQ(paletteColour(0), (std::array<uint8_t, 3>{230, 25, 75}));
+  EXPECT_EQ(paletteColour(19), (std::array<uint8_t, 3>{128, 128, 128}));
+  EXPECT_EQ(paletteColour(21), paletteColour(1));
+  EXPECT_THROW(labelImage({0, 2}, 1, 2, {"a", "b"}, 2, 4), Error);  // label 2 of 2
+  EXPECT_THROW(labelJson({0}, 1, 2, {"a"}, 0, 1.0), Error);       // 1 value for 1 x 2
+}
+
+}  // namespace
+}  // namespace spar::test
