@@ -22,6 +22,7 @@
 #define ACT_QUICK_GELU 2  // x * sigmoid(1.702 x) (CLIP)
 #define ACT_SILU 3
 #define ACT_SIGMOID 4
+#define ACT_RELU 5
 
 // Sigmoid without overflow: exp of a negative argument only.
 float sigmoid_stable(float x) {
@@ -47,5 +48,6 @@ float activate(float x, int act) {
   if (act == ACT_QUICK_GELU) return x * sigmoid_stable(1.702 * x);
   if (act == ACT_SILU) return x * sigmoid_stable(x);
   if (act == ACT_SIGMOID) return sigmoid_stable(x);
+  if (act == ACT_RELU) return max(x, 0.0);
   return x;
 }

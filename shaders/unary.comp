@@ -1,6 +1,6 @@
 #version 450
 // Elementwise unary ops, in place or out of place. Host side: engine/ops/unary.cpp.
-//   gelu (exact erf), quick_gelu (x * sigmoid(1.702 x)), silu, sigmoid: activate() of
+//   gelu (exact erf), quick_gelu (x * sigmoid(1.702 x)), silu, sigmoid, relu: activate() of
 //   common.glsl, finite and accurate for any finite x; scale: y = alpha * x + beta.
 // Every invocation handles one vec4 (4 consecutive values): llvmpipe loads a vec4 whose
 // address is not uniform for about the cost of a float. A tail of 1-3 values goes by component.
@@ -12,6 +12,8 @@
 //! variant unary_silu_inplace OP=ACT_SILU IN_PLACE=1
 //! variant unary_sigmoid OP=ACT_SIGMOID IN_PLACE=0
 //! variant unary_sigmoid_inplace OP=ACT_SIGMOID IN_PLACE=1
+//! variant unary_relu OP=ACT_RELU IN_PLACE=0
+//! variant unary_relu_inplace OP=ACT_RELU IN_PLACE=1
 //! variant unary_scale OP=OP_SCALE IN_PLACE=0
 //! variant unary_scale_inplace OP=OP_SCALE IN_PLACE=1
 #extension GL_GOOGLE_include_directive : require

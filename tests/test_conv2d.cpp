@@ -94,6 +94,7 @@ INSTANTIATE_TEST_SUITE_P(
         ConvCase{1, 12, 8, 12, 7, 1, 1, 1, 1, 1, true, Activation::None},         // 1x1 with padding
         ConvCase{1, 8, 12, 32, 20, 3, 3, 1, 1, 1, true, Activation::QuickGelu},   // RGBA, shift 3
         ConvCase{1, 8, 12, 32, 9, 3, 3, 2, 0, 0, true, Activation::Sigmoid},      // RGBA, shift 0, stride 2
+        ConvCase{1, 16, 9, 12, 17, 3, 3, 1, 1, 1, true, Activation::Relu},       // RGBA weights, R input
         ConvCase{3, 4, 9, 8, 9, 5, 5, 1, 2, 2, true, Activation::None},           // 5x5 pad 2
         ConvCase{1, 5, 11, 10, 6, 2, 2, 2, 0, 0, false, Activation::None},        // 2x2 stride 2
         ConvCase{1, 6, 13, 16, 11, 3, 1, 1, 1, 0, true, Activation::None},        // 3x1, padY only

@@ -52,6 +52,7 @@ INSTANTIATE_TEST_SUITE_P(
                       LinearCase{257, 131, 256, true, Activation::None}, LinearCase{1, 1, 1, false, Activation::None},
                       LinearCase{33, 65, 130, true, Activation::Gelu}, LinearCase{19, 40, 24, true, Activation::QuickGelu},
                       LinearCase{64, 17, 20, false, Activation::Silu}, LinearCase{9, 300, 12, true, Activation::Sigmoid},
+                      LinearCase{21, 35, 9, true, Activation::Relu},
                       LinearCase{130, 768, 518, true, Activation::None}));
 
 TEST_F(EngineTest, LinearBatchedWeights) {

@@ -1,5 +1,6 @@
 #include "tests/test_support.h"
 
+#include <algorithm>
 #include <cstring>
 
 #include "engine/half.h"
@@ -61,6 +62,7 @@ double activateRef(double x, Activation act) {
     case Activation::QuickGelu: return x / (1.0 + std::exp(-1.702 * x));
     case Activation::Silu: return x / (1.0 + std::exp(-x));
     case Activation::Sigmoid: return 1.0 / (1.0 + std::exp(-x));
+    case Activation::Relu: return std::max(x, 0.0);
     default: return x;
   }
 }

@@ -15,6 +15,8 @@ double unaryRef(UnaryOp op, double x, double alpha = 1, double beta = 0) {
       return x / (1.0 + std::exp(-x));
     case UnaryOp::Sigmoid:
       return 1.0 / (1.0 + std::exp(-x));
+    case UnaryOp::Relu:
+      return std::max(x, 0.0);
     case UnaryOp::Scale:
       return alpha * x + beta;
   }
@@ -37,6 +39,8 @@ const char* opName(UnaryOp op) {
       return "silu";
     case UnaryOp::Sigmoid:
       return "sigmoid";
+    case UnaryOp::Relu:
+      return "relu";
     case UnaryOp::Scale:
       return "scale";
   }
@@ -96,6 +100,7 @@ INSTANTIATE_TEST_SUITE_P(OddSizes, UnaryTest,
                                            UnaryCase{UnaryOp::QuickGelu, 61}, UnaryCase{UnaryOp::QuickGelu, 4097},
                                            UnaryCase{UnaryOp::Silu, 257}, UnaryCase{UnaryOp::Silu, 1},
                                            UnaryCase{UnaryOp::Sigmoid, 7}, UnaryCase{UnaryOp::Sigmoid, 65537},
+                                           UnaryCase{UnaryOp::Relu, 13}, UnaryCase{UnaryOp::Relu, 4099},
                                            UnaryCase{UnaryOp::Scale, 61}, UnaryCase{UnaryOp::Scale, 1025}));
 
 // Activations at +-1e4 and on the way there: finite, exact where the limit is representable,
@@ -125,6 +130,7 @@ TEST_F(EngineTest, GeluAtPlusMinus1e4) { checkExtremes(eng(), UnaryOp::Gelu); }
 TEST_F(EngineTest, QuickGeluAtPlusMinus1e4) { checkExtremes(eng(), UnaryOp::QuickGelu); }
 TEST_F(EngineTest, SiluAtPlusMinus1e4) { checkExtremes(eng(), UnaryOp::Silu); }
 TEST_F(EngineTest, SigmoidAtPlusMinus1e4) { checkExtremes(eng(), UnaryOp::Sigmoid); }
+TEST_F(EngineTest, ReluAtPlusMinus1e4) { checkExtremes(eng(), UnaryOp::Relu); }
 
 // Magnitudes from 1e-3 to 3e38 with both signs: every op finite and relatively accurate.
 TEST_F(EngineTest, UnaryLargeMixedValues) {
@@ -134,7 +140,7 @@ TEST_F(EngineTest, UnaryLargeMixedValues) {
   for (int64_t i = 0; i < n; ++i) x[i] = (s[i] < 0 ? -1.0f : 1.0f) * std::pow(10.0f, e[i]);
   x[0] = 3.4e38f;
   x[1] = -3.4e38f;
-  for (UnaryOp op : {UnaryOp::Gelu, UnaryOp::QuickGelu, UnaryOp::Silu, UnaryOp::Sigmoid}) {
+  for (UnaryOp op : {UnaryOp::Gelu, UnaryOp::QuickGelu, UnaryOp::Silu, UnaryOp::Sigmoid, UnaryOp::Relu}) {
     auto [out, inPlace] = runBoth(eng(), op, x);
     auto ref = unaryRef(op, x);
     expectClose(out, ref, 1e-10, 1e32, std::string(opName(op)) + " mixed");  // max abs: relative check below

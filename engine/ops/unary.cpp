@@ -21,6 +21,8 @@ const char* variantName(UnaryOp op, bool inPlace) {
       return inPlace ? "unary_silu_inplace" : "unary_silu";
     case UnaryOp::Sigmoid:
       return inPlace ? "unary_sigmoid_inplace" : "unary_sigmoid";
+    case UnaryOp::Relu:
+      return inPlace ? "unary_relu_inplace" : "unary_relu";
     case UnaryOp::Scale:
       return inPlace ? "unary_scale_inplace" : "unary_scale";
   }
@@ -67,6 +69,8 @@ void activate(Recorder& rec, Activation act, const Tensor& x, const Tensor& y) {
       return unary(rec, UnaryOp::Silu, x, y);
     case Activation::Sigmoid:
       return unary(rec, UnaryOp::Sigmoid, x, y);
+    case Activation::Relu:
+      return unary(rec, UnaryOp::Relu, x, y);
   }
   throw Error("activate: unknown activation");
 }

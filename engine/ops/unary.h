@@ -5,7 +5,7 @@
 
 namespace spar {
 
-enum class UnaryOp { Gelu, QuickGelu, Silu, Sigmoid, Scale };
+enum class UnaryOp { Gelu, QuickGelu, Silu, Sigmoid, Relu, Scale };
 
 // y = op(x) elementwise; Scale is y = alpha * x + beta (one rounding: fma), the others ignore
 // alpha and beta. x, y: f32 with the same element count; y may be x itself (in place).
