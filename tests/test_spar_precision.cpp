@@ -1,0 +1,259 @@
+// fp16 weights (SparPipelineOptions::weightType = F16, or a `spar-convert --fp16` pack) through
+// the whole photometric pipeline on the tiny model, against the PyTorch reference's float64
+// goldens (fixture spar_goldens), stage by stage (tests/pipeline_check.*):
+//  - every stage within the fp16 thresholds below (measured, see kFp16), motion masks identical
+//    except near the threshold;
+//  - a --fp16 pack (made here from the fixture's checkpoint) and F16 at upload from the F32
+//    file load the same weights (up to one fp16 step where the converter folded BatchNorm) and
+//    give the same pixels and motion maps to 1e-6;
+//  - the --fp16 rule of WeightSet::isMatrix is the converter's (every tensor of the pack);
+//  - a matrix value beyond fp16's range refuses F16 at upload, naming the tensor.
+#include <gtest/gtest.h>
+
+#include <unistd.h>
+
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "engine/half.h"
+#include "model/packed_model.h"
+#include "pipeline_check.h"
+#include "test_support.h"
+
+namespace spar::test {
+namespace {
+
+namespace fs = std::filesystem;
+
+// NMSE thresholds of the fp16-weight pipeline against float64, per stage. Measured on the tiny
+// perturbed model, largest over the interleaved, odd_targets, static, path and --fp16-pack cases
+// (NMSE, max abs in the comment); thresholds are 10x the NMSE, or the fp32 threshold
+// (tests/pipeline_check.cpp, 1e-10) where that is larger. Rounding a weight to fp16 is a relative
+// error up to 2^-11 (NMSE ~ 1e-7 on one product); the token stages carry 4e-8 of it, while the
+// cameras (from a 9- and a 1-row head on pooled tokens), the CV-DRP logits (dominated by the
+// decoder's bias) and rgb (after the sigmoid) barely see it. pe_code reads no weight: fp32 check.
+const std::map<std::string, double> kFp16 = {
+    {"img_tokens_raw", 5e-7},        // 4.1e-8, max abs 3.4e-4
+    {"img_tokens", 4e-7},            // 3.6e-8, 3.4e-4
+    {"cam_tokens_in", 1e-8},         // 9.9e-10, 6.8e-6
+    {"pose_encoder_out", 4e-7},      // 3.6e-8, 3.4e-4
+    {"cam_tokens", 4e-8},            // 3.2e-9, 1.2e-5
+    {"c2w", 1e-10},                  // 9.6e-12, 4.0e-6
+    {"fxfycxcy", 1e-10},             // 2.0e-12, 2.0e-6
+    {"plucker", 2e-10},              // 1.1e-11, 4.2e-6
+    {"ray_tokens", 4e-7},            // 3.9e-8, 2.0e-4
+    {"dino", 9e-7},                  // 8.3e-8, 1.7e-3
+    {"cv_drp_input.logits", 1e-10},  // 6.7e-12, 3.7e-6
+    {"cv_drp_input.prob", 1e-10},    // 1.4e-12, 8.2e-7
+    {"dynamic_patch", 1e-10},        // 1.5e-12, 5.7e-7
+    {"cv_drp_target.logits", 1e-10}, // 6.7e-12, 3.7e-6
+    {"cv_drp_target.prob", 1e-10},   // 1.4e-12, 8.2e-7
+    {"fused_tokens", 4e-8},          // 3.7e-9, 2.5e-5
+    {"gated_tokens", 4e-8},          // 3.7e-9, 2.5e-5
+    {"scene_encoder_in", 4e-8},      // 3.7e-9, 2.5e-5
+    {"scene_encoder_out", 7e-8},     // 6.7e-9, 3.4e-5
+    {"scene_tokens", 5e-7},          // 4.0e-8, 1.9e-5
+    {"render_c2w", 2e-10},           // 1.2e-11, 4.0e-6
+    {"render_fxfycxcy", 1e-10},      // 1.9e-12, 1.9e-6
+    {"render_plucker", 2e-10},       // 1.4e-11, 4.2e-6
+    {"rgb_queries", 4e-7},           // 3.8e-8, 2.2e-4
+    {"decoder_in", 5e-7},            // 4.2e-8, 7.6e-4
+    {"decoder_out", 5e-7},           // 4.2e-8, 7.5e-4
+    {"rgb_tokens", 5e-7},            // 4.2e-8, 7.5e-4
+    {"rgb", 6e-9},                   // 5.1e-10, 4.7e-5
+};
+// P(dynamic) moves by at most 8.2e-7 with fp16 weights (measured, above): a reference
+// probability within 1e-4 of the threshold may land on either side (measured: no mask pixel
+// differs, and none is that close).
+constexpr double kMaskTieBand = 1e-4;
+
+CaseOptions fp16Case(CaseOptions o) {
+  o.weightType = DType::F16;
+  o.thresholds = kFp16;
+  o.maskTieBand = kMaskTieBand;
+  return o;
+}
+
+std::string quote(const std::string& s) {
+  std::string q = "'";
+  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return q + "'";
+}
+
+// A scratch directory per test process, removed when the process ends unless
+// SPAR_KEEP_TEST_OUTPUT is set.
+struct ScratchDir {
+  fs::path path;
+  ScratchDir() : path(fs::path(SPAR_TEST_OUT_DIR) / ("spar_precision_" + std::to_string(::getpid()))) {
+    fs::remove_all(path);
+    fs::create_directories(path);
+  }
+  ~ScratchDir() {
+    std::error_code ec;
+    if (!std::getenv("SPAR_KEEP_TEST_OUTPUT")) fs::remove_all(path, ec);
+  }
+};
+
+const fs::path& scratch() {
+  static const ScratchDir d;
+  return d.path;
+}
+
+// The fixture's checkpoint packed with --fp16 (made once per process).
+const std::string& fp16Pack() {
+  static const std::string path = [] {
+    const std::string out = (scratch() / "tiny16.spar").string();
+    const std::string cmd = quote(SPAR_PYTHON) + " " + quote(std::string(SPAR_SOURCE_DIR) + "/converter/spar-convert") +
+                            " -q --fp16 " + quote(goldenPath("tiny.pt")) + " --config " +
+                            quote(goldenPath("tiny_photometric.json")) + " -o " + quote(out);
+    if (std::system(cmd.c_str()) != 0) throw Error("spar-convert --fp16 failed: " + cmd);
+    return out;
+  }();
+  return path;
+}
+
+class SparPrecisionTest : public EngineTest {};
+
+TEST_F(SparPrecisionTest, Fp16WeightsInterleaved) { runGoldenCase(eng(), "interleaved", fp16Case({})); }
+TEST_F(SparPrecisionTest, Fp16WeightsOddTargets) { runGoldenCase(eng(), "odd_targets", fp16Case({})); }
+TEST_F(SparPrecisionTest, Fp16WeightsAssumeStatic) {
+  runGoldenCase(eng(), "static", fp16Case({.assumeStatic = true}));
+}
+TEST_F(SparPrecisionTest, Fp16WeightsPathCameras) {
+  runGoldenCase(eng(), "path", fp16Case({.pathCameras = true}));
+}
+// The --fp16 pack read as stored (weightType F32: its matrices are F16 on the device).
+TEST_F(SparPrecisionTest, Fp16PackInterleaved) {
+  CaseOptions o = fp16Case({.model = fp16Pack()});
+  o.weightType = DType::F32;
+  runGoldenCase(eng(), "interleaved", o);
+}
+
+// What the pack stores as F16 is exactly what WeightSet::isMatrix calls a matrix.
+TEST_F(SparPrecisionTest, MatrixRuleIsTheConverters) {
+  const PackedModel pack = PackedModel::open(fp16Pack());
+  size_t matrices = 0;
+  for (const std::string& name : pack.names()) {
+    const PackedTensorInfo& info = pack.info(name);
+    if (info.dtype != FileDType::F32 && info.dtype != FileDType::F16) continue;
+    const bool half = info.dtype == FileDType::F16;
+    EXPECT_EQ(half, WeightSet::isMatrix(name, info.shape)) << name;
+    matrices += half;
+  }
+  EXPECT_GT(matrices, 50u);
+}
+
+struct Outputs {
+  std::vector<float> rgb, motionInput, motionTarget;
+  std::map<std::string, std::vector<float>> weights;  // every uploaded weight, by name + dtype
+  uint64_t bytes = 0;
+};
+
+Outputs runInterleaved(Engine& engine, const std::string& modelPath, DType weightType) {
+  const GoldenCase g("interleaved");
+  const PackedModel model = PackedModel::open(modelPath);
+  SparPipeline pipe(engine, model, {.profile = false, .weightType = weightType});
+  SparRequest req;
+  req.images = prepareFrames(g, pipe.config().imageHeight, pipe.config().imageWidth);
+  req.plan = {int64_t(g.files().size()), g.inputs(), g.targets()};
+  req.targetMotion = true;
+  Outputs r;
+  const SparEncoded& e = pipe.encode(req);
+  r.motionInput = e.motionInput;
+  r.motionTarget = e.motionTarget;
+  r.rgb = pipe.renderTargets();
+  r.bytes = pipe.weightBytesLoaded();
+  const WeightSet& w = pipe.weights();
+  for (const auto& [name, dtype] : w.loaded())
+    r.weights[name + ":" + dtypeName(dtype)] = engine.download(w.loadedTensor(name, dtype));
+  return r;
+}
+
+// F16 at upload from the F32 file == the --fp16 pack: the same weights on the device, bit for
+// bit (both round the same float32 values to nearest even), except the tensors the converter
+// folded in float64 (BatchNorm into the CV-DRP decoder convs): the pack rounds those once from
+// float64, the F32 file rounded them to float32 first, so a few elements sit one fp16 step
+// apart (measured: 23 elements). Outputs therefore agree far below the fp16 error itself
+// (measured: rgb max abs 1.2e-7 and motion 6e-8 between the two, against 4.3e-5 between f16
+// and f32 weights).
+TEST_F(SparPrecisionTest, Fp16PackEqualsF16AtUpload) {
+  const Outputs pack = runInterleaved(eng(), fp16Pack(), DType::F32);
+  const Outputs upload = runInterleaved(eng(), tinyModelPath(), DType::F16);
+  const Outputs fp32 = runInterleaved(eng(), tinyModelPath(), DType::F32);
+  const nlohmann::json folded =
+      nlohmann::json::parse(PackedModel::open(fp16Pack()).metadata().at("conversion")).at("folded");
+  ASSERT_EQ(pack.weights.size(), upload.weights.size());
+  size_t differing = 0;
+  for (const auto& [key, values] : pack.weights) {
+    ASSERT_TRUE(upload.weights.count(key)) << key << " not loaded the same way";
+    const std::vector<float>& other = upload.weights.at(key);
+    ASSERT_EQ(values.size(), other.size()) << key;
+    if (values == other) continue;
+    const std::string name = key.substr(0, key.rfind(':'));
+    EXPECT_TRUE(folded.contains(name)) << key << " differs but was not folded by the converter";
+    for (size_t i = 0; i < values.size(); ++i) {
+      if (values[i] == other[i]) continue;
+      ++differing;
+      // Adjacent fp16 values: their half encodings differ by one.
+      const int step = std::abs(int(floatToHalf(values[i])) - int(floatToHalf(other[i])));
+      EXPECT_EQ(step, 1) << key << "[" << i << "]: " << values[i] << " vs " << other[i];
+    }
+  }
+  EXPECT_EQ(pack.bytes, upload.bytes);
+  EXPECT_LT(upload.bytes, fp32.bytes);
+  const ErrorStats rgb = compare(pack.rgb, toDouble(upload.rgb));
+  const ErrorStats motion = compare(pack.motionInput, toDouble(upload.motionInput));
+  const ErrorStats toFp32 = compare(upload.rgb, toDouble(fp32.rgb));
+  std::printf("  weight bytes: fp32 %llu, fp16 pack %llu, f16 at upload %llu; %zu folded weight elements one fp16 "
+              "step apart\n  pack vs upload: rgb max abs %.3e, motion max abs %.3e; f16 vs f32 weights: rgb max abs "
+              "%.3e\n",
+              (unsigned long long)fp32.bytes, (unsigned long long)pack.bytes, (unsigned long long)upload.bytes,
+              differing, rgb.maxAbs, motion.maxAbs, toFp32.maxAbs);
+  EXPECT_LE(rgb.maxAbs, 1e-6);
+  EXPECT_LE(motion.maxAbs, 1e-6);
+  EXPECT_LE(compare(pack.motionTarget, toDouble(upload.motionTarget)).maxAbs, 1e-6);
+  EXPECT_GT(toFp32.maxAbs, 10 * rgb.maxAbs);  // the option does change the weights
+}
+
+// A copy of the tiny F32 file with one element of `name` set to `value` (the data area starts
+// after the 8-byte header length and the JSON header).
+std::string withValue(const std::string& name, float value) {
+  const std::string out = (scratch() / "overflow.spar").string();
+  fs::copy_file(tinyModelPath(), out, fs::copy_options::overwrite_existing);
+  std::fstream f(out, std::ios::in | std::ios::out | std::ios::binary);
+  uint64_t headerBytes = 0;
+  f.read(reinterpret_cast<char*>(&headerBytes), 8);
+  std::string header(headerBytes, ' ');
+  f.read(header.data(), std::streamsize(headerBytes));
+  const auto offsets = nlohmann::json::parse(header).at(name).at("data_offsets");
+  f.seekp(std::streamoff(8 + headerBytes + offsets[0].get<uint64_t>()));
+  f.write(reinterpret_cast<const char*>(&value), 4);
+  return out;
+}
+
+// spar-convert --fp16 refuses a value fp16 cannot hold; F16 at upload does the same (rather
+// than saturating it silently), naming the tensor; F32 weights still load it.
+TEST_F(SparPrecisionTest, Fp16OverflowRefused) {
+  const std::string name = "image_token_decoder.1.weight";
+  const PackedModel model = PackedModel::open(withValue(name, 70000.0f));
+  const Shape shape = model.info(name).shape;
+  WeightSet half(eng(), model, DType::F16);
+  try {
+    half.require(name, shape);
+    ADD_FAILURE() << "no error for 70000 in an f16 matrix";
+  } catch (const Error& e) {
+    const std::string msg = e.what();
+    std::printf("  %s\n", msg.c_str());
+    EXPECT_NE(msg.find(name), std::string::npos) << msg;
+    EXPECT_NE(msg.find("float16"), std::string::npos) << msg;
+  }
+  EXPECT_THROW(half.require(name, shape, DType::F32), Error);
+  WeightSet full(eng(), model, DType::F32);
+  EXPECT_EQ(eng().download(full.require(name, shape))[0], 70000.0f);
+}
+
+}  // namespace
+}  // namespace spar::test
