@@ -1,0 +1,97 @@
+#include "samples/spar_modes/modes.h"
+
+#include <algorithm>
+#include <chrono>
+#include <map>
+#include <sstream>
+
+#include "engine/error.h"
+
+namespace spar::modes {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+// One encode + render; returns its wall time in ms.
+double runOnce(SparPipeline& pipe, const SparRequest& request, ModeRun& out) {
+  const auto t0 = Clock::now();
+  const SparEncoded& e = pipe.encode(request);
+  out.motion = e.motionInput;
+  out.rgb = pipe.renderTargets();
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
+}  // namespace
+
+const std::vector<Mode>& allModes() {
+  static const std::vector<Mode> modes = {
+      {"fp32", DType::F32, false},
+      {"fp16", DType::F16, false},
+      {"fp32-static", DType::F32, true},
+      {"fp16-static", DType::F16, true},
+  };
+  return modes;
+}
+
+std::vector<Mode> selectModes(const std::string& list) {
+  if (list.empty()) return allModes();
+  std::vector<Mode> out;
+  std::stringstream ss(list);
+  for (std::string name; std::getline(ss, name, ',');) {
+    auto it = std::find_if(allModes().begin(), allModes().end(), [&](const Mode& m) { return m.name == name; });
+    if (it == allModes().end()) throw Error("unknown mode '" + name + "' (modes: fp32, fp16, fp32-static, fp16-static)");
+    out.push_back(*it);
+  }
+  if (out.empty()) throw Error("no mode selected");
+  return out;
+}
+
+ModeRun runMode(const EngineOptions& engineOptions, const PackedModel& model, const SparRequest& request,
+                const Mode& mode, int repeats) {
+  Engine engine(engineOptions);
+  SparPipeline pipe(engine, model, {.profile = true, .keepIntermediates = false, .weightType = mode.weightType});
+  SparRequest req = request;
+  req.assumeStatic = mode.assumeStatic;
+  req.targetMotion = false;
+
+  ModeRun out;
+  out.mode = mode;
+  out.device = engine.caps().name;
+  out.repeats = repeats;
+  out.firstRunMs = runOnce(pipe, req, out);
+
+  // stageTimes() accumulates since construction: each run's share is the difference.
+  std::vector<StageTime> before = pipe.stageTimes();
+  std::map<std::string, std::vector<double>> gpu, wall;
+  std::vector<double> totalWall, totalGpu;
+  for (int r = 0; r < repeats; ++r) {
+    totalWall.push_back(runOnce(pipe, req, out));
+    const std::vector<StageTime>& now = pipe.stageTimes();
+    double sum = 0;
+    for (const StageTime& s : now) {
+      auto prev = std::find_if(before.begin(), before.end(), [&](const StageTime& b) { return b.name == s.name; });
+      const double g = s.gpuMs - (prev == before.end() ? 0.0 : prev->gpuMs);
+      const double w = s.wallMs - (prev == before.end() ? 0.0 : prev->wallMs);
+      gpu[s.name].push_back(g);
+      wall[s.name].push_back(w);
+      sum += g;
+    }
+    totalGpu.push_back(sum);
+    before = now;
+  }
+  for (const StageTime& s : pipe.stageTimes()) out.stages.push_back({s.name, median(gpu[s.name]), median(wall[s.name])});
+  out.wallMs = median(totalWall);
+  out.gpuMs = median(totalGpu);
+  out.weightBytes = pipe.weightBytesLoaded();
+  out.devicePeakBytes = engine.memory().peakBytes();
+  return out;
+}
+
+}  // namespace spar::modes

@@ -1,0 +1,48 @@
+// The precisions and shortcuts the engine offers, run one at a time on the same request, with
+// what each costs in time and memory (samples/spar_modes.cpp reports them side by side).
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "engine/engine.h"
+#include "model/spar_pipeline.h"
+
+namespace spar::modes {
+
+struct Mode {
+  std::string name;                // "fp32", "fp16", "fp32-static", "fp16-static"
+  DType weightType = DType::F32;   // SparPipelineOptions::weightType
+  bool assumeStatic = false;       // SparRequest::assumeStatic (no DINOv3, no CV-DRP)
+};
+
+// Every mode, in report order.
+const std::vector<Mode>& allModes();
+// The modes named in a comma-separated list ("" = all); throws spar::Error for unknown names.
+std::vector<Mode> selectModes(const std::string& list);
+
+struct StageStat {
+  std::string name;
+  double gpuMs = 0, wallMs = 0;  // medians over the measured runs
+};
+
+struct ModeRun {
+  Mode mode;
+  std::string device;             // the device's name
+  std::vector<StageStat> stages;  // in the order the stages ran
+  double wallMs = 0;       // median per run: encode + render, host copies included
+  double gpuMs = 0;        // median per run: sum of the stages' dispatch timestamps
+  double firstRunMs = 0;   // the first run: weight uploads and first-use shader compilation too
+  int repeats = 0;
+  uint64_t weightBytes = 0;      // weights uploaded (WeightSet::bytesLoaded)
+  uint64_t devicePeakBytes = 0;  // peak device memory in use (weights, activations, scratch)
+  std::vector<float> rgb;        // [T, 3, H, W] of the last run
+  std::vector<float> motion;     // [K, H, W] P(dynamic) of the inputs (empty when static)
+};
+
+// Runs `mode` on a fresh engine (so its device memory and compiled kernels are its own): one
+// first run, then `repeats` measured runs of encode() + renderTargets().
+ModeRun runMode(const EngineOptions& engineOptions, const PackedModel& model, const SparRequest& request,
+                const Mode& mode, int repeats);
+
+}  // namespace spar::modes

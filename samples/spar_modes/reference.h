@@ -1,0 +1,32 @@
+// The PyTorch reference's fp32 output on the same request: `spar-reference goldens` (not
+// `render`, whose PNGs are 8-bit: fp16 weights change pixels by far less than 1/255), run once
+// per directory and reused while its inputs stay the same.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace spar::modes {
+
+struct ReferenceInputs {
+  std::string python;       // Debian's python3 (sees python3-torch)
+  std::string sourceDir;    // the repository (converter/spar-reference)
+  std::string checkpoint;   // X.pt the packed model was made from
+  std::string config;       // --config of spar-reference ("" = inferred from the checkpoint)
+  std::vector<std::string> frames;
+  std::vector<int64_t> inputs;
+};
+
+struct Reference {
+  std::string dir;
+  bool reused = false;
+  std::vector<float> rgb;     // [T, 3, H, W]
+  std::vector<float> motion;  // [K, H, W] P(dynamic) of the inputs (empty with assume-static)
+  std::vector<float> mask;    // [K, H, W] its binary mask, 0 or 1 (empty with assume-static)
+  double modelMs = 0;         // the reference's own time of the model's stages (no file I/O)
+};
+
+// Goldens in `dir` (made unless `dir` holds goldens of the same inputs); throws spar::Error.
+Reference loadReference(const ReferenceInputs& inputs, bool assumeStatic, const std::string& dir);
+
+}  // namespace spar::modes

@@ -1,0 +1,147 @@
+// spar-modes (samples/spar_modes.cpp) as a user runs it, on its default inputs: the tiny model
+// of the spar_goldens fixture. Checks the report's structure, not its timings: every mode
+// present, every number finite, the static modes without DINOv3 / CV-DRP and with fewer weight
+// bytes, fp16 weights with fewer bytes than fp32, errors of the expected size, the markdown on
+// stdout and the SVG plot written.
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <set>
+#include <sstream>
+#include <string>
+
+#include "tests/golden_support.h"
+
+#ifndef SPAR_MODES
+#error "SPAR_MODES (path of the built spar-modes) is defined by samples/CMakeLists.txt"
+#endif
+
+namespace spar::test {
+namespace {
+
+namespace fs = std::filesystem;
+
+// A scratch directory per test process, removed when the process ends unless
+// SPAR_KEEP_TEST_OUTPUT is set.
+struct ScratchDir {
+  fs::path path;
+  ScratchDir() : path(fs::path(SPAR_TEST_OUT_DIR) / ("spar_modes_" + std::to_string(::getpid()))) {
+    fs::remove_all(path);
+    fs::create_directories(path);
+  }
+  ~ScratchDir() {
+    std::error_code ec;
+    if (!std::getenv("SPAR_KEEP_TEST_OUTPUT")) fs::remove_all(path, ec);
+  }
+};
+
+const fs::path& scratch() {
+  static const ScratchDir d;
+  return d.path;
+}
+
+std::string readText(const fs::path& p) {
+  std::ifstream f(p);
+  std::stringstream ss;
+  ss << f.rdbuf();
+  return ss.str();
+}
+
+struct Result {
+  int code = -1;
+  std::string out, err;
+};
+
+Result run(const std::string& args) {
+  const fs::path out = scratch() / "stdout.txt", err = scratch() / "stderr.txt";
+  const std::string cmd = std::string("'") + SPAR_MODES + "' " + args + " >'" + out.string() + "' 2>'" + err.string() + "'";
+  const int status = std::system(cmd.c_str());
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, readText(out), readText(err)};
+}
+
+bool finiteNumber(const nlohmann::json& j) { return j.is_number() && std::isfinite(j.get<double>()); }
+
+TEST(SparModes, ReportOnTinyModel) {
+  const Result r = run("--repeat 1 --out '" + (scratch() / "report").string() + "'");
+  ASSERT_EQ(r.code, 0) << r.err;
+  const nlohmann::json j = nlohmann::json::parse(readText(scratch() / "report" / "modes.json"));
+  ASSERT_EQ(j.at("modes").size(), 4u);
+  std::map<std::string, nlohmann::json> modes;
+  for (const auto& m : j.at("modes")) modes[m.at("mode").get<std::string>()] = m;
+  for (const char* name : {"fp32", "fp16", "fp32-static", "fp16-static"}) {
+    SCOPED_TRACE(name);
+    ASSERT_TRUE(modes.count(name));
+    const nlohmann::json& m = modes.at(name);
+    for (const char* key : {"wall_ms", "gpu_ms", "first_run_ms"}) {
+      EXPECT_TRUE(finiteNumber(m.at(key))) << key;
+      EXPECT_GT(m.at(key).get<double>(), 0.0) << key;
+    }
+    EXPECT_GT(m.at("weight_bytes").get<uint64_t>(), 0u);
+    EXPECT_GE(m.at("device_peak_bytes").get<uint64_t>(), m.at("weight_bytes").get<uint64_t>());
+    std::set<std::string> stages;
+    for (const auto& s : m.at("stages")) {
+      stages.insert(s.at("name").get<std::string>());
+      EXPECT_TRUE(finiteNumber(s.at("gpu_ms")) && finiteNumber(s.at("wall_ms"))) << s.dump();
+    }
+    for (const char* s : {"image_tokens", "pose_estimator", "rays", "gating", "scene_encoder", "renderer"})
+      EXPECT_TRUE(stages.count(s)) << s;
+    const bool isStatic = m.at("assume_static").get<bool>();
+    EXPECT_EQ(isStatic, stages.count("dino_v3") == 0);
+    EXPECT_EQ(isStatic, stages.count("cv_drp") == 0);
+    const nlohmann::json& e = m.at("vs_reference");
+    EXPECT_TRUE(finiteNumber(e.at("rgb_psnr_db")) && finiteNumber(e.at("rgb_max_abs"))) << e.dump();
+    EXPECT_TRUE(finiteNumber(m.at("vs_same_mode_reference").at("rgb_psnr_db")));
+    if (isStatic) {
+      EXPECT_TRUE(e.at("mask_agreement").is_null());
+    } else {
+      ASSERT_TRUE(finiteNumber(e.at("mask_agreement")));
+      EXPECT_GE(e.at("mask_agreement").get<double>(), 0.999);  // measured: 100%
+    }
+    // The engine against the reference of its own mode: fp32 measured 147 dB, fp16 99 dB.
+    const bool half = m.at("weights") == "f16";
+    EXPECT_GE(m.at("vs_same_mode_reference").at("rgb_psnr_db").get<double>(), half ? 80.0 : 120.0);
+  }
+  const auto bytes = [&](const char* name) { return modes.at(name).at("weight_bytes").get<uint64_t>(); };
+  EXPECT_LT(bytes("fp32-static"), bytes("fp32"));
+  EXPECT_LT(bytes("fp16-static"), bytes("fp16"));
+  EXPECT_LT(bytes("fp16"), bytes("fp32"));
+  EXPECT_LT(bytes("fp16-static"), bytes("fp32-static"));
+
+  // The table on stdout (and in modes.md), one row per mode; the plot with one point per mode.
+  EXPECT_EQ(r.out, readText(scratch() / "report" / "modes.md"));
+  for (const char* row : {"| fp32 |", "| fp16 |", "| fp32-static |", "| fp16-static |"})
+    EXPECT_NE(r.out.find(row), std::string::npos) << row;
+  const std::string svg = readText(scratch() / "report" / "modes.svg");
+  EXPECT_EQ(svg.rfind("<svg", 0), 0u);
+  size_t circles = 0;
+  for (size_t at = svg.find("<circle"); at != std::string::npos; at = svg.find("<circle", at + 1)) ++circles;
+  EXPECT_EQ(circles, 4u);
+
+  // A second report reuses the reference's goldens (same inputs) and may select modes.
+  const Result again = run("--repeat 1 --modes fp16-static --out '" + (scratch() / "report").string() + "'");
+  ASSERT_EQ(again.code, 0) << again.err;
+  EXPECT_EQ(again.err.find("PyTorch reference: running"), std::string::npos) << again.err;
+  EXPECT_EQ(nlohmann::json::parse(readText(scratch() / "report" / "modes.json")).at("modes").size(), 1u);
+}
+
+TEST(SparModes, BadCommandLine) {
+  for (const char* args : {"--modes fp8", "--repeat 0", "--frames a.png"}) {
+    SCOPED_TRACE(args);
+    const Result r = run(args);
+    EXPECT_EQ(r.code, 2);
+    EXPECT_EQ(r.err.rfind("spar-modes: error: ", 0), 0u) << r.err;
+    EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  }
+}
+
+}  // namespace
+}  // namespace spar::test
