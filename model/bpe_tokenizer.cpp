@@ -3,6 +3,7 @@
 #include <unicode/locid.h>
 #include <unicode/normalizer2.h>
 #include <unicode/uchar.h>
+#include <unicode/uniset.h>
 #include <unicode/unistr.h>
 #include <zlib.h>
 
@@ -10,6 +11,7 @@
 #include <array>
 #include <fstream>
 #include <iterator>
+#include <memory>
 #include <string_view>
 
 #include "engine/error.h"
@@ -41,11 +43,44 @@ std::string toUtf8(const Text& t) {
   return out;
 }
 
+// The reference's Unicode version: Python 3.11's unicodedata (Debian 12's /usr/bin/python3)
+// has 14.0; ICU 72 has 15.0. Code points assigned after it are unassigned (Cn) to the
+// reference: not letters or numbers, never normalized (CJK Extension H, Kawi, ... tokenize
+// differently otherwise). Raise it with the Python that makes the goldens.
+constexpr uint8_t kUnicodeMajor = 14, kUnicodeMinor = 0;
+
+bool assignedInReference(char32_t c) {
+  UVersionInfo age;
+  u_charAge(static_cast<UChar32>(c), age);
+  return age[0] < kUnicodeMajor || (age[0] == kUnicodeMajor && age[1] <= kUnicodeMinor);
+}
+
+// ICU's NFC / NFKC restricted to the code points of the reference's Unicode version (ICU's
+// own way of running an older version's normalization: a FilteredNormalizer2).
+class ReferenceNormalizers {
+ public:
+  ReferenceNormalizers() {
+    UErrorCode status = U_ZERO_ERROR;
+    const icu::Normalizer2* nfc = icu::Normalizer2::getNFCInstance(status);
+    const icu::Normalizer2* nfkc = icu::Normalizer2::getNFKCInstance(status);
+    const std::string pattern = "[:age=" + std::to_string(kUnicodeMajor) + "." + std::to_string(kUnicodeMinor) + ":]";
+    set_ = icu::UnicodeSet(icu::UnicodeString::fromUTF8(pattern), status);
+    if (U_FAILURE(status) || !nfc || !nfkc)
+      throw Error(std::string("BPE tokenizer: ICU normalizer: ") + u_errorName(status));
+    set_.freeze();
+    nfc_ = std::make_unique<icu::FilteredNormalizer2>(*nfc, set_);
+    nfkc_ = std::make_unique<icu::FilteredNormalizer2>(*nfkc, set_);
+  }
+  const icu::Normalizer2& get(bool compat) const { return compat ? *nfkc_ : *nfc_; }
+
+ private:
+  icu::UnicodeSet set_;
+  std::unique_ptr<icu::FilteredNormalizer2> nfc_, nfkc_;
+};
+
 const icu::Normalizer2& normalizer(bool compat) {
-  UErrorCode status = U_ZERO_ERROR;
-  const icu::Normalizer2* n = compat ? icu::Normalizer2::getNFKCInstance(status) : icu::Normalizer2::getNFCInstance(status);
-  if (U_FAILURE(status) || n == nullptr) throw Error(std::string("BPE tokenizer: ICU normalizer: ") + u_errorName(status));
-  return *n;
+  static const ReferenceNormalizers n;  // thread-safe initialization; ICU normalizers are const-safe
+  return n.get(compat);
 }
 
 Text normalized(const Text& t, bool compat) {
@@ -55,12 +90,16 @@ Text normalized(const Text& t, bool compat) {
   return toText(out);
 }
 
-bool isLetter(char32_t c) { return (U_GET_GC_MASK(static_cast<UChar32>(c)) & U_GC_L_MASK) != 0; }
-bool isNumber(char32_t c) { return (U_GET_GC_MASK(static_cast<UChar32>(c)) & U_GC_N_MASK) != 0; }
+bool isLetter(char32_t c) {
+  return (U_GET_GC_MASK(static_cast<UChar32>(c)) & U_GC_L_MASK) != 0 && assignedInReference(c);
+}
+bool isNumber(char32_t c) {
+  return (U_GET_GC_MASK(static_cast<UChar32>(c)) & U_GC_N_MASK) != 0 && assignedInReference(c);
+}
 // Python's str.isdigit: numeric type Decimal or Digit.
 bool isPyDigit(char32_t c) {
   const int t = u_getIntPropertyValue(static_cast<UChar32>(c), UCHAR_NUMERIC_TYPE);
-  return t == U_NT_DECIMAL || t == U_NT_DIGIT;
+  return (t == U_NT_DECIMAL || t == U_NT_DIGIT) && assignedInReference(c);
 }
 
 // bpe.py's _WHITE_SPACE (the regex module's \s): a fixed set, not a table lookup.

@@ -12,10 +12,11 @@
 //   to the context length with eot put back last (CLIP's truncate=True).
 //
 // Unicode properties (letters L*, numbers N*, decimal/digit numeric types), lower-casing (full
-// case mapping with final sigma, as Python's str.lower) and NFC/NFKC come from ICU, so they
-// follow ICU's Unicode version (ICU 72: Unicode 15.0) where Python's differs (3.11: 14.0):
-// only characters assigned in between can tokenize differently. HTML character references use
-// the tables of Python's html module (model/html_entities.inc, generated).
+// case mapping with final sigma, as Python's str.lower) and NFC/NFKC come from ICU, pinned to
+// the reference Python's Unicode version (3.11: 14.0; ICU 72 has 15.0): code points assigned
+// later count as unassigned, as they do for bpe.py (see kUnicodeMajor in the .cpp). HTML
+// character references use the tables of Python's html module (model/html_entities.inc,
+// generated).
 // Input strings are UTF-8; an invalid byte sequence decodes as U+FFFD.
 #pragma once
 #include <cstdint>

@@ -6,6 +6,7 @@
 // merges table is not on this machine.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <fstream>
 
 #include <nlohmann/json.hpp>
@@ -63,6 +64,30 @@ TEST_F(BpeTokenizerTest, MatchesReferenceIds) {
     EXPECT_TRUE(same) << "prompt " << p << " '" << prompt << "' tokenizes differently";
   }
   std::printf("BPE: %lld prompts, %d differ from bpe.py\n", static_cast<long long>(P), mismatched);
+}
+
+// 4000 random prompts (make_text_golden.py random_prompts: the tricky pieces of every rule,
+// and random code points of every plane, some assigned after the reference's Unicode version).
+TEST_F(BpeTokenizerTest, RandomPromptsMatchReference) {
+  const std::string dir = randomTextGoldenDir(4000, 11);
+  std::ifstream pf(dir + "/prompts.json");
+  const std::vector<std::string> prompts = nlohmann::json::parse(pf).get<std::vector<std::string>>();
+  std::ifstream tf(dir + "/text.json");
+  const nlohmann::json detail = nlohmann::json::parse(tf);
+  const int64_t P = static_cast<int64_t>(prompts.size()), L = BpeTokenizer::kContextLength;
+  const std::vector<int64_t> want = readNpy(dir + "/tokens.npy", {P, L}).toInt64s();
+  const std::vector<int32_t> got = tokenizer().tokenize(prompts);
+  int differ = 0;
+  for (int64_t p = 0; p < P; ++p) {
+    const std::vector<int32_t> enc = tokenizer().encode(prompts[size_t(p)]);
+    const bool same = std::equal(got.begin() + p * L, got.begin() + (p + 1) * L, want.begin() + p * L) &&
+                      std::vector<int64_t>(enc.begin(), enc.end()) == detail[p]["encoded"].get<std::vector<int64_t>>();
+    if (!same && ++differ <= 5)
+      ADD_FAILURE() << "random prompt " << p << ": normalized '" << BpeTokenizer::normalize(prompts[size_t(p)])
+                    << "', reference '" << detail[p]["normalized"].get<std::string>() << "'";
+  }
+  EXPECT_EQ(differ, 0);
+  std::printf("BPE: %lld random prompts, %d differ from bpe.py\n", static_cast<long long>(P), differ);
 }
 
 TEST_F(BpeTokenizerTest, TruncationKeepsEndToken) {

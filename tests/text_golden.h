@@ -59,26 +59,21 @@ inline const std::vector<std::string>& textPrompts() {
   return prompts;
 }
 
+// A directory of the process's own under the tests' scratch directory, removed when it ends,
+// filled by make_text_golden.py with `args` (besides --bpe and --out).
 struct TextGoldenDir {
   std::string path;
-  explicit TextGoldenDir(bool embeddings) {
+  TextGoldenDir(const std::string& name, const std::string& args) {
     namespace fs = std::filesystem;
-    const fs::path d = fs::path(SPAR_TEST_OUT_DIR) / ("text_golden_" + std::to_string(::getpid()));
+    const fs::path d = fs::path(SPAR_TEST_OUT_DIR) / (name + "_" + std::to_string(::getpid()));
     fs::remove_all(d);
     fs::create_directories(d);
-    {
-      std::ofstream f(d / "prompts.json", std::ios::binary);
-      f << nlohmann::json(textPrompts()).dump();
-    }
-    std::string cmd = std::string("\"") + SPAR_PYTHON + "\" \"" + SPAR_SOURCE_DIR +
-                      "/tests/python/make_text_golden.py\" --bpe \"" + clipBpePath() + "\" --prompts \"" +
-                      (d / "prompts.json").string() + "\" --out \"" + d.string() + "\"";
-    if (embeddings)
-      cmd += " --checkpoint \"" + semanticGoldenPath("tiny_semantic.pt") + "\" --config \"" +
-             semanticGoldenPath("tiny_semantic.json") + "\"";
+    path = d.string();
+    const std::string cmd = std::string("\"") + SPAR_PYTHON + "\" \"" + SPAR_SOURCE_DIR +
+                            "/tests/python/make_text_golden.py\" --bpe \"" + clipBpePath() + "\" --out \"" + path +
+                            "\" " + args;
     const int rc = std::system(cmd.c_str());
     if (rc != 0) throw Error("golden maker failed (" + std::to_string(rc) + "): " + cmd);
-    path = d.string();
   }
   ~TextGoldenDir() {
     std::error_code ec;
@@ -86,9 +81,29 @@ struct TextGoldenDir {
   }
 };
 
+inline std::string writePromptsFile() {
+  const std::string file = std::string(SPAR_TEST_OUT_DIR) + "/text_prompts_" + std::to_string(::getpid()) + ".json";
+  std::ofstream f(file, std::ios::binary);
+  f << nlohmann::json(textPrompts()).dump();
+  return file;
+}
+
 // The goldens of textPrompts() (made on first use; with embeddings.npy when asked for).
 inline const std::string& textGoldenDir(bool embeddings) {
-  static const TextGoldenDir dir(embeddings);
+  static const std::string prompts = writePromptsFile();
+  static const TextGoldenDir dir(
+      "text_golden", "--prompts \"" + prompts + "\"" +
+                         (embeddings ? " --checkpoint \"" + semanticGoldenPath("tiny_semantic.pt") + "\" --config \"" +
+                                           semanticGoldenPath("tiny_semantic.json") + "\""
+                                     : std::string()));
+  std::filesystem::remove(prompts);
+  return dir.path;
+}
+
+// n random prompts of make_text_golden.py's random_prompts (DIR/prompts.json) and their ids.
+inline const std::string& randomTextGoldenDir(int n, int seed) {
+  static const TextGoldenDir dir("text_golden_random",
+                                 "--random " + std::to_string(n) + " --seed " + std::to_string(seed));
   return dir.path;
 }
 
