@@ -64,11 +64,12 @@ int main(int argc, char** argv) {
                                            "the first GPU)");
   std::string labelsText;
   auto* labels = render->add_option("--labels", labelsText,
-                                    "comma-separated prompts: open-vocabulary label maps (models with the semantic "
-                                    "branch; not implemented yet)")
+                                    "comma-separated prompts: open-vocabulary label maps of the rendered views "
+                                    "(labels_XX.png / .json; models with the semantic branch and CLIP text)")
                      ->type_name("\"a,b,...\"");
   render->add_flag("--features", a.features,
-                   "semantic features of the rendered views (models with the semantic branch; not implemented yet)");
+                   "also write the semantic features of the rendered views (features_XX.npy, C x H/2 x "
+                   "W/2 float32; models with the semantic branch)");
 
   try {
     app.parse(argc, argv);

@@ -9,7 +9,11 @@
 #include <memory>
 
 #include "engine/engine.h"
+#include "engine/recorder.h"
+#include "model/bpe_tokenizer.h"
 #include "model/cameras.h"
+#include "model/clip_text.h"
+#include "model/label_maps.h"
 #include "model/image_prep.h"
 #include "model/packed_model.h"
 #include "model/spar_config.h"
@@ -60,6 +64,8 @@ struct Validated {
   SparConfig config;
   std::vector<float> images;  // [V, 3, H, W]
   std::vector<CameraD> cameras;  // --cameras
+  std::vector<std::string> labels;  // --labels, parsed
+  std::vector<int32_t> labelIds;    // their CLIP token ids [P, 77]
   double loadModelMs = 0, prepareMs = 0;
 };
 
@@ -71,8 +77,28 @@ Validated validate(const RenderArgs& a) {
   if (a.path && *a.path < 1) throw UsageError("--path needs at least 1 frame, got " + std::to_string(*a.path));
   if (a.path && !a.cameras.empty()) throw UsageError("--cameras and --path exclude each other");
   if (a.out.empty()) throw UsageError("--out is required");
-  if (a.labels && a.labels->find_first_not_of(" ,") == std::string::npos)
-    throw UsageError("--labels needs at least one prompt");
+  if (a.labels) {
+    // As the reference parses them: comma-separated, stripped, empty items dropped, no repeats.
+    std::string item;
+    auto flush = [&]() {
+      const size_t b = item.find_first_not_of(" \t"), e = item.find_last_not_of(" \t");
+      if (b != std::string::npos) {
+        const std::string label = item.substr(b, e - b + 1);
+        if (std::find(v.labels.begin(), v.labels.end(), label) != v.labels.end())
+          throw UsageError("--labels repeats a prompt: " + label);
+        v.labels.push_back(label);
+      }
+      item.clear();
+    };
+    for (char ch : *a.labels) {
+      if (ch == ',') flush();
+      else item += ch;
+    }
+    flush();
+    if (v.labels.empty()) throw UsageError("--labels needs at least one prompt");
+  }
+  if ((a.labels || a.features) && v.views.targets.empty() && !a.path && a.cameras.empty())
+    throw UsageError("--labels / --features need views to render (target views, --path or --cameras)");
 
   // 2. Files and directories (exit 1), cheapest first: nothing is loaded before all exist.
   for (const auto& f : v.views.files) {
@@ -89,8 +115,14 @@ Validated validate(const RenderArgs& a) {
   v.config = SparConfig::fromJson(v.model->config(), v.model->path());
   v.loadModelMs = msSince(t);
   if (a.labels || a.features) {
-    if (!v.config.useLseg) throw Error("this model has no semantic branch: --labels / --features are not available");
-    throw Error("--labels / --features are not implemented yet");
+    if (!v.config.semanticDecoding())
+      throw Error("this model has no semantic branch (use_lseg / semantic loss weight): --labels / --features are "
+                  "not available");
+  }
+  if (a.labels) {
+    if (!v.model->has(BpeTokenizer::kPackedName))
+      throw Error(v.model->path() + ": no CLIP text encoder tokenizer (pack the model with spar-convert --bpe)");
+    v.labelIds = BpeTokenizer::fromModel(*v.model).tokenize(v.labels);
   }
 
   t = Clock::now();
@@ -162,6 +194,7 @@ void runRender(const RenderArgs& a) {
     req.plan.inputs = v.views.inputs;
     req.plan.targets = v.views.targets;
     req.assumeStatic = a.assumeStatic;
+    req.semanticFeatures = a.labels.has_value() || a.features;
     req.plan.validate();
 
     progress.step("encoding " + viewsText(v.views) + " at " + std::to_string(w) + "x" + std::to_string(h) + " on " +
@@ -171,6 +204,51 @@ void runRender(const RenderArgs& a) {
     RenderResult r;
     r.width = w;
     r.height = h;
+    // --labels: the prompts through CLIP's text encoder on the device, once; its weights are
+    // loaded only now, for this request.
+    std::unique_ptr<WeightSet> textWeights;
+    Tensor text;
+    double textGpuMs = 0, textWallMs = 0, labelGpuMs = 0, labelWallMs = 0;
+    if (a.labels) {
+      progress.step("encoding " + std::to_string(v.labels.size()) + " label prompts");
+      t = Clock::now();
+      textWeights = std::make_unique<WeightSet>(engine, *v.model);
+      ClipTextEncoder encoder(engine, *textWeights, ClipTextConfig::fromJson(cfg.raw.at("clip"), v.model->path()));
+      text = engine.tensor({int64_t(v.labels.size()), encoder.config().embedDim});
+      TransformerWorkspace ws;
+      Recorder rec(engine, true);
+      encoder.forward(rec, v.labelIds, text, ws);
+      rec.run();
+      for (const auto& d : rec.timings()) textGpuMs += d.ms;
+      textWallMs = msSince(t);
+      r.labels = v.labels;
+      r.labelHeight = h / 2;
+      r.labelWidth = w / 2;
+    }
+    // After each render call: label maps on the device from its semantic features, features read back.
+    auto semanticOutputs = [&]() {
+      if (!req.semanticFeatures) return;
+      const Tensor& feats = pipeline.renderedFeatures();
+      if (a.features) {
+        const std::vector<float> f = engine.download(feats);
+        r.features.insert(r.features.end(), f.begin(), f.end());
+        r.featureChannels = cfg.semanticDim;
+      }
+      if (a.labels) {
+        const auto tl = Clock::now();
+        const int64_t views = feats.dim(0);
+        const Tensor maps = engine.tensor({views, h / 2, w / 2}, DType::I32);
+        Recorder rec(engine, true);
+        labelMaps(rec, feats, text, maps);
+        rec.run();
+        for (const auto& d : rec.timings()) labelGpuMs += d.ms;
+        std::vector<int32_t> all(size_t(maps.numel()));
+        engine.read(maps, all.data(), all.size() * sizeof(int32_t));
+        const size_t per = size_t(h / 2) * size_t(w / 2);
+        for (int64_t j = 0; j < views; ++j) r.labelMaps.emplace_back(all.begin() + j * per, all.begin() + (j + 1) * per);
+        labelWallMs += msSince(tl);
+      }
+    };
     RenderCameras renderCams;
     if (mode == "path") renderCams = pathCameras(enc, v.views.inputs, *a.path);
     if (mode == "cameras") renderCams = toRenderCameras(v.cameras);
@@ -183,6 +261,7 @@ void runRender(const RenderArgs& a) {
       progress.step("rendering " + std::to_string(count) + what);
       if (mode == "targets") {
         r.rgb = pipeline.renderTargets();
+        semanticOutputs();
       } else {
         // A long path in chunks: device memory for a few views at a time, not for all N.
         for (size_t j0 = 0; j0 < renderCams.size(); j0 += kRenderChunk) {
@@ -192,6 +271,7 @@ void runRender(const RenderArgs& a) {
           chunk.fxfycxcy.assign(renderCams.fxfycxcy.begin() + j0, renderCams.fxfycxcy.begin() + j1);
           const std::vector<float> rgb = pipeline.render(chunk);
           r.rgb.insert(r.rgb.end(), rgb.begin(), rgb.end());
+          semanticOutputs();
         }
       }
     }
@@ -222,6 +302,10 @@ void runRender(const RenderArgs& a) {
     nlohmann::ordered_json stages = nlohmann::ordered_json::array();
     for (const auto& s : pipeline.stageTimes())
       stages.push_back({{"name", s.name}, {"gpu_ms", s.gpuMs}, {"wall_ms", s.wallMs}});
+    if (a.labels) {
+      stages.push_back({{"name", "text_encoder"}, {"gpu_ms", textGpuMs}, {"wall_ms", textWallMs}});
+      stages.push_back({{"name", "labels"}, {"gpu_ms", labelGpuMs}, {"wall_ms", labelWallMs}});
+    }
     nlohmann::ordered_json report = {
         {"tool", "spar"},
         {"command", "render"},
@@ -239,7 +323,7 @@ void runRender(const RenderArgs& a) {
         {"total_seconds", msSince(start) / 1000.0},
         {"stages", stages},          // GPU stages that ran (pipeline.stageTimes())
         {"host_stages", host},       // CPU-side phases of the command
-        {"weights_bytes_loaded", pipeline.weightBytesLoaded()},
+        {"weights_bytes_loaded", pipeline.weightBytesLoaded() + (textWeights ? textWeights->bytesLoaded() : 0)},
     };
     writeJson((fs::path(staged.path()) / "report.json").string(), report);
     ++written;

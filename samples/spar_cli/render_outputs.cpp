@@ -6,14 +6,17 @@
 
 #include "engine/error.h"
 #include "model/image_prep.h"
+#include "model/label_maps.h"
+#include "model/label_outputs.h"
+#include "model/npy.h"
 
 namespace spar::cli {
 
 namespace {
 
-std::string numbered(const std::string& dir, const char* stem, int64_t j) {
+std::string numbered(const std::string& dir, const char* stem, int64_t j, const char* ext = "png") {
   char name[64];
-  std::snprintf(name, sizeof(name), "%s_%02lld.png", stem, static_cast<long long>(j));
+  std::snprintf(name, sizeof(name), "%s_%02lld.%s", stem, static_cast<long long>(j), ext);
   return (std::filesystem::path(dir) / name).string();
 }
 
@@ -50,7 +53,21 @@ int writeRenderOutputs(const std::string& dir, const RenderResult& r) {
     files += 2;
   }
   writeJson((std::filesystem::path(dir) / "cameras.json").string(), camerasJson(r.cameras));
-  return files + 1;
+  ++files;
+  for (size_t j = 0; j < r.labelMaps.size(); ++j) {
+    writeLabelPng(numbered(dir, "labels", int64_t(j)), r.labelMaps[j], r.labelHeight, r.labelWidth, r.labels, r.height,
+                  r.width);
+    writeLabelJson(numbered(dir, "labels", int64_t(j), "json"),
+                   labelJson(r.labelMaps[j], r.labelHeight, r.labelWidth, r.labels, int64_t(j), kLsegLogitScale));
+    files += 2;
+  }
+  if (!r.features.empty()) {
+    const int64_t h = r.height / 2, w = r.width / 2, per = r.featureChannels * h * w;
+    if (r.features.size() != size_t(r.rendered * per)) throw Error("render result: wrong number of feature values");
+    for (int64_t j = 0; j < r.rendered; ++j, ++files)
+      writeNpy(numbered(dir, "features", j, "npy"), {r.featureChannels, h, w}, r.features.data() + j * per);
+  }
+  return files;
 }
 
 }  // namespace spar::cli

@@ -19,6 +19,13 @@ struct RenderResult {
   int64_t motionViews = 0;
   float maskThreshold = 0.5f;
   CamerasDocument cameras;     // cameras.json
+  // --labels: the prompts and one label map [h, w] per rendered view (h = H/2)
+  std::vector<std::string> labels;
+  std::vector<std::vector<int32_t>> labelMaps;
+  int labelHeight = 0, labelWidth = 0;
+  // --features: [R, C, h, w] semantic features
+  std::vector<float> features;
+  int64_t featureChannels = 0;
 };
 
 // Writes the images and cameras.json into `dir` (report.json is the caller's, written last
