@@ -6,6 +6,7 @@
 #include <fstream>
 
 #include "engine/error.h"
+#include "model/label_maps.h"
 
 namespace spar {
 namespace {
@@ -121,6 +122,21 @@ std::string labelJsonText(const nlohmann::ordered_json& doc) {
 
 void writeLabelJson(const std::string& path, const nlohmann::ordered_json& doc) {
   writeFileAtomically(path, labelJsonText(doc));
+}
+
+void writeLabelFiles(const std::string& dir, const std::vector<int32_t>& maps, int views, int h, int w,
+                     const std::vector<std::string>& names, int outH, int outW) {
+  const size_t plane = size_t(h) * size_t(w);
+  if (views < 0 || maps.size() != size_t(views) * plane)
+    throw Error("label maps: " + std::to_string(maps.size()) + " values for " + std::to_string(views) + " views of " +
+                std::to_string(h) + " x " + std::to_string(w));
+  for (int v = 0; v < views; ++v) {
+    const std::vector<int32_t> map(maps.begin() + ptrdiff_t(v * plane), maps.begin() + ptrdiff_t((v + 1) * plane));
+    char stem[32];
+    std::snprintf(stem, sizeof stem, "/labels_%02d", v);
+    writeLabelPng(dir + stem + ".png", map, h, w, names, outH, outW);
+    writeLabelJson(dir + stem + ".json", labelJson(map, h, w, names, v, kLsegLogitScale));
+  }
 }
 
 }  // namespace spar

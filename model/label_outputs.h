@@ -39,4 +39,10 @@ nlohmann::ordered_json labelJson(const std::vector<int32_t>& map, int h, int w, 
 std::string labelJsonText(const nlohmann::ordered_json& doc);
 void writeLabelJson(const std::string& path, const nlohmann::ordered_json& doc);
 
+// Everything write_render writes for --labels: labels_XX.png and labels_XX.json (XX = view,
+// two digits) in `dir` for maps [views, h, w] (row-major, as labelMaps downloads them), the
+// PNGs at the model's outH x outW, the JSON with LSeg's logit scale.
+void writeLabelFiles(const std::string& dir, const std::vector<int32_t>& maps, int views, int h, int w,
+                     const std::vector<std::string>& names, int outH, int outW);
+
 }  // namespace spar

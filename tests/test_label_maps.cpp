@@ -174,6 +174,13 @@ struct ReferenceRender {
   }
 };
 
+// <dir>/labels_XX, the stem write_render uses.
+std::string labelStem(const std::string& dir, int view) {
+  char name[32];
+  std::snprintf(name, sizeof name, "/labels_%02d", view);
+  return dir + name;
+}
+
 std::string readText(const std::string& path) {
   std::ifstream f(path, std::ios::binary);
   std::stringstream s;
@@ -185,13 +192,18 @@ TEST_F(LabelMapsTest, WritersMatchReferenceRender) {
   static const ReferenceRender ref;
   std::ifstream lf(semanticGoldenPath("labels.json"));
   const std::vector<std::string> labels = nlohmann::json::parse(lf).get<std::vector<std::string>>();
-  int views = 0;
-  for (; fs::exists(ref.dir + "/labels_" + std::string(views < 10 ? "0" : "") + std::to_string(views) + ".png"); ++views) {
-    const std::string stem = ref.dir + "/labels_" + std::string(views < 10 ? "0" : "") + std::to_string(views);
+  // The PNGs are at the model's H x W (the configuration's image size), the maps at h x w.
+  const nlohmann::json cfg = nlohmann::json::parse(readText(semanticGoldenPath("tiny_semantic.json")));
+  const int H = cfg.at("image_height").get<int>(), W = cfg.at("image_width").get<int>();
+  int views = 0, h0 = 0, w0 = 0;
+  std::vector<int32_t> allMaps;
+  for (; fs::exists(labelStem(ref.dir, views) + ".png"); ++views) {
+    const std::string stem = labelStem(ref.dir, views);
     const RgbImage png = loadImageRGB(stem + ".png");
     const nlohmann::json doc = nlohmann::json::parse(readText(stem + ".json"));
     const int h = doc.at("resolution")[0].get<int>(), w = doc.at("resolution")[1].get<int>();
-    const int H = png.width * 0 + 2 * h, W = png.width;  // the model's size (features are at half)
+    ASSERT_EQ(2 * h, H);
+    ASSERT_EQ(2 * w, W);
     ASSERT_EQ(png.height, H + 14 * int(labels.size()) + 4);
     // The reference's map, read back from its PNG (every input pixel covers 2 x 2 outputs).
     std::vector<int32_t> map(size_t(h * w), -1);
@@ -225,16 +237,21 @@ TEST_F(LabelMapsTest, WritersMatchReferenceRender) {
     // The JSON, byte for byte.
     const std::string json = labelJsonText(labelJson(map, h, w, labels, views, kLsegLogitScale));
     EXPECT_EQ(json, readText(stem + ".json")) << "labels_" << views << ".json";
-    // And through the file writers.
-    const std::string out = std::string(SPAR_TEST_OUT_DIR) + "/labels_writer_" + std::to_string(::getpid());
-    writeLabelPng(out + ".png", map, h, w, labels, H, W);
-    writeLabelJson(out + ".json", labelJson(map, h, w, labels, views, kLsegLogitScale));
-    EXPECT_EQ(loadImageRGB(out + ".png").pixels, mine.pixels);
-    EXPECT_EQ(readText(out + ".json"), json);
-    fs::remove(out + ".png");
-    fs::remove(out + ".json");
+    allMaps.insert(allMaps.end(), map.begin(), map.end());
+    h0 = h;
+    w0 = w;
   }
-  EXPECT_GT(views, 0) << "the reference wrote no labels_XX.png";
+  ASSERT_GT(views, 0) << "the reference wrote no labels_XX.png";
+  // The file writers, all views at once: PNGs as labelImage gives them, JSON as the reference's.
+  const fs::path out = fs::path(SPAR_TEST_OUT_DIR) / ("label_writer_" + std::to_string(::getpid()));
+  fs::create_directories(out);
+  writeLabelFiles(out.string(), allMaps, views, h0, w0, labels, H, W);
+  for (int v = 0; v < views; ++v) {
+    const std::vector<int32_t> map(allMaps.begin() + v * h0 * w0, allMaps.begin() + (v + 1) * h0 * w0);
+    EXPECT_EQ(loadImageRGB(labelStem(out.string(), v) + ".png").pixels, labelImage(map, h0, w0, labels, H, W).pixels);
+    EXPECT_EQ(readText(labelStem(out.string(), v) + ".json"), readText(labelStem(ref.dir, v) + ".json"));
+  }
+  fs::remove_all(out);
 }
 
 TEST(LabelOutputs, PaletteAndChecks) {
