@@ -13,6 +13,7 @@
 // Exit codes: 0 done, 1 something wrong on the way, 2 a command line that cannot mean anything.
 #include <CLI/CLI.hpp>
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>

@@ -1,5 +1,6 @@
 #include "samples/spar_modes/report.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 
