@@ -56,6 +56,10 @@ int main(int argc, char** argv) {
                                      "render N cameras along the estimated input cameras (slerp rotations, "
                                      "lerp positions) instead of the targets");
   pathOpt->excludes(cameras);
+  render->add_option("--precision", a.precision,
+                     "fp32, or fp16: weight matrices held as fp16 on the device (half the memory; activations "
+                     "and accumulation stay fp32)")
+      ->check(CLI::IsMember({"fp32", "fp16"}));
   render->add_flag("--assume-static", a.assumeStatic,
                    "the scene is static: skip DINOv3 and CV-DRP, gate no token, write no motion maps");
   render->add_option("--out", a.out, "output directory (must not exist; written as DIR.tmp-XXXXXX, then renamed)")

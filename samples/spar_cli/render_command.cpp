@@ -185,6 +185,7 @@ void runRender(const RenderArgs& a) {
 
     SparPipelineOptions po;
     po.profile = true;
+    po.weightType = a.precision == "fp16" ? DType::F16 : DType::F32;
     SparPipeline pipeline(engine, *v.model, po);
     SparRequest req;
     req.images = std::move(v.images);
@@ -212,7 +213,7 @@ void runRender(const RenderArgs& a) {
     if (a.labels) {
       progress.step("encoding " + std::to_string(v.labels.size()) + " label prompts");
       t = Clock::now();
-      textWeights = std::make_unique<WeightSet>(engine, *v.model);
+      textWeights = std::make_unique<WeightSet>(engine, *v.model, po.weightType);
       ClipTextEncoder encoder(engine, *textWeights, ClipTextConfig::fromJson(cfg.raw.at("clip"), v.model->path()));
       text = engine.tensor({int64_t(v.labels.size()), encoder.config().embedDim});
       TransformerWorkspace ws;
@@ -311,7 +312,7 @@ void runRender(const RenderArgs& a) {
         {"command", "render"},
         {"model", absolutePath(a.model)},
         {"device", engine.caps().name},
-        {"precision", "fp32"},
+        {"precision", a.precision},
         {"views",
          {{"total", v.views.files.size()},
           {"inputs", v.views.inputs.size()},

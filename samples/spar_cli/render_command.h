@@ -21,6 +21,7 @@ struct RenderArgs {
   std::string cameras;             // --cameras transforms.json
   std::optional<int> path;         // --path N
   bool assumeStatic = false;
+  std::string precision = "fp32";  // fp32 | fp16 (weight matrices stored as fp16 on the device)
   std::string out;
   std::string device;              // index or part of the name; "" = SPAR_DEVICE / default
   std::optional<std::string> labels;
