@@ -14,6 +14,7 @@
 #include "model/cv_drp.h"
 #include "model/dino_v3.h"
 #include "model/gating.h"
+#include "model/lseg.h"
 #include "model/plucker_rays.h"
 #include "model/pose_estimator.h"
 #include "model/renderer.h"
@@ -47,6 +48,7 @@ struct SparPipeline::Stages {
   std::unique_ptr<DinoV3> dino;
   std::unique_ptr<CvDrp> cvDrp;
   std::unique_ptr<TokenGating> gating;
+  std::unique_ptr<LSegEncoder> lseg;
   std::unique_ptr<SemanticTokens> semantic;
   std::unique_ptr<SceneEncoder> scene;
   std::unique_ptr<Renderer> renderer;
@@ -243,7 +245,18 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
     if (!request.lsegFeatures.empty()) {
       features = engine_.fromFloats({k, c.semanticDim, h / 2, w / 2}, request.lsegFeatures);
     } else {
-      throw Error("the LSeg encoder is not on the engine yet: give precomputed LSeg features");
+      // LSeg on the input views only (SPAR feeds it the [0, 1] images as they are).
+      if (!st.lseg) st.lseg = std::make_unique<LSegEncoder>(engine_, weights_, c);
+      features = engine_.tensor({k, c.semanticDim, h / 2, w / 2});
+      const Tensor inputImages = engine_.tensor({k, 3, h, w});
+      t0 = Clock::now();
+      rec.setStage("lseg");
+      for (int64_t j = 0; j < k; ++j)
+        copy2d(rec, images.view(request.plan.inputs[j] * 3 * h * w, {1, 3 * h * w}), 3 * h * w, 0,
+               inputImages.view(j * 3 * h * w, {1, 3 * h * w}), 3 * h * w, 0, 1, 3 * h * w);
+      st.lseg->forward(rec, inputImages, features, st.ws);
+      rec.run();
+      finish(t0);
     }
     keep("lseg_features", features);
     if (!st.semantic) st.semantic = std::make_unique<SemanticTokens>(engine_, weights_, c);

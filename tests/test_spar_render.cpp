@@ -95,9 +95,10 @@ RunResult spar(std::vector<std::string> args) {
 }
 
 // The reference's `render` (or `goldens`) with a checkpoint and the fixture's config.
-RunResult reference(std::vector<std::string> args, const std::string& checkpoint, const char* command = "render") {
+RunResult reference(std::vector<std::string> args, const std::string& checkpoint, const char* command = "render",
+                    const std::string& config = goldenPath("tiny_photometric.json")) {
   args.insert(args.begin(), {SPAR_PYTHON, std::string(SPAR_SOURCE_DIR) + "/converter/spar-reference", command,
-                             "--checkpoint", checkpoint, "--config", goldenPath("tiny_photometric.json")});
+                             "--checkpoint", checkpoint, "--config", config});
   return run(args);
 }
 
@@ -293,13 +294,14 @@ struct Outputs {
 
 std::optional<Outputs> runBoth(const std::string& name, const std::vector<std::string>& viewArgs,
                                const std::string& model = tinyModelPath(),
-                               const std::string& checkpoint = goldenPath("tiny.pt")) {
+                               const std::string& checkpoint = goldenPath("tiny.pt"),
+                               const std::string& config = goldenPath("tiny_photometric.json")) {
   Outputs o{scratch() / ("ours_" + name), scratch() / ("ref_" + name)};
   fs::remove_all(o.ours);
   fs::remove_all(o.ref);
   const RunResult ours = spar(cat({"--model", model}, cat(viewArgs, {"--out", o.ours.string()})));
   EXPECT_EQ(ours.code, 0) << ours.err;
-  const RunResult ref = reference(cat(viewArgs, {"--out", o.ref.string()}), checkpoint);
+  const RunResult ref = reference(cat(viewArgs, {"--out", o.ref.string()}), checkpoint, "render", config);
   EXPECT_EQ(ref.code, 0) << ref.err;
   if (ours.code != 0 || ref.code != 0) return std::nullopt;
   return o;
@@ -473,6 +475,75 @@ TEST(spar_render, MixedMasksMatchReference) {
   const RunResult r = reference(cat(views, {"--out", g.string()}), pt, "goldens");
   ASSERT_EQ(r.code, 0) << r.err;
   compareOutputs("masked", *o, false, readNpy((g / "cv_drp_input.prob.npy").string()).toDoubles(), 2, "targets");
+}
+
+
+// A model with the semantic branch, with --labels and --features: the same files as the
+// reference; views within 1/255; label maps (JSON pixel counts, PNG colours) identical except at
+// near-ties of the top-2 prompts; the features themselves within an NMSE of 1e-10 (fp32 both).
+TEST(spar_render, LabelsAndFeaturesMatchReference) {
+  if (clipBpePath().empty()) GTEST_SKIP() << "CLIP BPE table not on this machine (" << SPAR_CLIP_BPE << ")";
+  const std::vector<std::string> labels = {"--labels", "sofa, window,person,floor", "--features"};
+  const auto o = runBoth("labels", cat(cat(cat({"--frames"}, frames()), {"--inputs", "0,2,4"}), labels),
+                         semanticGoldenPath("tiny_semantic.spar"), semanticGoldenPath("tiny_semantic.pt"),
+                         semanticGoldenPath("tiny_semantic.json"));
+  ASSERT_TRUE(o);
+  EXPECT_EQ(entries(o->ours), entries(o->ref));
+  for (int j = 0; j < 2; ++j) {
+    char f[32];
+    std::snprintf(f, sizeof(f), "view_%02d.png", j);
+    EXPECT_LE(comparePng(o->ours / f, o->ref / f).maxDiff, 1) << f;
+    std::snprintf(f, sizeof(f), "labels_%02d.json", j);
+    const ojson a = readJson(o->ours / f), b = readJson(o->ref / f);
+    EXPECT_EQ(a["legend"], b["legend"]) << f;
+    EXPECT_EQ(a["resolution"], b["resolution"]) << f;
+    int64_t moved = 0, total = 0;
+    for (size_t k = 0; k < b["labels"].size(); ++k) {
+      EXPECT_EQ(a["labels"][k]["label"], b["labels"][k]["label"]);
+      EXPECT_EQ(a["labels"][k]["colour"], b["labels"][k]["colour"]);
+      moved += std::abs(a["labels"][k]["pixels"].get<int64_t>() - b["labels"][k]["pixels"].get<int64_t>());
+      total += b["labels"][k]["pixels"].get<int64_t>();
+    }
+    // near-ties may flip a handful of pixels; more would be a real difference
+    EXPECT_LE(double(moved), 1e-3 * double(total)) << f;
+    std::snprintf(f, sizeof(f), "features_%02d.npy", j);
+    const std::vector<double> fa = readNpy((o->ours / f).string()).toDoubles();
+    const std::vector<double> fb = readNpy((o->ref / f).string()).toDoubles();
+    ASSERT_EQ(fa.size(), fb.size()) << f;
+    double num = 0, den = 0;
+    for (size_t i = 0; i < fa.size(); ++i) {
+      num += (fa[i] - fb[i]) * (fa[i] - fb[i]);
+      den += fb[i] * fb[i];
+    }
+    std::printf("  labels %s: NMSE %.3e, label pixels moved %lld of %lld\n", f, num / den, (long long)moved,
+                (long long)total);
+    EXPECT_LE(num / den, 1e-10) << f;
+  }
+  const ojson rep = readJson(o->ours / "report.json");
+  std::set<std::string> stages;
+  for (const auto& st : rep["stages"]) stages.insert(st["name"].get<std::string>());
+  EXPECT_TRUE(stages.count("text_encoder") && stages.count("labels") && stages.count("lseg")) << rep["stages"].dump();
+}
+
+// Without --labels / --features the semantic head and the text encoder do not run and their
+// weights are not loaded (fewer weight bytes than with them).
+TEST(spar_render, SemanticHeadOnlyWhenAsked) {
+  if (clipBpePath().empty()) GTEST_SKIP() << "CLIP BPE table not on this machine (" << SPAR_CLIP_BPE << ")";
+  const fs::path plain = scratch() / "sem_plain", asked = scratch() / "sem_asked";
+  fs::remove_all(plain);
+  fs::remove_all(asked);
+  const auto base = cat({"--model", semanticGoldenPath("tiny_semantic.spar"), "--images", frame(0), frame(2),
+                         "--targets", frame(1)},
+                        {});
+  ASSERT_EQ(spar(cat(base, {"--out", plain.string()})).code, 0);
+  ASSERT_EQ(spar(cat(base, {"--labels", "sofa,floor", "--out", asked.string()})).code, 0);
+  const ojson a = readJson(plain / "report.json"), b = readJson(asked / "report.json");
+  EXPECT_LT(a["weights_bytes_loaded"].get<double>(), b["weights_bytes_loaded"].get<double>());
+  for (const auto& st : a["stages"]) {
+    EXPECT_NE(st["name"], "text_encoder");
+    EXPECT_NE(st["name"], "labels");
+  }
+  for (const auto& n : entries(plain)) EXPECT_NE(n.rfind("labels_", 0), 0u) << n;
 }
 
 }  // namespace

@@ -16,6 +16,12 @@ TEST_F(SparSemanticTest, SemanticStagesMatchReferenceGivenLsegFeatures) {
                 {.model = semanticGoldenPath("tiny_semantic.spar"), .semantic = true, .goldenLseg = true});
 }
 
+// Everything on the engine, LSeg included (the input views only).
+TEST_F(SparSemanticTest, WholeSemanticPipelineMatchesReference) {
+  runGoldenCase(eng(), semanticGoldenPath("semantic"),
+                {.model = semanticGoldenPath("tiny_semantic.spar"), .semantic = true});
+}
+
 // Rendering mode (a camera path) with semantic features of the path's views.
 TEST_F(SparSemanticTest, PathWithSemanticFeaturesMatchesReference) {
   runGoldenCase(eng(), semanticGoldenPath("semantic_path"),
