@@ -5,6 +5,7 @@
 
 #include "engine/ops/attention.h"
 #include "engine/ops/conv2d.h"
+#include "engine/ops/conv_transpose2d.h"
 #include "engine/ops/linear.h"
 #include "engine/ops/norm.h"
 #include "engine/ops/reduce_channels.h"
@@ -172,6 +173,102 @@ void addConv3x3(std::vector<BenchCase>& cases, Engine& engine, int64_t C, int64_
   cases.push_back(std::move(c));
 }
 
+// GELU in float64 (the decoder fuses it into every conv).
+double geluRef(double v) { return 0.5 * v * std::erfc(-v / std::sqrt(2.0)); }
+
+// One conv of the CV-DRP decoder (model/cv_drp.cpp) at its full-size shape: N images,
+// k x k kernel, padding (k - 1) / 2, bias and GELU fused as the decoder runs it.
+void addDecoderConv(std::vector<BenchCase>& cases, Engine& engine, const std::string& name, int64_t N, int64_t Cin,
+                    int64_t Cout, int64_t H, int64_t W, int64_t k) {
+  auto x = std::make_shared<std::vector<float>>(randomValues(N * Cin * H * W, 11));
+  auto w = std::make_shared<std::vector<float>>(randomValues(Cout * Cin * k * k, 12, 1.0f / std::sqrt(float(Cin * k * k))));
+  auto b = std::make_shared<std::vector<float>>(randomValues(Cout, 13, 0.1f));
+  Tensor tx = engine.fromFloats({N, Cin, H, W}, *x), tw = engine.fromFloats({Cout, Cin, k, k}, *w);
+  Tensor tb = engine.fromFloats({Cout}, *b), ty = engine.tensor({N, Cout, H, W});
+  const int pad = int(k - 1) / 2;
+  BenchCase c;
+  c.name = name;
+  c.shape = std::to_string(N) + "x" + std::to_string(Cin) + "->" + std::to_string(Cout) + " k" + std::to_string(k) +
+            " at " + std::to_string(H) + "x" + std::to_string(W);
+  c.flops = 2.0 * N * Cout * Cin * k * k * H * W;
+  c.record = [=](Recorder& rec) {
+    conv2d(rec, tx, tw, tb, ty, {.stride = 1, .padY = pad, .padX = pad, .act = Activation::Gelu});
+  };
+  c.nmse = [=, &engine]() {
+    auto y = engine.download(ty);
+    NmseAccumulator acc;
+    for (int64_t r : sampleRows(N * H)) {
+      const int64_t n = r / H, oy = r % H;
+      for (int64_t co = 0; co < Cout; ++co)
+        for (int64_t ox = 0; ox < W; ++ox) {
+          double s = (*b)[co];
+          for (int64_t ci = 0; ci < Cin; ++ci)
+            for (int64_t ky = 0; ky < k; ++ky)
+              for (int64_t kx = 0; kx < k; ++kx) {
+                const int64_t iy = oy + ky - pad, ix = ox + kx - pad;
+                if (iy < 0 || iy >= H || ix < 0 || ix >= W) continue;
+                s += double((*x)[((n * Cin + ci) * H + iy) * W + ix]) * (*w)[((co * Cin + ci) * k + ky) * k + kx];
+              }
+          acc.add(y[((n * Cout + co) * H + oy) * W + ox], geluRef(s));
+        }
+    }
+    return acc.value();
+  };
+  cases.push_back(std::move(c));
+}
+
+// One transposed conv (kernel = stride = 2) of the CV-DRP decoder at its full-size shape:
+// N images of H x W in, bias and GELU fused.
+void addDecoderConvT(std::vector<BenchCase>& cases, Engine& engine, const std::string& name, int64_t N, int64_t Cin,
+                     int64_t Cout, int64_t H, int64_t W) {
+  constexpr int64_t k = 2;
+  auto x = std::make_shared<std::vector<float>>(randomValues(N * Cin * H * W, 14));
+  auto w = std::make_shared<std::vector<float>>(randomValues(Cin * Cout * k * k, 15, 1.0f / std::sqrt(float(Cin))));
+  auto b = std::make_shared<std::vector<float>>(randomValues(Cout, 16, 0.1f));
+  Tensor tx = engine.fromFloats({N, Cin, H, W}, *x), tw = engine.fromFloats({Cin, Cout, k, k}, *w);
+  Tensor tb = engine.fromFloats({Cout}, *b), ty = engine.tensor({N, Cout, H * k, W * k});
+  BenchCase c;
+  c.name = name;
+  c.shape = std::to_string(N) + "x" + std::to_string(Cin) + "->" + std::to_string(Cout) + " k2s2 from " +
+            std::to_string(H) + "x" + std::to_string(W);
+  c.flops = 2.0 * N * Cout * Cin * k * k * H * W;
+  c.record = [=](Recorder& rec) { convTranspose2d(rec, tx, tw, tb, ty, Activation::Gelu); };
+  c.nmse = [=, &engine]() {
+    auto y = engine.download(ty);
+    const int64_t Ho = H * k, Wo = W * k;
+    NmseAccumulator acc;
+    for (int64_t r : sampleRows(N * Ho)) {
+      const int64_t n = r / Ho, oy = r % Ho;
+      for (int64_t co = 0; co < Cout; ++co)
+        for (int64_t ox = 0; ox < Wo; ++ox) {
+          double s = (*b)[co];
+          for (int64_t ci = 0; ci < Cin; ++ci)
+            s += double((*x)[((n * Cin + ci) * H + oy / k) * W + ox / k]) *
+                 (*w)[((ci * Cout + co) * k + oy % k) * k + ox % k];
+          acc.add(y[((n * Cout + co) * Ho + oy) * Wo + ox], geluRef(s));
+        }
+    }
+    return acc.value();
+  };
+  cases.push_back(std::move(c));
+}
+
+// The CV-DRP decoder's convolutions at the official size (16x16 tokens -> 256x256), for the
+// 4 images of 2 view pairs, in decoder order (`--only drp_` runs them all).
+void addDecoderCases(std::vector<BenchCase>& cases, Engine& engine) {
+  constexpr int64_t N = 4;
+  const int64_t chans[] = {256, 128, 64, 32};
+  int64_t s = 16;
+  for (int i = 0; i < 3; ++i) {
+    const std::string up = "drp_up" + std::to_string(i);
+    addDecoderConvT(cases, engine, up + "_convt", N, chans[i], chans[i + 1], s, s);
+    s *= 2;
+    addDecoderConv(cases, engine, up + "_conv3x3", N, chans[i + 1], chans[i + 1], s, s, 3);
+  }
+  addDecoderConvT(cases, engine, "drp_final_convt", N, 32, 16, s, s);
+  addDecoderConv(cases, engine, "drp_head_conv1x1", N, 16, 1, 2 * s, 2 * s, 1);
+}
+
 }  // namespace
 
 std::vector<BenchCase> makeCases(Engine& engine, const std::string& only) {
@@ -191,6 +288,7 @@ std::vector<BenchCase> makeCases(Engine& engine, const std::string& only) {
     addRowOp(cases, engine, "softmax", tokens, 768);
   }
   addConv3x3(cases, engine, 64, 128, 128);
+  addDecoderCases(cases, engine);
   if (!only.empty())
     std::erase_if(cases, [&](const BenchCase& c) { return c.name.find(only) == std::string::npos; });
   return cases;

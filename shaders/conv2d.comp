@@ -13,7 +13,8 @@
 // constants so every index into the tile is a compile-time constant.
 // Measured on llvmpipe, 2 threads: 3x3, 64 -> 64 channels, 128x128, RC 16 x RY 2 x RX 8:
 // about 21 ms (57 GFLOPS); reading x as RGBA texels instead of R saves about 25%.
-//! variant conv2d_f32
+//! variant conv2d_f32 OUT4=0
+//! variant conv2d_f32_out4 OUT4=1
 #extension GL_GOOGLE_include_directive : require
 #include "common.glsl"
 
@@ -33,11 +34,24 @@ layout(constant_id = 12) const bool HAS_BIAS = false;
 // its first texel. TEXEL_X = 1: R texels, one column each.
 layout(constant_id = 13) const int TEXEL_X = 1;
 layout(constant_id = 14) const int SHIFT = 0;
+// FLAT: invocations along x walk the RY x RX output blocks of a plane row-major across block
+// rows (workgroups of localX x 1), so a small plane (32x32: 4 column blocks) still fills all
+// SIMD lanes of a CPU device; otherwise x and y index column and row blocks (2-D workgroup
+// tiles, which GPUs want for cache locality).
+layout(constant_id = 15) const bool FLAT = false;
 
 layout(binding = 0) uniform samplerBuffer X;     // TEXEL_X texels
 layout(binding = 1) uniform samplerBuffer W;     // TEXEL_W texels
 layout(binding = 2) uniform samplerBuffer BIAS;  // R texels; bound to w when HAS_BIAS is false
+// OUT4: y is written as whole vec4s, RX/4 per output row of the block (the host guarantees
+// RX, Wo and outBase multiples of 4). llvmpipe scatters a store whose address is not
+// uniform lane by lane, so one vec4 store costs about what one float store does: with few
+// input channels per output the stores, not the multiply-adds, bound the kernel.
+#if OUT4
+layout(binding = 3) writeonly buffer Y { vec4 y[]; };
+#else
 layout(binding = 3) writeonly buffer Y { float y[]; };
+#endif
 
 layout(push_constant) uniform Push {
   int Cin, H, W;
@@ -55,8 +69,14 @@ const int KK = KH * KW;
 const int TT = (SHIFT + TC + 3) / 4;    // RGBA texels per tile row (TEXEL_X = 4)
 
 void main() {
-  const int ox0 = int(gl_GlobalInvocationID.x) * RX;
-  const int oy0 = int(gl_GlobalInvocationID.y) * RY;
+  int bx = int(gl_GlobalInvocationID.x), by = int(gl_GlobalInvocationID.y);
+  if (FLAT) {
+    const int colBlocks = (p.Wo + RX - 1) / RX;
+    by = bx / colBlocks;
+    bx -= by * colBlocks;
+  }
+  const int ox0 = bx * RX;
+  const int oy0 = by * RY;
   if (ox0 >= p.Wo || oy0 >= p.Ho) return;
   const int unit = p.zBase + int(gl_GlobalInvocationID.z);
   const int n = unit / p.coBlocks;
@@ -154,10 +174,19 @@ void main() {
       const int oy = oy0 + py;
       if (oy >= p.Ho) break;
       const int rowStart = ((n * p.Cout + co) * p.Ho + oy) * p.Wo - p.outBase;
+#if OUT4
+      [[unroll]] for (int q = 0; q < RX / 4; ++q) {
+        if (ox0 + 4 * q >= p.Wo) break;
+        const int i = (c * RY + py) * RX + 4 * q;
+        y[(rowStart + ox0) / 4 + q] = vec4(activate(acc[i] + b, ACT), activate(acc[i + 1] + b, ACT),
+                                           activate(acc[i + 2] + b, ACT), activate(acc[i + 3] + b, ACT));
+      }
+#else
       [[unroll]] for (int px = 0; px < RX; ++px) {
         if (ox0 + px >= p.Wo) break;
         y[rowStart + ox0 + px] = activate(acc[(c * RY + py) * RX + px] + b, ACT);
       }
+#endif
     }
   }
 }

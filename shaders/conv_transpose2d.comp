@@ -10,7 +10,8 @@
 // input columns (RC x RY*S x RX*S outputs). Consecutive invocations along x take
 // consecutive column blocks. The S*S weights of one (ci, co) pair are contiguous in
 // PyTorch's [Cin, Cout, S, S] layout: RGBA texels when S*S is a multiple of 4.
-//! variant conv_transpose2d_f32
+//! variant conv_transpose2d_f32 OUT4=0
+//! variant conv_transpose2d_f32_out4 OUT4=1
 #extension GL_GOOGLE_include_directive : require
 #include "common.glsl"
 
@@ -23,11 +24,21 @@ layout(constant_id = 7) const int TEXEL_W = 4;    // weights per texel: 4 (RGBA)
 layout(constant_id = 8) const int TEXEL_X = 4;    // input columns per texel: 4 (W, RX multiples of 4) or 1
 layout(constant_id = 9) const int ACT = ACT_NONE;
 layout(constant_id = 10) const bool HAS_BIAS = false;
+// FLAT: invocations along x walk the RY x RX input blocks row-major across block rows (as in
+// conv2d.comp), so small inputs (16x16: 4 column blocks) still fill a CPU's SIMD lanes.
+layout(constant_id = 11) const bool FLAT = false;
 
 layout(binding = 0) uniform samplerBuffer X;
 layout(binding = 1) uniform samplerBuffer W;
 layout(binding = 2) uniform samplerBuffer BIAS;  // R texels; bound to w when HAS_BIAS is false
+// OUT4: y is written as whole vec4s (the host guarantees RX*S, Wo and outBase multiples of 4):
+// as in conv2d.comp, llvmpipe scatters each store lane by lane, and with few input channels
+// the stores dominate.
+#if OUT4
+layout(binding = 3) writeonly buffer Y { vec4 y[]; };
+#else
 layout(binding = 3) writeonly buffer Y { float y[]; };
+#endif
 
 layout(push_constant) uniform Push {
   int Cin, H, W, Cout;
@@ -41,8 +52,14 @@ const int SS = S * S;
 const int OUT_BLOCK = RY * RX * SS;  // outputs per channel
 
 void main() {
-  const int ix0 = int(gl_GlobalInvocationID.x) * RX;
-  const int iy0 = int(gl_GlobalInvocationID.y) * RY;
+  int bx = int(gl_GlobalInvocationID.x), by = int(gl_GlobalInvocationID.y);
+  if (FLAT) {
+    const int colBlocks = (p.W + RX - 1) / RX;
+    by = bx / colBlocks;
+    bx -= by * colBlocks;
+  }
+  const int ix0 = bx * RX;
+  const int iy0 = by * RY;
   if (ix0 >= p.W || iy0 >= p.H) return;
   const int unit = p.zBase + int(gl_GlobalInvocationID.z);
   const int n = unit / p.coBlocks;
@@ -105,10 +122,19 @@ void main() {
       const int oy = iy0 * S + row;
       if (oy >= Ho) break;
       const int rowStart = ((n * p.Cout + co) * Ho + oy) * Wo + ix0 * S - p.outBase;
+#if OUT4
+      [[unroll]] for (int q = 0; q < RX * S / 4; ++q) {
+        if (4 * q >= oxEnd) break;
+        const int i = c * OUT_BLOCK + row * RX * S + 4 * q;
+        y[rowStart / 4 + q] = vec4(activate(acc[i] + b, ACT), activate(acc[i + 1] + b, ACT),
+                                   activate(acc[i + 2] + b, ACT), activate(acc[i + 3] + b, ACT));
+      }
+#else
       [[unroll]] for (int col = 0; col < RX * S; ++col) {
         if (col >= oxEnd) break;
         y[rowStart + col] = activate(acc[c * OUT_BLOCK + row * RX * S + col] + b, ACT);
       }
+#endif
     }
   }
 }

@@ -99,7 +99,13 @@ INSTANTIATE_TEST_SUITE_P(
         ConvCase{1, 5, 11, 10, 6, 2, 2, 2, 0, 0, false, Activation::None},        // 2x2 stride 2
         ConvCase{1, 6, 13, 16, 11, 3, 1, 1, 1, 0, true, Activation::None},        // 3x1, padY only
         ConvCase{1, 6, 7, 7, 3, 7, 7, 1, 0, 0, true, Activation::None},           // kernel = image, 1x1 out
-        ConvCase{1, 128, 9, 11, 5, 3, 3, 1, 1, 1, false, Activation::None}),      // K = 1152
+        ConvCase{1, 128, 9, 11, 5, 3, 3, 1, 1, 1, false, Activation::None},       // K = 1152
+        // The flat walk over output blocks (CPU tiles) wraps across block rows: partial last
+        // column block (36 = 4 x 8 + 4) and row block (5 rows); vec4 stores (Wo % 4 == 0).
+        ConvCase{2, 8, 5, 36, 9, 3, 3, 1, 1, 1, true, Activation::Gelu},
+        ConvCase{1, 4, 7, 7, 5, 3, 3, 1, 1, 1, true, Activation::None},           // fewer blocks than lanes
+        ConvCase{3, 16, 21, 12, 1, 1, 1, 1, 0, 0, true, Activation::Gelu},       // CV-DRP's head: Cout 1
+        ConvCase{2, 12, 11, 20, 3, 3, 3, 1, 1, 1, true, Activation::Gelu}),      // Cout 3 < channel block
     [](const ::testing::TestParamInfo<ConvCase>& info) { return describe(info.param); });
 
 // 64 -> 64 channels, 3x3, at a realistic resolution (the bench shape, smaller).
@@ -109,6 +115,53 @@ TEST_F(EngineTest, Conv2d3x3At64x64) {
   auto w = randomNormal(c.Cout * c.Cin * 9, 0, 0.05f, 5);
   auto b = randomNormal(c.Cout, 0, 0.1f, 6);
   runCase(eng(), c, x, w, b, 1e-8, 1e-4, "64->64 3x3");
+}
+
+// CV-DRP's first decoder conv at its full-size shape: 128 channels on a 32x32 plane, 4 images
+// (a small plane with many channels: the flat walk fills the lanes).
+TEST_F(EngineTest, Conv2dDecoderShape128At32x32) {
+  const ConvCase c{4, 128, 32, 32, 128, 3, 3, 1, 1, 1, true, Activation::Gelu};
+  auto x = randomNormal(c.N * c.Cin * c.H * c.W, 0, 1, 21);
+  auto w = randomNormal(c.Cout * c.Cin * 9, 0, 0.03f, 22);
+  auto b = randomNormal(c.Cout, 0, 0.1f, 23);
+  runCase(eng(), c, x, w, b, 1e-8, 1e-4, "128->128 3x3 at 32x32, 4 images");
+}
+
+// The GPU tiles (2-D workgroups 16 x 8, 4 channels x 1 row x 4 columns, no flat walk) stay
+// correct on this CPU device: the path a discrete GPU takes is tested here too.
+TEST_F(EngineTest, Conv2dGpuTilesMatchReference) {
+  ScopedEnv tiles("SPAR_CONV_TILES", "4,1,4,16,8");
+  for (const ConvCase& c : {ConvCase{2, 8, 5, 36, 9, 3, 3, 1, 1, 1, true, Activation::Gelu},
+                            ConvCase{1, 7, 13, 13, 61, 3, 3, 1, 1, 1, true, Activation::None},
+                            ConvCase{2, 16, 20, 24, 33, 3, 3, 2, 1, 1, true, Activation::None},
+                            ConvCase{3, 16, 21, 12, 1, 1, 1, 1, 0, 0, true, Activation::Gelu}}) {
+    auto x = randomUniform(c.N * c.Cin * c.H * c.W, -1, 1, 24);
+    auto w = randomUniform(c.Cout * c.Cin * c.KH * c.KW, -1, 1, 25);
+    auto b = randomUniform(c.Cout, -1, 1, 26);
+    runCase(eng(), c, x, w, b, 1e-8, 1e-4, "GPU tiles " + describe(c));
+  }
+}
+
+// An output view starting off a 4-element boundary cannot take the vec4 stores and falls
+// back to float stores; on a boundary it takes them. Both match, and nothing before the
+// view (or after the buffer's guard) is written.
+TEST_F(EngineTest, Conv2dOutputAtAnyOffset) {
+  const ConvCase c{2, 8, 9, 16, 21, 3, 3, 1, 1, 1, true, Activation::None};
+  auto x = randomUniform(c.N * c.Cin * c.H * c.W, -1, 1, 27), w = randomUniform(c.Cout * c.Cin * 9, -1, 1, 28);
+  auto b = randomUniform(c.Cout, -1, 1, 29);
+  const auto want = conv2dRef(c, x, w, b);
+  Tensor tx = eng().fromFloats({c.N, c.Cin, c.H, c.W}, x), tw = eng().fromFloats({c.Cout, c.Cin, 3, 3}, w);
+  Tensor tb = eng().fromFloats({c.Cout}, b);
+  for (int64_t off : {0, 1, 2, 3, 4}) {
+    const int64_t n = shapeNumel(outShape(c));
+    GuardedOutput y(eng(), {off + n});
+    Recorder rec(eng());
+    conv2d(rec, tx, tw, tb, y.tensor().view(off, outShape(c)), paramsOf(c));
+    rec.run();
+    const std::vector<float> all = y.read();
+    for (int64_t i = 0; i < off; ++i) EXPECT_TRUE(std::isnan(all[size_t(i)])) << "wrote before the view, offset " << off;
+    expectClose(std::vector<float>(all.begin() + off, all.end()), want, 1e-8, 1e-4, "offset " + std::to_string(off));
+  }
 }
 
 // A black image gives exactly the bias: no stray products (or padding reads) reach the sum.

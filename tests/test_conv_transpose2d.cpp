@@ -70,8 +70,57 @@ INSTANTIATE_TEST_SUITE_P(
                       ConvTCase{2, 13, 5, 11, 19, 4, true, Activation::None},
                       ConvTCase{1, 32, 8, 12, 61, 4, false, Activation::Silu},
                       ConvTCase{1, 5, 7, 8, 6, 3, true, Activation::None},
-                      ConvTCase{3, 3, 1, 1, 2, 2, true, Activation::Sigmoid}),
+                      ConvTCase{3, 3, 1, 1, 2, 2, true, Activation::Sigmoid},
+                      // The flat walk over input blocks (CPU tiles) wraps across block rows;
+                      // Wo = 18 takes float stores, Wo = 20 vec4 stores with a partial last block.
+                      ConvTCase{2, 6, 5, 9, 3, 2, true, Activation::Gelu},
+                      ConvTCase{2, 6, 7, 10, 16, 2, true, Activation::Gelu}),
     [](const ::testing::TestParamInfo<ConvTCase>& info) { return describe(info.param); });
+
+// CV-DRP's first up block at its full-size shape: 256 -> 128 channels from a 16x16 plane, 4
+// images (a small plane with many channels: the flat walk fills the lanes).
+TEST_F(EngineTest, ConvTranspose2dDecoderShape256From16x16) {
+  const ConvTCase c{4, 256, 16, 16, 128, 2, true, Activation::Gelu};
+  auto x = randomNormal(c.N * c.Cin * c.H * c.W, 0, 1, 31);
+  auto w = randomNormal(c.Cin * c.Cout * 4, 0, 0.06f, 32);
+  auto b = randomNormal(c.Cout, 0, 0.1f, 33);
+  runCase(eng(), c, x, w, b, 1e-8, 1e-4, "256->128 k2 from 16x16, 4 images");
+}
+
+// The GPU tiles (2-D workgroups 16 x 8, 2 channels x 1 row x 4 columns, no flat walk) stay
+// correct on this CPU device.
+TEST_F(EngineTest, ConvTranspose2dGpuTilesMatchReference) {
+  ScopedEnv tiles("SPAR_CONVT_TILES", "2,1,4,16,8");
+  for (const ConvTCase& c : {ConvTCase{2, 6, 7, 10, 16, 2, true, Activation::Gelu},
+                             ConvTCase{1, 7, 13, 13, 61, 2, true, Activation::None},
+                             ConvTCase{2, 13, 5, 11, 19, 4, true, Activation::None}}) {
+    auto x = randomUniform(c.N * c.Cin * c.H * c.W, -1, 1, 34);
+    auto w = randomUniform(c.Cin * c.Cout * c.k * c.k, -1, 1, 35);
+    auto b = randomUniform(c.Cout, -1, 1, 36);
+    runCase(eng(), c, x, w, b, 1e-8, 1e-4, "GPU tiles " + describe(c));
+  }
+}
+
+// An output view starting off a 4-element boundary takes float stores, on one vec4 stores;
+// both match and nothing before the view is written.
+TEST_F(EngineTest, ConvTranspose2dOutputAtAnyOffset) {
+  const ConvTCase c{2, 5, 6, 8, 7, 2, true, Activation::None};
+  auto x = randomUniform(c.N * c.Cin * c.H * c.W, -1, 1, 37), w = randomUniform(c.Cin * c.Cout * 4, -1, 1, 38);
+  auto b = randomUniform(c.Cout, -1, 1, 39);
+  const auto want = convTRef(c, x, w, b);
+  Tensor tx = eng().fromFloats({c.N, c.Cin, c.H, c.W}, x), tw = eng().fromFloats({c.Cin, c.Cout, 2, 2}, w);
+  Tensor tb = eng().fromFloats({c.Cout}, b);
+  const Shape shape{c.N, c.Cout, c.H * 2, c.W * 2};
+  for (int64_t off : {0, 1, 2, 3, 4}) {
+    GuardedOutput y(eng(), {off + shapeNumel(shape)});
+    Recorder rec(eng());
+    convTranspose2d(rec, tx, tw, tb, y.tensor().view(off, shape));
+    rec.run();
+    const std::vector<float> all = y.read();
+    for (int64_t i = 0; i < off; ++i) EXPECT_TRUE(std::isnan(all[size_t(i)])) << "wrote before the view, offset " << off;
+    expectClose(std::vector<float>(all.begin() + off, all.end()), want, 1e-8, 1e-4, "offset " + std::to_string(off));
+  }
+}
 
 TEST_F(EngineTest, ConvTranspose2dBlackImageGivesBias) {
   const ConvTCase c{2, 9, 7, 12, 13, 4, true, Activation::None};

@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <cstdlib>
 #include <random>
 #include <string>
 #include <vector>
@@ -67,6 +68,27 @@ class GuardedOutput {
   Tensor whole_, view_;
   size_t guardWords_ = 0;  // 32-bit words before and after
   std::vector<float> body_;
+};
+
+// Sets an environment variable for one scope (e.g. a tile override such as SPAR_CONV_TILES,
+// to test the GPU path on a CPU device), restoring the previous value or absence after.
+class ScopedEnv {
+ public:
+  ScopedEnv(const char* name, const char* value) : name_(name) {
+    if (const char* old = std::getenv(name)) old_ = old, had_ = true;
+    setenv(name, value, 1);
+  }
+  ~ScopedEnv() {
+    if (had_) setenv(name_, old_.c_str(), 1);
+    else unsetenv(name_);
+  }
+  ScopedEnv(const ScopedEnv&) = delete;
+  ScopedEnv& operator=(const ScopedEnv&) = delete;
+
+ private:
+  const char* name_;
+  std::string old_;
+  bool had_ = false;
 };
 
 }  // namespace spar::test

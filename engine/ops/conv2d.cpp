@@ -16,7 +16,7 @@ struct ConvPush {
 
 }  // namespace
 
-ConvTiles chooseConvTiles(const DeviceCaps& caps, int64_t kh, int64_t kw) {
+ConvTiles chooseConvTiles(const DeviceCaps& caps, int64_t kh, int64_t kw, int64_t cout) {
   if (const char* env = std::getenv("SPAR_CONV_TILES")) {
     ConvTiles t{};
     if (std::sscanf(env, "%d,%d,%d,%d,%d", &t.channels, &t.rows, &t.cols, &t.localX, &t.localY) == 5 &&
@@ -28,6 +28,15 @@ ConvTiles chooseConvTiles(const DeviceCaps& caps, int64_t kh, int64_t kw) {
   // multiply-adds; beyond about 9k of them (16 channels of 3x3) compiling takes seconds
   // (10 s for 5x5, 27 s for 7x7 at 16 channels on llvmpipe), so big kernels get fewer channels.
   ConvTiles t = caps.isCpu() ? ConvTiles{16, 2, 8, std::max<int>(8, caps.subgroupSize), 1} : ConvTiles{4, 1, 4, 16, 8};
+  // Fewer output channels than the block (CV-DRP's 16 -> 1 head): channels past Cout would be
+  // computed and dropped, so the block trades them for rows (up to 8, bounding the tile, and
+  // within the unrolled-body budget below).
+  if (caps.isCpu() && cout < t.channels) {
+    const int64_t c = std::max<int64_t>(cout, 1);
+    const int64_t budgetRows = 9216 / (4 * std::max<int64_t>(1, kh * kw) * t.cols * c);
+    t.rows = static_cast<int>(std::max<int64_t>(t.rows, std::min<int64_t>({8, t.rows * t.channels / c, budgetRows})));
+    t.channels = static_cast<int>(c);
+  }
   const int64_t perChannel = 4 * std::max<int64_t>(1, kh * kw) * t.rows * t.cols;
   t.channels = static_cast<int>(std::clamp<int64_t>(9216 / perChannel, 1, t.channels));
   return t;
@@ -67,7 +76,7 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   if (y.numel() == 0) return;
   if (Cin == 0) throw Error("conv2d: input has no channels");
 
-  const ConvTiles tiles = chooseConvTiles(caps, KH, KW);
+  const ConvTiles tiles = chooseConvTiles(caps, KH, KW, Cout);
   // Weights and bias may sit at any offset: they are bound from an aligned start.
   const BoundRange wr = bindRange(caps, w, 0, w.numel(), true);
   const BoundRange br = bias.defined() ? bindRange(caps, bias, 0, Cout, true) : wr;
@@ -81,22 +90,32 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   // Input rows as RGBA texels (4 columns each) when rows and every tile start stay on texel
   // boundaries: W and cols*stride multiples of 4 and x starting on a texel.
   const bool rgbaX = W % 4 == 0 && (tiles.cols * params.stride) % 4 == 0 && x.byteOffset() % 16 == 0;
-  const Kernel& kernel = engine.kernel({"conv2d_f32",
-                                        {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                                        sizeof(ConvPush),
-                                        {tiles.localX, tiles.localY, 1, int(KH), int(KW), params.stride, tiles.channels,
-                                         tiles.rows, tiles.cols, G, rgba ? 4 : 1, static_cast<int>(params.act),
-                                         bias.defined(), rgbaX ? 4 : 1, rgbaX ? (4 - params.padX % 4) % 4 : 0}});
+  // Workgroups of one row of invocations walk the blocks of a plane in one flat order.
+  const bool flat = tiles.localY == 1;
+  // Outputs as whole vec4s (the _out4 variant) when every block row segment is: its start
+  // (a multiple of cols in a row of Wo) and the binding's base on a 4-element boundary.
+  const bool rowsOf4 = tiles.cols % 4 == 0 && Wo % 4 == 0;
+  const auto kernelFor = [&](bool out4) -> const Kernel& {
+    return engine.kernel({out4 ? "conv2d_f32_out4" : "conv2d_f32",
+                          {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                          sizeof(ConvPush),
+                          {tiles.localX, tiles.localY, 1, int(KH), int(KW), params.stride, tiles.channels, tiles.rows,
+                           tiles.cols, G, rgba ? 4 : 1, static_cast<int>(params.act), bias.defined(), rgbaX ? 4 : 1,
+                           rgbaX ? (4 - params.padX % 4) % 4 : 0, flat}});
+  };
 
   // One workgroup layer per (image, block of output channels).
   const int64_t coBlocks = (Cout + tiles.channels - 1) / tiles.channels;
-  const uint32_t gx = ceilDiv(ceilDiv(Wo, tiles.cols), tiles.localX);
-  const uint32_t gy = ceilDiv(ceilDiv(Ho, tiles.rows), tiles.localY);
+  const int64_t colBlocks = ceilDiv(Wo, tiles.cols), rowBlocks = ceilDiv(Ho, tiles.rows);
+  const uint32_t gx = flat ? ceilDiv(colBlocks * rowBlocks, tiles.localX) : ceilDiv(colBlocks, tiles.localX);
+  const uint32_t gy = flat ? 1 : ceilDiv(rowBlocks, tiles.localY);
+  if (gx > caps.maxWorkGroupCount[0] || gy > caps.maxWorkGroupCount[1])
+    throw Error("conv2d: output " + y.describe() + " needs more workgroups than the device allows");
   forEachUnitChunk(engine, x, y, N, Cout, tiles.channels, Ho * Wo, 1, "conv2d", [&](const UnitChunk& c) {
     const ConvPush push{int32_t(Cin),      int32_t(H),      int32_t(W),  int32_t(Cout), int32_t(Ho),
                         int32_t(Wo),       params.padY,     params.padX, int32_t(coBlocks), int32_t(c.u0),
                         c.in.base,         wr.base,         br.base,     c.out.base};
-    rec.dispatch(kernel,
+    rec.dispatch(kernelFor(rowsOf4 && c.out.base % 4 == 0),
                  {Arg::texel(c.in.view, rgbaX ? 4 : 1), Arg::texel(wr.view, rgba ? 4 : 1), Arg::texel(br.view, 1),
                   Arg::out(c.out.view)},
                  push, gx, gy, static_cast<uint32_t>(c.u1 - c.u0));

@@ -1,5 +1,7 @@
 // 2-D convolution (PyTorch nn.Conv2d) on shaders/conv2d.comp.
 #pragma once
+#include <cstdint>
+
 #include "engine/ops/activation.h"
 #include "engine/recorder.h"
 
@@ -10,10 +12,11 @@ namespace spar {
 struct ConvTiles {
   int channels, rows, cols, localX, localY;
 };
-// For a kh x kw kernel: CPU devices (llvmpipe) get big register blocks (fewer channels for
-// big kernels, to bound compile time), GPUs small ones. SPAR_CONV_TILES="RC,RY,RX,LX,LY"
-// overrides (for tuning).
-ConvTiles chooseConvTiles(const DeviceCaps& caps, int64_t kh, int64_t kw);
+// For a kh x kw kernel with cout output channels: CPU devices (llvmpipe) get big register
+// blocks (fewer channels for big kernels, to bound compile time; rows instead of channels
+// when cout is small), GPUs small ones. SPAR_CONV_TILES="RC,RY,RX,LX,LY" overrides (for
+// tuning). localY == 1 selects the flat walk over output blocks (shaders/conv2d.comp, FLAT).
+ConvTiles chooseConvTiles(const DeviceCaps& caps, int64_t kh, int64_t kw, int64_t cout = INT64_MAX);
 
 struct Conv2dParams {
   int stride = 1;   // the same along y and x

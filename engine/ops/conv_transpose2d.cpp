@@ -1,6 +1,9 @@
 // Host side of shaders/conv_transpose2d.comp.
 #include "engine/ops/conv_transpose2d.h"
 
+#include <cstdio>
+#include <cstdlib>
+
 #include "engine/ops/binding_range.h"
 
 namespace spar {
@@ -17,6 +20,14 @@ struct Tiles {
 };
 
 Tiles chooseTiles(const DeviceCaps& caps, int k) {
+  // SPAR_CONVT_TILES="RC,RY,RX,LX,LY" overrides (for tuning with spar-bench --only drp_).
+  if (const char* env = std::getenv("SPAR_CONVT_TILES")) {
+    Tiles t{};
+    if (std::sscanf(env, "%d,%d,%d,%d,%d", &t.channels, &t.rows, &t.cols, &t.localX, &t.localY) == 5 &&
+        t.channels > 0 && t.rows > 0 && t.cols > 0 && t.localX > 0 && t.localY > 0)
+      return t;
+    throw Error("SPAR_CONVT_TILES must be RC,RY,RX,LX,LY (positive integers)");
+  }
   // CPU (llvmpipe): about 256-512 outputs per invocation (measured: bigger blocks compile
   // for seconds and run no faster); 4 input columns = one RGBA texel.
   if (caps.isCpu())
@@ -58,20 +69,30 @@ void convTranspose2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tens
   const bool rgbaX = W % 4 == 0 && tiles.cols % 4 == 0 && x.byteOffset() % 16 == 0;
   if (wr.view.numel() / (rgbaW ? 4 : 1) > int64_t(caps.maxTexelBufferElements))
     throw Error("convTranspose2d: weight " + w.describe() + " exceeds the device's texel-buffer size");
-  const Kernel& kernel = engine.kernel({"conv_transpose2d_f32",
-                                        {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                                        sizeof(ConvTransposePush),
-                                        {tiles.localX, tiles.localY, 1, ks, tiles.channels, tiles.rows, tiles.cols,
-                                         rgbaW ? 4 : 1, rgbaX ? 4 : 1, static_cast<int>(act), bias.defined()}});
+  // Workgroups of one row of invocations walk the blocks of a plane in one flat order.
+  const bool flat = tiles.localY == 1;
+  // Outputs as whole vec4s (the _out4 variant) when every block row segment is: its start
+  // (a multiple of cols*k in a row of W*k) and the binding's base on a 4-element boundary.
+  const bool rowsOf4 = (tiles.cols * k) % 4 == 0 && (W * k) % 4 == 0;
+  const auto kernelFor = [&](bool out4) -> const Kernel& {
+    return engine.kernel({out4 ? "conv_transpose2d_f32_out4" : "conv_transpose2d_f32",
+                          {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                          sizeof(ConvTransposePush),
+                          {tiles.localX, tiles.localY, 1, ks, tiles.channels, tiles.rows, tiles.cols, rgbaW ? 4 : 1,
+                           rgbaX ? 4 : 1, static_cast<int>(act), bias.defined(), flat}});
+  };
 
   // One workgroup layer per (image, block of output channels).
   const int64_t coBlocks = (Cout + tiles.channels - 1) / tiles.channels;
-  const uint32_t gx = ceilDiv(ceilDiv(W, tiles.cols), tiles.localX);
-  const uint32_t gy = ceilDiv(ceilDiv(H, tiles.rows), tiles.localY);
+  const int64_t colBlocks = ceilDiv(W, tiles.cols), rowBlocks = ceilDiv(H, tiles.rows);
+  const uint32_t gx = flat ? ceilDiv(colBlocks * rowBlocks, tiles.localX) : ceilDiv(colBlocks, tiles.localX);
+  const uint32_t gy = flat ? 1 : ceilDiv(rowBlocks, tiles.localY);
+  if (gx > caps.maxWorkGroupCount[0] || gy > caps.maxWorkGroupCount[1])
+    throw Error("convTranspose2d: output " + y.describe() + " needs more workgroups than the device allows");
   forEachUnitChunk(engine, x, y, N, Cout, tiles.channels, H * k * W * k, 1, "convTranspose2d", [&](const UnitChunk& c) {
     const ConvTransposePush push{int32_t(Cin), int32_t(H), int32_t(W), int32_t(Cout), int32_t(coBlocks),
                                  int32_t(c.u0), c.in.base, wr.base,   br.base,       c.out.base};
-    rec.dispatch(kernel,
+    rec.dispatch(kernelFor(rowsOf4 && c.out.base % 4 == 0),
                  {Arg::texel(c.in.view, rgbaX ? 4 : 1), Arg::texel(wr.view, rgbaW ? 4 : 1), Arg::texel(br.view, 1),
                   Arg::out(c.out.view)},
                  push, gx, gy, static_cast<uint32_t>(c.u1 - c.u0));
