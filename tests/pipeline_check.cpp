@@ -5,7 +5,11 @@
 #include <algorithm>
 #include <cstdio>
 
+#include "engine/recorder.h"
+#include "model/bpe_tokenizer.h"
+#include "model/clip_text.h"
 #include "model/image_prep.h"
+#include "model/label_maps.h"
 #include "model/packed_model.h"
 #include "test_support.h"
 
@@ -148,6 +152,44 @@ std::vector<StageTime> runGoldenCase(Engine& engine, const std::string& caseName
     if (o.assumeStatic) {
       EXPECT_TRUE(t.name != "dino_v3" && t.name != "cv_drp") << t.name << " ran for a static scene";
     }
+  }
+  // Open-vocabulary labels when the golden has them: the prompts through the engine's tokenizer
+  // and CLIP text encoder, label maps from the engine's semantic features.
+  if (o.semantic && g.has("text_embeddings") && g.has("label_maps")) {
+    std::vector<std::string> prompts = g.manifest().at("labels").get<std::vector<std::string>>();
+    const std::vector<int32_t> ids = BpeTokenizer::fromModel(model).tokenize(prompts);
+    const std::vector<double> wantIds = g.doubles("text_tokens");
+    size_t idDiff = 0;
+    for (size_t i = 0; i < ids.size(); ++i) idDiff += double(ids[i]) != wantIds[i];
+    EXPECT_EQ(idDiff, 0u) << "text token ids";
+    WeightSet textWeights(engine, model, o.weightType);
+    ClipTextEncoder encoder(engine, textWeights, ClipTextConfig::fromJson(c.raw.at("clip"), model.path()));
+    const Tensor text = engine.tensor({int64_t(prompts.size()), encoder.config().embedDim});
+    const Tensor& feats = pipe.intermediate("semantic_features");
+    const Tensor maps = engine.tensor({feats.dim(0), feats.dim(2), feats.dim(3)}, DType::I32);
+    TransformerWorkspace ws;
+    Recorder rec(engine);
+    encoder.forward(rec, ids, text, ws);
+    labelMaps(rec, feats, text, maps);
+    rec.run();
+    const ErrorStats e = compare(engine.download(text), g.doubles("text_embeddings"));
+    std::printf("  %-22s NMSE %.3e  max abs %.3e\n", "text_embeddings", e.nmse, e.maxAbs);
+    EXPECT_LE(e.nmse, 1e-10 * o.scale) << "text_embeddings";
+    std::vector<int32_t> got(size_t(maps.numel()));
+    engine.read(maps, got.data(), got.size() * sizeof(int32_t));
+    const std::vector<double> want = g.doubles("label_maps"), logits = g.doubles("label_logits");
+    const size_t plane = size_t(feats.dim(2) * feats.dim(3)), p = prompts.size();
+    size_t differ = 0, ties = 0;
+    for (size_t i = 0; i < got.size(); ++i) {
+      if (double(got[i]) == want[i]) continue;
+      // a near-tie: the reference's logits of the two labels within 1e-4
+      const size_t r = i / plane, px = i % plane;
+      const double a = logits[(r * p + size_t(got[i])) * plane + px], b = logits[(r * p + size_t(want[i])) * plane + px];
+      if (std::abs(a - b) < 1e-4) ++ties;
+      else ++differ;
+    }
+    std::printf("  %-22s pixels differing %zu (+%zu near-ties of %zu)\n", "label_maps", differ, ties, got.size());
+    EXPECT_EQ(differ, 0u) << "label_maps";
   }
   return pipe.stageTimes();
 }

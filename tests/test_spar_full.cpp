@@ -1,7 +1,8 @@
 // The full-size comparison: the official configuration (D 768, 12/8/12/4 layers, 768 scene tokens,
-// DINOv3 ViT-B/16, 256x256) with random perturbed weights from the reference, 3 frames in order
-// with inputs 0, 2 and target 1 (the canonical view), every stage against the float64 reference
-// (fixture spar_goldens_full: tests/python/make_spar_goldens.py --full). Label "full".
+// DINOv3 ViT-B/16, LSeg ViT-L/16 with the semantic branch, 256x256) with random perturbed weights
+// from the reference, 3 frames in order with inputs 0, 2 and target 1 (the canonical view), every
+// stage against the float64 reference, semantic features included (fixture spar_goldens_full:
+// tests/python/make_spar_goldens.py --full). Label "full".
 #include <cstdio>
 
 #include "pipeline_check.h"
@@ -18,7 +19,7 @@ constexpr double kFullScale = 10.0;
 
 TEST_F(SparFullTest, TwoInputsOneTargetMatchesReference) {
   const auto times = runGoldenCase(eng(), fullGoldenPath("full_2in_1out"),
-                                   {.model = fullGoldenPath("full.spar"), .scale = kFullScale});
+                                   {.model = fullGoldenPath("full.spar"), .scale = kFullScale, .semantic = true});
   double total = 0;
   for (const StageTime& t : times) {
     std::printf("  stage %-16s GPU %9.1f ms  wall %9.1f ms\n", t.name.c_str(), t.gpuMs, t.wallMs);

@@ -5,7 +5,7 @@ matters, packed by the converter, and the PyTorch reference's goldens of every s
 view orders. Everything is made here, at test time, from fixed seeds.
 
     make_spar_goldens.py OUT_DIR
-    make_spar_goldens.py --full OUT_DIR    (the full-size case, see main_full)
+    make_spar_goldens.py --full OUT_DIR [BPE.txt.gz]   (the full-size case, see main_full)
     make_spar_goldens.py --semantic OUT_DIR BPE.txt.gz   (the semantic branch, see main_semantic)
 
 writes OUT_DIR/
@@ -74,27 +74,30 @@ def run(*args):
     subprocess.run([sys.executable, *args], check=True, env=dict(os.environ, PYTHONPATH=CONVERTER))
 
 
-def main_full(out):
-    """The full-size comparison (issue: one run of the official configuration with random
-    weights, 2 input + 1 target view at 256x256, stage by stage): full() without the semantic
-    branch, perturbed weights, float64 goldens of frames 0, 1, 2 with inputs 0, 2."""
+def main_full(out, bpe=""):
+    """The full-size comparison (issues: one run of the official configuration with random
+    weights, 2 input + 1 target view at 256x256, stage by stage; the semantic branch at full
+    size): full() as spar.yaml has it (LSeg ViT-L/16, CLIP text), perturbed weights, float64
+    goldens of frames 0, 1, 2 with inputs 0, 2, with --labels when the BPE table is here."""
     os.makedirs(out, exist_ok=True)
     cfg = full()
-    cfg.use_lseg = False
-    cfg_path = os.path.join(out, "full_photometric.json")
+    cfg_path = os.path.join(out, "full.json")
     with open(cfg_path, "w") as f:
         json.dump(cfg.validate().to_dict(), f, indent=1)
     f = frames(out, count=3, width=320, height=240)
     ck, packed = os.path.join(out, "full.pt"), os.path.join(out, "full.spar")
     ref = os.path.join(CONVERTER, "spar-reference")
+    has_bpe = bool(bpe) and os.path.isfile(bpe)
     run(ref, "make-checkpoint", "--config", cfg_path, "--seed", "11", "--perturb", "--no-optimizer", "-o", ck)
-    run(os.path.join(CONVERTER, "spar-convert"), "-q", ck, "--config", cfg_path, "-o", packed)
+    run(os.path.join(CONVERTER, "spar-convert"), "-q", ck, "--config", cfg_path,
+        *(["--bpe", bpe] if has_bpe else []), "-o", packed)
     d = os.path.join(out, "full_2in_1out")
     if os.path.exists(d):
         subprocess.run(["rm", "-rf", d], check=True)
+    labels = ["--labels", ",".join(LABELS[:4]), "--bpe", bpe] if has_bpe else []
     run(ref, "goldens", "--checkpoint", ck, "--config", cfg_path, "--frames", *f, "--inputs", "0,2",
-        "--float64", "--out", d)
-    os.unlink(ck)  # 1.4 GB: only the packed file is needed from here on
+        *labels, "--float64", "--out", d)
+    os.unlink(ck)  # 3 GB: only the packed file is needed from here on
     return 0
 
 
@@ -134,7 +137,7 @@ def main_semantic(out, bpe):
 
 def main():
     if sys.argv[1:2] == ["--full"]:
-        return main_full(os.path.abspath(sys.argv[2]))
+        return main_full(os.path.abspath(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "")
     if sys.argv[1:2] == ["--semantic"]:
         return main_semantic(os.path.abspath(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "")
     out = os.path.abspath(sys.argv[1])
