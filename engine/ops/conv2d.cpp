@@ -90,8 +90,10 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   // Input rows as RGBA texels (4 columns each) when rows and every tile start stay on texel
   // boundaries: W and cols*stride multiples of 4 and x starting on a texel.
   const bool rgbaX = W % 4 == 0 && (tiles.cols * params.stride) % 4 == 0 && x.byteOffset() % 16 == 0;
-  // Workgroups of one row of invocations walk the blocks of a plane in one flat order.
-  const bool flat = tiles.localY == 1;
+  // Workgroups of one row of invocations walk the blocks of a plane in one flat order (unless
+  // a huge plane would need more workgroups along x than the device allows: then 2-D).
+  const int64_t colBlocks = ceilDiv(Wo, tiles.cols), rowBlocks = ceilDiv(Ho, tiles.rows);
+  const bool flat = tiles.localY == 1 && ceilDiv(colBlocks * rowBlocks, tiles.localX) <= caps.maxWorkGroupCount[0];
   // Outputs as whole vec4s (the _out4 variant) when every block row segment is: its start
   // (a multiple of cols in a row of Wo) and the binding's base on a 4-element boundary.
   const bool rowsOf4 = tiles.cols % 4 == 0 && Wo % 4 == 0;
@@ -106,7 +108,6 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
 
   // One workgroup layer per (image, block of output channels).
   const int64_t coBlocks = (Cout + tiles.channels - 1) / tiles.channels;
-  const int64_t colBlocks = ceilDiv(Wo, tiles.cols), rowBlocks = ceilDiv(Ho, tiles.rows);
   const uint32_t gx = flat ? ceilDiv(colBlocks * rowBlocks, tiles.localX) : ceilDiv(colBlocks, tiles.localX);
   const uint32_t gy = flat ? 1 : ceilDiv(rowBlocks, tiles.localY);
   if (gx > caps.maxWorkGroupCount[0] || gy > caps.maxWorkGroupCount[1])

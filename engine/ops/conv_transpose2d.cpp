@@ -69,8 +69,10 @@ void convTranspose2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tens
   const bool rgbaX = W % 4 == 0 && tiles.cols % 4 == 0 && x.byteOffset() % 16 == 0;
   if (wr.view.numel() / (rgbaW ? 4 : 1) > int64_t(caps.maxTexelBufferElements))
     throw Error("convTranspose2d: weight " + w.describe() + " exceeds the device's texel-buffer size");
-  // Workgroups of one row of invocations walk the blocks of a plane in one flat order.
-  const bool flat = tiles.localY == 1;
+  // Workgroups of one row of invocations walk the blocks of a plane in one flat order (unless
+  // a huge plane would need more workgroups along x than the device allows: then 2-D).
+  const int64_t colBlocks = ceilDiv(W, tiles.cols), rowBlocks = ceilDiv(H, tiles.rows);
+  const bool flat = tiles.localY == 1 && ceilDiv(colBlocks * rowBlocks, tiles.localX) <= caps.maxWorkGroupCount[0];
   // Outputs as whole vec4s (the _out4 variant) when every block row segment is: its start
   // (a multiple of cols*k in a row of W*k) and the binding's base on a 4-element boundary.
   const bool rowsOf4 = (tiles.cols * k) % 4 == 0 && (W * k) % 4 == 0;
@@ -84,7 +86,6 @@ void convTranspose2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tens
 
   // One workgroup layer per (image, block of output channels).
   const int64_t coBlocks = (Cout + tiles.channels - 1) / tiles.channels;
-  const int64_t colBlocks = ceilDiv(W, tiles.cols), rowBlocks = ceilDiv(H, tiles.rows);
   const uint32_t gx = flat ? ceilDiv(colBlocks * rowBlocks, tiles.localX) : ceilDiv(colBlocks, tiles.localX);
   const uint32_t gy = flat ? 1 : ceilDiv(rowBlocks, tiles.localY);
   if (gx > caps.maxWorkGroupCount[0] || gy > caps.maxWorkGroupCount[1])
