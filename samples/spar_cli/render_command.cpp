@@ -157,6 +157,22 @@ RenderCameras pathCameras(const SparEncoded& e, const std::vector<int64_t>& inpu
   return toRenderCameras(cams);
 }
 
+// The driver's pipeline cache between runs ($XDG_CACHE_HOME/spar or ~/.cache/spar; none when
+// neither is set or the directory cannot be made): drivers that keep compiled code in it start
+// faster on the second run. SPAR_PIPELINE_CACHE=0 turns it off.
+std::string pipelineCachePath() {
+  const char* off = std::getenv("SPAR_PIPELINE_CACHE");
+  if (off && std::string(off) == "0") return "";
+  const char* xdg = std::getenv("XDG_CACHE_HOME");
+  const char* home = std::getenv("HOME");
+  fs::path dir = xdg && *xdg ? fs::path(xdg) / "spar" : home && *home ? fs::path(home) / ".cache" / "spar" : fs::path();
+  if (dir.empty()) return "";
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) return "";
+  return (dir / "pipelines.bin").string();
+}
+
 std::string viewsText(const PlannedViews& p) {
   return std::to_string(p.files.size()) + " views (" + std::to_string(p.inputs.size()) + " inputs, " +
          std::to_string(p.targets.size()) + " targets)";
@@ -180,6 +196,7 @@ void runRender(const RenderArgs& a) {
     auto t = Clock::now();
     EngineOptions eo;
     eo.device.select = a.device;
+    eo.pipelineCacheFile = pipelineCachePath();
     Engine engine(eo);
     host.push_back({{"name", "device"}, {"wall_ms", msSince(t)}});
 
