@@ -5,6 +5,9 @@
 #include <filesystem>
 #include <fstream>
 
+#include <OpenImageIO/imagebuf.h>
+#include <OpenImageIO/imagebufalgo.h>
+
 #include "engine/error.h"
 #include "model/label_maps.h"
 
@@ -50,6 +53,29 @@ void writeFileAtomically(const std::string& path, const std::string& bytes) {
 
 }  // namespace
 
+const std::string& legendFont() {
+  // DejaVu Sans from Debian's fonts-dejavu-core (scripts/install-deps.sh); "" when absent.
+  static const std::string font = [] {
+    const char* path = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
+    return std::filesystem::exists(path) ? std::string(path) : std::string();
+  }();
+  return font;
+}
+
+void drawLegendNames(RgbImage& img, const std::vector<std::string>& names, int outH) {
+  // Each name right of its swatch, white, with OpenImageIO's FreeType text rendering. The
+  // reference draws them with PIL's built-in bitmap font, whose glyph data is not ours to copy,
+  // so only the text pixels differ from its PNG. Without the font the legend has swatches only.
+  if (legendFont().empty() || names.empty()) return;
+  OIIO::ImageSpec spec(img.width, img.height, 3, OIIO::TypeDesc::UINT8);
+  OIIO::ImageBuf buf(spec, img.pixels.data());
+  const float white[3] = {1.0f, 1.0f, 1.0f};
+  for (size_t k = 0; k < names.size(); ++k) {
+    const int baseline = outH + 2 + kLegendRow * static_cast<int>(k) + kLegendRow - 4;
+    OIIO::ImageBufAlgo::render_text(buf, 16, baseline, names[k], 11, legendFont(), white);
+  }
+}
+
 std::array<uint8_t, 3> paletteColour(int64_t k) {
   const int64_t n = static_cast<int64_t>(kPalette.size());
   return kPalette[size_t(((k % n) + n) % n)];
@@ -77,6 +103,7 @@ RgbImage labelImage(const std::vector<int32_t>& map, int h, int w, const std::ve
     for (int yy = y + 1; yy <= y + kLegendRow - 3; ++yy)
       for (int xx = 2; xx <= 12; ++xx) put(xx, yy, paletteColour(int64_t(k)));
   }
+  drawLegendNames(img, names, outH);
   return img;
 }
 

@@ -8,9 +8,9 @@
 //                    "labels": [{"index", "label", "colour": [r, g, b], "pixels", "share"}]},
 //                   Python's json.dump(indent=1) layout (keys in this order, non-ASCII as \uXXXX)
 //
-// Not reproduced: the prompt text the reference draws beside each swatch with PIL's built-in
-// bitmap font (its glyph data is Pillow's); the legend's text area stays black, the JSON has
-// the names.
+// The names beside the swatches are drawn with DejaVu Sans through OpenImageIO (the reference
+// uses PIL's built-in bitmap font, whose glyph data is Pillow's): the legend's text pixels are
+// the only ones that differ from the reference's PNG.
 #pragma once
 #include <nlohmann/json.hpp>
 
@@ -22,6 +22,11 @@
 #include "model/image_prep.h"
 
 namespace spar {
+
+// The TrueType font the legend's names are drawn with, or "" when it is not installed.
+const std::string& legendFont();
+// Draws each name right of its swatch (legend rows below the map, which is outH tall).
+void drawLegendNames(RgbImage& img, const std::vector<std::string>& names, int outH);
 
 // Label k's colour: the reference's fixed palette of 20, repeated.
 std::array<uint8_t, 3> paletteColour(int64_t k);

@@ -219,7 +219,7 @@ TEST_F(LabelMapsTest, WritersMatchReferenceRender) {
         }
         ASSERT_GE(map[size_t(y * w + x)], 0) << "pixel " << x << "," << y << " has no palette colour";
       }
-    // Every pixel equal except the legend's text (drawn by the reference with PIL's font).
+    // Every pixel equal except the legend's text (the reference draws it with PIL's font, we with DejaVu).
     const RgbImage mine = labelImage(map, h, w, labels, H, W);
     ASSERT_EQ(mine.width, png.width);
     ASSERT_EQ(mine.height, png.height);
@@ -235,7 +235,7 @@ TEST_F(LabelMapsTest, WritersMatchReferenceRender) {
         differ += !same;
       }
     EXPECT_EQ(differ, 0) << "view " << views;
-    std::printf("labels_%02d.png: %lld pixels differ outside the legend text (%lld text pixels not drawn)\n", views,
+    std::printf("labels_%02d.png: %lld pixels differ outside the legend text (%lld legend text pixels differ: other font)\n", views,
                 (long long)differ, (long long)text);
     // The JSON, byte for byte.
     const std::string json = labelJsonText(labelJson(map, h, w, labels, views, kLsegLogitScale));
@@ -255,6 +255,38 @@ TEST_F(LabelMapsTest, WritersMatchReferenceRender) {
     EXPECT_EQ(readText(labelStem(out.string(), v) + ".json"), readText(labelStem(ref.dir, v) + ".json"));
   }
   fs::remove_all(out);
+}
+
+// The legend's names: drawn right of the swatches when the font is installed (scripts/
+// install-deps.sh installs it), only in the legend's text area; the map and swatches untouched.
+TEST(LabelOutputs, LegendNamesAreDrawnBesideSwatches) {
+  if (legendFont().empty()) GTEST_SKIP() << "DejaVu Sans not installed (fonts-dejavu-core)";
+  const int h = 4, w = 6, H = 32, W = 48;
+  const std::vector<int32_t> map(size_t(h * w), 1);
+  const std::vector<std::string> names = {"sofa", "window", "ünïcödé chäir"};
+  const RgbImage with = labelImage(map, h, w, names, H, W);
+  RgbImage without = with;
+  // the same image with the names' text area cleared must equal a drawing without names
+  int64_t textPixels = 0, elsewhere = 0;
+  for (int y = 0; y < with.height; ++y)
+    for (int x = 0; x < with.width; ++x) {
+      const uint8_t* p = &with.pixels[(size_t(y) * with.width + size_t(x)) * 3];
+      const bool lit = p[0] || p[1] || p[2];
+      if (y >= H && x >= 14) textPixels += lit;
+      else if (y >= H && x > 12) elsewhere += lit;
+    }
+  EXPECT_GT(textPixels, 30) << "no name drawn";
+  EXPECT_EQ(elsewhere, 0);
+  // every legend row got some text
+  for (size_t k = 0; k < names.size(); ++k) {
+    int64_t row = 0;
+    for (int y = H + 2 + 14 * int(k); y < H + 2 + 14 * int(k + 1); ++y)
+      for (int x = 14; x < with.width; ++x) row += with.pixels[(size_t(y) * with.width + size_t(x)) * 3] != 0;
+    EXPECT_GT(row, 5) << names[k];
+  }
+  // the map part is the palette colour of label 1
+  const auto c = paletteColour(1);
+  EXPECT_TRUE(std::equal(c.begin(), c.end(), with.pixels.begin()));
 }
 
 TEST(LabelOutputs, PaletteAndChecks) {
