@@ -75,6 +75,10 @@ int main(int argc, char** argv) {
                    "also write the semantic features of the rendered views (features_XX.npy, C x H/2 x "
                    "W/2 float32; models with the semantic branch)");
 
+  render->add_flag("--scores", a.scores,
+                   "with --labels: also write each view's per-label score maps (scores_XX.npy, P x H/2 x W/2 "
+                   "float32: the scaled cosine similarities the labels are the argmax of)");
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

@@ -546,5 +546,34 @@ TEST(spar_render, SemanticHeadOnlyWhenAsked) {
   for (const auto& n : entries(plain)) EXPECT_NE(n.rfind("labels_", 0), 0u) << n;
 }
 
+// --scores: per-label score maps whose argmax is the label map (pixel counts of labels_XX.json).
+TEST(spar_render, ScoresAreTheLabelMapsScores) {
+  if (clipBpePath().empty()) GTEST_SKIP() << "CLIP BPE table not on this machine (" << SPAR_CLIP_BPE << ")";
+  const fs::path out = scratch() / "scores";
+  fs::remove_all(out);
+  const RunResult r = spar({"--model", semanticGoldenPath("tiny_semantic.spar"), "--images", frame(0), frame(2),
+                            "--targets", frame(1), "--labels", "sofa,window,floor", "--scores", "--out", out.string()});
+  ASSERT_EQ(r.code, 0) << r.err;
+  const NpyArray scores = readNpy((out / "scores_00.npy").string());
+  ASSERT_EQ(scores.shape, (std::vector<int64_t>{3, 64, 64}));
+  const std::vector<double> v = scores.toDoubles();
+  std::vector<int64_t> counts(3, 0);
+  for (size_t px = 0; px < 64 * 64; ++px) {
+    size_t best = 0;
+    for (size_t k = 0; k < 3; ++k) {
+      ASSERT_TRUE(std::isfinite(v[k * 4096 + px]));
+      if (v[k * 4096 + px] > v[best * 4096 + px]) best = k;
+    }
+    ++counts[best];
+  }
+  const ojson doc = readJson(out / "labels_00.json");
+  for (size_t k = 0; k < 3; ++k) EXPECT_EQ(doc["labels"][k]["pixels"].get<int64_t>(), counts[k]) << k;
+  // --scores without --labels is a usage error
+  EXPECT_EQ(spar({"--model", semanticGoldenPath("tiny_semantic.spar"), "--images", frame(0), frame(2), "--targets",
+                  frame(1), "--scores", "--out", (scratch() / "scores_bad").string()})
+                .code,
+            2);
+}
+
 }  // namespace
 }  // namespace spar::test

@@ -97,6 +97,7 @@ Validated validate(const RenderArgs& a) {
     flush();
     if (v.labels.empty()) throw UsageError("--labels needs at least one prompt");
   }
+  if (a.scores && !a.labels) throw UsageError("--scores needs --labels");
   if ((a.labels || a.features) && v.views.targets.empty() && !a.path && a.cameras.empty())
     throw UsageError("--labels / --features need views to render (target views, --path or --cameras)");
 
@@ -256,9 +257,15 @@ void runRender(const RenderArgs& a) {
         const auto tl = Clock::now();
         const int64_t views = feats.dim(0);
         const Tensor maps = engine.tensor({views, h / 2, w / 2}, DType::I32);
+        const Tensor scores =
+            a.scores ? engine.tensor({views, int64_t(v.labels.size()), h / 2, w / 2}) : Tensor();
         Recorder rec(engine, true);
-        labelMaps(rec, feats, text, maps);
+        labelMaps(rec, feats, text, maps, scores);
         rec.run();
+        if (a.scores) {
+          const std::vector<float> sc = engine.download(scores);
+          r.scores.insert(r.scores.end(), sc.begin(), sc.end());
+        }
         for (const auto& d : rec.timings()) labelGpuMs += d.ms;
         std::vector<int32_t> all(size_t(maps.numel()));
         engine.read(maps, all.data(), all.size() * sizeof(int32_t));

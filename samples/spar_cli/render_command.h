@@ -26,6 +26,7 @@ struct RenderArgs {
   std::string device;              // index or part of the name; "" = SPAR_DEVICE / default
   std::optional<std::string> labels;
   bool features = false;
+  bool scores = false;  // with --labels: per-label score maps (scores_XX.npy)
 };
 
 // Throws UsageError (exit 2) or spar::Error (exit 1); prints progress on stderr.

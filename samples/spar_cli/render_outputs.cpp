@@ -61,6 +61,12 @@ int writeRenderOutputs(const std::string& dir, const RenderResult& r) {
                    labelJson(r.labelMaps[j], r.labelHeight, r.labelWidth, r.labels, int64_t(j), kLsegLogitScale));
     files += 2;
   }
+  if (!r.scores.empty()) {
+    const int64_t p = int64_t(r.labels.size()), per = p * r.labelHeight * r.labelWidth;
+    if (r.scores.size() != size_t(r.rendered * per)) throw Error("render result: wrong number of score values");
+    for (int64_t j = 0; j < r.rendered; ++j, ++files)
+      writeNpy(numbered(dir, "scores", j, "npy"), {p, r.labelHeight, r.labelWidth}, r.scores.data() + j * per);
+  }
   if (!r.features.empty()) {
     const int64_t h = r.height / 2, w = r.width / 2, per = r.featureChannels * h * w;
     if (r.features.size() != size_t(r.rendered * per)) throw Error("render result: wrong number of feature values");

@@ -23,6 +23,7 @@ struct RenderResult {
   std::vector<std::string> labels;
   std::vector<std::vector<int32_t>> labelMaps;
   int labelHeight = 0, labelWidth = 0;
+  std::vector<float> scores;  // --scores: [R, P, h, w] per-label score maps
   // --features: [R, C, h, w] semantic features
   std::vector<float> features;
   int64_t featureChannels = 0;
