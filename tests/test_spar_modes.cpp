@@ -20,6 +20,7 @@
 #include <string>
 
 #include "tests/golden_support.h"
+#include "tests/test_support.h"
 
 #ifndef SPAR_MODES
 #error "SPAR_MODES (path of the built spar-modes) is defined by samples/CMakeLists.txt"
@@ -30,24 +31,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// A scratch directory per test process, removed when the process ends unless
-// SPAR_KEEP_TEST_OUTPUT is set.
-struct ScratchDir {
-  fs::path path;
-  ScratchDir() : path(fs::path(SPAR_TEST_OUT_DIR) / ("spar_modes_" + std::to_string(::getpid()))) {
-    fs::remove_all(path);
-    fs::create_directories(path);
-  }
-  ~ScratchDir() {
-    std::error_code ec;
-    if (!std::getenv("SPAR_KEEP_TEST_OUTPUT")) fs::remove_all(path, ec);
-  }
-};
-
-const fs::path& scratch() {
-  static const ScratchDir d;
-  return d.path;
-}
+const fs::path& scratch() { return scratchDir("spar_modes"); }
 
 std::string readText(const fs::path& p) {
   std::ifstream f(p);

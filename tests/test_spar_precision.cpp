@@ -77,38 +77,15 @@ CaseOptions fp16Case(CaseOptions o) {
   return o;
 }
 
-std::string quote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
-
-// A scratch directory per test process, removed when the process ends unless
-// SPAR_KEEP_TEST_OUTPUT is set.
-struct ScratchDir {
-  fs::path path;
-  ScratchDir() : path(fs::path(SPAR_TEST_OUT_DIR) / ("spar_precision_" + std::to_string(::getpid()))) {
-    fs::remove_all(path);
-    fs::create_directories(path);
-  }
-  ~ScratchDir() {
-    std::error_code ec;
-    if (!std::getenv("SPAR_KEEP_TEST_OUTPUT")) fs::remove_all(path, ec);
-  }
-};
-
-const fs::path& scratch() {
-  static const ScratchDir d;
-  return d.path;
-}
+const fs::path& scratch() { return scratchDir("spar_precision"); }
 
 // The fixture's checkpoint packed with --fp16 (made once per process).
 const std::string& fp16Pack() {
   static const std::string path = [] {
     const std::string out = (scratch() / "tiny16.spar").string();
-    const std::string cmd = quote(SPAR_PYTHON) + " " + quote(std::string(SPAR_SOURCE_DIR) + "/converter/spar-convert") +
-                            " -q --fp16 " + quote(goldenPath("tiny.pt")) + " --config " +
-                            quote(goldenPath("tiny_photometric.json")) + " -o " + quote(out);
+    const std::string cmd = shellQuote(SPAR_PYTHON) + " " + shellQuote(std::string(SPAR_SOURCE_DIR) + "/converter/spar-convert") +
+                            " -q --fp16 " + shellQuote(goldenPath("tiny.pt")) + " --config " +
+                            shellQuote(goldenPath("tiny_photometric.json")) + " -o " + shellQuote(out);
     if (std::system(cmd.c_str()) != 0) throw Error("spar-convert --fp16 failed: " + cmd);
     return out;
   }();

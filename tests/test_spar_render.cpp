@@ -29,6 +29,7 @@
 #include "model/image_prep.h"
 #include "model/npy.h"
 #include "tests/golden_support.h"
+#include "tests/test_support.h"
 
 #ifndef SPAR_CLI
 #error "SPAR_CLI (path of the built spar binary) is defined by samples/CMakeLists.txt"
@@ -51,36 +52,13 @@ struct RunResult {
   }
 };
 
-std::string quote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
-
-// A scratch directory per test process (CTest runs each test as its own process), removed when
-// the process ends unless SPAR_KEEP_TEST_OUTPUT is set (to look at the outputs).
-struct ScratchDir {
-  fs::path path;
-  ScratchDir() : path(fs::path(SPAR_TEST_OUT_DIR) / ("spar_render_" + std::to_string(::getpid()))) {
-    fs::remove_all(path);
-    fs::create_directories(path);
-  }
-  ~ScratchDir() {
-    std::error_code ec;
-    if (!std::getenv("SPAR_KEEP_TEST_OUTPUT")) fs::remove_all(path, ec);
-  }
-};
-
-const fs::path& scratch() {
-  static const ScratchDir d;
-  return d.path;
-}
+const fs::path& scratch() { return scratchDir("spar_render"); }
 
 RunResult run(const std::vector<std::string>& argv) {
   const fs::path errFile = scratch() / "stderr.txt";
   std::string cmd;
-  for (const auto& a : argv) cmd += quote(a) + " ";
-  cmd += "> /dev/null 2> " + quote(errFile.string());
+  for (const auto& a : argv) cmd += shellQuote(a) + " ";
+  cmd += "> /dev/null 2> " + shellQuote(errFile.string());
   const int status = std::system(cmd.c_str());
   RunResult r;
   r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
@@ -476,7 +454,6 @@ TEST(spar_render, MixedMasksMatchReference) {
   ASSERT_EQ(r.code, 0) << r.err;
   compareOutputs("masked", *o, false, readNpy((g / "cv_drp_input.prob.npy").string()).toDoubles(), 2, "targets");
 }
-
 
 // A model with the semantic branch, with --labels and --features: the same files as the
 // reference; views within 1/255; label maps (JSON pixel counts, PNG colours) identical except at

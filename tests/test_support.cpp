@@ -135,4 +135,30 @@ void GuardedOutput::expectAllWritten() {
   EXPECT_EQ(unwritten, 0u) << "elements left unwritten (or NaN)";
 }
 
+std::string shellQuote(const std::string& s) {
+  std::string q = "'";
+  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
+  return q + "'";
+}
+
+namespace {
+struct ScratchDir {
+  std::filesystem::path path;
+  explicit ScratchDir(const std::string& prefix)
+      : path(std::filesystem::path(SPAR_TEST_OUT_DIR) / (prefix + "_" + std::to_string(::getpid()))) {
+    std::filesystem::remove_all(path);
+    std::filesystem::create_directories(path);
+  }
+  ~ScratchDir() {
+    std::error_code ec;
+    if (!std::getenv("SPAR_KEEP_TEST_OUTPUT")) std::filesystem::remove_all(path, ec);
+  }
+};
+}  // namespace
+
+const std::filesystem::path& scratchDir(const std::string& prefix) {
+  static const ScratchDir d(prefix);  // one per process: each test executable uses one prefix
+  return d.path;
+}
+
 }  // namespace spar::test

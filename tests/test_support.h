@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <filesystem>
 #include <cstdlib>
 #include <random>
 #include <string>
@@ -16,6 +17,13 @@
 #include "engine/recorder.h"
 
 namespace spar::test {
+
+// A shell word: s in single quotes (for std::system command lines of tests that run programs).
+std::string shellQuote(const std::string& s);
+// This test process's scratch directory SPAR_TEST_OUT_DIR/<prefix>_<pid> (CTest runs each test
+// as its own process): made empty on first use, removed when the process ends unless
+// SPAR_KEEP_TEST_OUTPUT is set (to look at the outputs).
+const std::filesystem::path& scratchDir(const std::string& prefix);
 
 // The engine every test uses; created once with the Khronos validation layer enabled.
 Engine& engine();
