@@ -173,7 +173,7 @@ def test_accumulator_skips_views():
     acc = Accumulator(2)
     acc.add(scene, targets, pred)
     r = acc.result(1.0)
-    assert r["target_views"] == 1
+    assert r["target_views"] == 2 and len(acc.psnr) == 1 and len(acc.ssim) == 1
     assert r["psnr"] == pytest.approx(10 * math.log10(1 / (10 / 255.0) ** 2))
     assert r["sem_accuracy"] == 1.0 and r["sem_miou"] == 1.0
     assert r["mask_recall"] == 0.0 and r["mask_iou_dynamic"] == 0.0
