@@ -349,13 +349,15 @@ def build_text_encoder(cfg, clip_sd: Dict[str, Any], float64: bool):
     return enc.eval()
 
 
-def add_clip_text(ck: Dict[str, Any], cfg, seed: int, perturb: bool) -> None:
+def add_clip_text(ck: Dict[str, Any], cfg, seed: int, perturb: bool, encoder=None) -> None:
     """Put CLIP text weights into the checkpoint where the official SPAR has them: its
     ``lseg_model`` is lang-seg's LSegNet, which holds a whole CLIP as ``clip_pretrained``.
-    Only the text tower and logit_scale are written (the visual tower is never used)."""
+    Only the text tower and logit_scale are written (the visual tower is never used).
+    ``encoder``: a CLIPTextEncoder to write (else one is made from ``seed``)."""
     import torch
     from .clip_text import CLIPTextEncoder
-    enc = CLIPTextEncoder(cfg.clip, seed=seed, perturb=perturb).float()
+    enc = encoder if encoder is not None else CLIPTextEncoder(cfg.clip, seed=seed, perturb=perturb)
+    enc = enc.float()
     extra = OrderedDict((CLIP_PREFIX + k, v.detach().clone()) for k, v in enc.state_dict().items())
     extra[CLIP_PREFIX + "logit_scale"] = torch.tensor(math.log(1.0 / 0.07), dtype=torch.float32)
     sd = ck["model"]

@@ -1,0 +1,116 @@
+"""Training scenes: a pool of procedural rooms (spar_scenes, train seeds) rendered once and
+cached, and the three kinds of samples the paper trains on: dynamic scenes (people and pets
+walk through), static scenes, and static scenes with copy-paste distractors (cut-outs of
+another scene's distractors pasted frame by frame; the pasted mask is the only motion
+supervision, as in the paper)."""
+import os
+import time
+from multiprocessing import Pool
+
+import numpy as np
+import torch
+
+from spar_scenes import copy_paste, generate_scene, split_seeds
+
+
+def _render(args):
+    seed, frames, size = args
+    dyn = generate_scene(seed, n_frames=frames, size=size, distractors=True)
+    sta = generate_scene(seed, n_frames=frames, size=size, distractors=False)
+    return seed, dyn["rgb"], dyn["classes"], dyn["mask"], sta["rgb"], sta["classes"]
+
+
+class ScenePool:
+    """Scenes of train seeds 0..count-1: per scene the dynamic frames (rgb, classes, motion
+    mask) and the same room without distractors (rgb, classes)."""
+
+    def __init__(self, count: int, frames: int, size: int, cache_dir: str, workers: int = 2,
+                 log=print):
+        path = os.path.join(cache_dir, f"pool_{count}x{frames}_{size}.npz")
+        if os.path.isfile(path):
+            z = np.load(path)
+            self.seeds, self.rgb, self.classes = z["seeds"], z["rgb"], z["classes"]
+            self.mask, self.static_rgb, self.static_classes = z["mask"], z["static_rgb"], z["static_classes"]
+            log(f"scene pool: {count} scenes from {path}")
+            return
+        t0 = time.time()
+        seeds = split_seeds("train", count)
+        jobs = [(int(s), frames, size) for s in seeds]
+        with Pool(workers) as p:
+            res = []
+            for i, r in enumerate(p.imap(_render, jobs, chunksize=4)):
+                res.append(r)
+                if (i + 1) % 50 == 0 or i + 1 == count:
+                    log(f"scene pool: rendered {i + 1}/{count} scenes ({time.time() - t0:.0f} s)")
+        self.seeds = np.array([r[0] for r in res])
+        self.rgb = np.stack([r[1] for r in res])
+        self.classes = np.stack([r[2] for r in res])
+        self.mask = np.stack([r[3] for r in res])
+        self.static_rgb = np.stack([r[4] for r in res])
+        self.static_classes = np.stack([r[5] for r in res])
+        os.makedirs(cache_dir, exist_ok=True)
+        tmp = path + ".tmp.npz"
+        np.savez(tmp, seeds=self.seeds, rgb=self.rgb, classes=self.classes, mask=self.mask,
+                 static_rgb=self.static_rgb, static_classes=self.static_classes)
+        os.replace(tmp, path)
+
+    def __len__(self):
+        return len(self.seeds)
+
+
+def to_tensor(rgb_u8: np.ndarray) -> torch.Tensor:
+    """[..., H, W, 3] uint8 -> [..., 3, H, W] float in [0, 1]."""
+    t = torch.from_numpy(np.ascontiguousarray(rgb_u8)).float() / 255.0
+    return t.movedim(-1, -3)
+
+
+class Sampler:
+    """Draws training batches. Each batch is one kind (as the official training draws a batch
+    from one dataset): 'dynamic' with probability p_dynamic, else a static batch, copy-paste
+    augmented with probability p_copy_paste (the official copy_paste.prob)."""
+
+    def __init__(self, pool: ScenePool, seed: int, p_dynamic: float = 0.5,
+                 p_copy_paste: float = 0.5, views_range=(2, 4)):
+        self.pool = pool
+        self.rng = np.random.default_rng([seed, 101])
+        self.p_dynamic, self.p_copy_paste = p_dynamic, p_copy_paste
+        self.views_range = views_range
+
+    def batch(self, b: int) -> dict:
+        rng, pool = self.rng, self.pool
+        n, f = len(pool), pool.rgb.shape[1]
+        r = rng.random()
+        kind = "dynamic" if r < self.p_dynamic else (
+            "copy-paste" if rng.random() < self.p_copy_paste else "static")
+        k = int(rng.integers(self.views_range[0], self.views_range[1] + 1))
+        scenes = rng.choice(n, size=b, replace=False)
+        imgs, clean, paste = [], [], []
+        for s in scenes:
+            if kind == "dynamic":
+                imgs.append(pool.rgb[s])
+                clean.append(pool.rgb[s])
+                paste.append(np.zeros(pool.mask[s].shape, bool))
+            else:
+                static = {"rgb": pool.static_rgb[s], "classes": pool.static_classes[s], "info": {}}
+                if kind == "static":
+                    imgs.append(static["rgb"])
+                    paste.append(np.zeros(pool.mask[s].shape, bool))
+                else:
+                    src = int(rng.choice([i for i in range(n) if i != s]))
+                    source = {"rgb": pool.rgb[src], "classes": pool.classes[src],
+                              "mask": pool.mask[src], "seed": int(pool.seeds[src])}
+                    cp = copy_paste(static, source, seed=int(rng.integers(1 << 30)))
+                    imgs.append(cp["rgb"])
+                    paste.append(cp["mask"])
+                clean.append(static["rgb"])
+        order = [np.sort(rng.permutation(f)[:k]) for _ in range(b)]
+        inputs = torch.as_tensor(np.stack(order), dtype=torch.long)
+        targets = torch.as_tensor(np.stack([np.setdiff1d(np.arange(f), o) for o in order]),
+                                  dtype=torch.long)
+        return {
+            "kind": kind,
+            "images": to_tensor(np.stack(imgs)),          # [B, F, 3, H, W] what the model sees
+            "clean": to_tensor(np.stack(clean)),          # [B, F, 3, H, W] without pasted objects
+            "paste": torch.from_numpy(np.stack(paste)).float().unsqueeze(2),  # [B, F, 1, H, W]
+            "inputs": inputs, "targets": targets,
+        }
