@@ -226,7 +226,8 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
   t0 = Clock::now();
   rec.setStage("gating");
   st.gating->fuse(rec, imgTokens, rayTokens, request.plan.inputs, fused);
-  if (probInput.defined()) {
+  // Without gating the fused tokens go on as they are (as with assumeStatic), masks or not.
+  if (probInput.defined() && request.gating) {
     gated = engine_.tensor({k * n, d});
     const Tensor dynPatch = engine_.tensor({k, 1, gh, gw});
     st.gating->gate(rec, fused, probInput, dynPatch, gated);
@@ -267,7 +268,7 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
     t0 = Clock::now();
     rec.setStage("semantic_tokens");
     st.semantic->forward(rec, features, rays, request.plan.inputs, semTokens, pooled);
-    if (probInput.defined()) {
+    if (probInput.defined() && request.gating) {
       gatedSem = engine_.tensor({k * hs * ws, d});
       const Tensor dynSem = engine_.tensor({k, 1, hs, ws});
       st.gating->gate(rec, semTokens, probInput, dynSem, gatedSem);

@@ -57,6 +57,9 @@ struct SparRequest {
   bool assumeStatic = false;
   // Also run CV-DRP over the target views (evaluation of motion masks on targets).
   bool targetMotion = false;
+  // false = CV-DRP still runs and gives masks, but the input tokens are not gated; the same
+  // rendering as assumeStatic (the --no-gating ablation of spar eval).
+  bool gating = true;
   // Semantic models: run the semantic head when rendering (features for labels or output).
   // Without it the semantic queries still take part in the decoder (the model was trained so).
   bool semanticFeatures = false;
