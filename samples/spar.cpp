@@ -1,6 +1,8 @@
 // spar: the command-line tool of the engine.
 //   spar render --model M.spar (--images A B [--targets C D] | --frames f0 .. --inputs 0,3,4)
 //               [--cameras transforms.json | --path N] [--assume-static] [--device D] --out DIR
+//   spar eval --model M.spar --scenes DIR [--views 2,3,4] [--precision fp32|fp16]
+//             [--no-gating | --assume-static] [--max-scenes N] [--device D] --out result.json
 // Exit codes: 0 done, 1 something found wrong on the way (files, model, device), 2 a command
 // line that cannot mean anything. Every error is one line "spar: error: <message>" on stderr.
 #include <CLI/CLI.hpp>
@@ -10,6 +12,7 @@
 #include <string>
 
 #include "samples/spar_cli/errors.h"
+#include "samples/spar_cli/eval_command.h"
 #include "samples/spar_cli/render_command.h"
 
 namespace {
@@ -79,11 +82,44 @@ int main(int argc, char** argv) {
                    "with --labels: also write each view's per-label score maps (scores_XX.npy, P x H/2 x W/2 "
                    "float32: the scaled cosine similarities the labels are the argmax of)");
 
+  EvalArgs e;
+  CLI::App* evalCmd = app.add_subcommand(
+      "eval",
+      "Evaluate a model on a directory of test scenes as converter/spar_eval/PROTOCOL.md says: static-pixel "
+      "PSNR / SSIM of the rendered targets, motion-mask IoU, semantic mIoU; writes result.json and prints a table");
+  evalCmd->add_option("--model", e.model, "packed model (.spar)")->required();
+  evalCmd->add_option("--scenes", e.scenes, "directory of scene_* folders (converter/spar-scenes split --split test)")
+      ->required();
+  evalCmd->add_option("--views", e.views, "numbers of input views K, comma-separated (default 2,3,4)")
+      ->type_name("\"2,3,4\"");
+  evalCmd->add_option("--precision", e.precision, "fp32, or fp16 weight matrices on the device")
+      ->check(CLI::IsMember({"fp32", "fp16"}));
+  auto* noGating = evalCmd->add_flag("--no-gating", e.noGating,
+                                     "ablation: CV-DRP runs (mask metrics reported) but no input token is gated");
+  evalCmd->add_flag("--assume-static", e.assumeStatic, "ablation: no DINOv3 / CV-DRP, no gating, mask metrics null")
+      ->excludes(noGating);
+  auto* maxScenes =
+      evalCmd->add_option("--max-scenes", e.maxScenes, "evaluate only the first N scenes (in folder-name order)");
+  evalCmd->add_option("--device", e.device, "Vulkan device index or part of its name");
+  evalCmd->add_option("--out", e.out, "result JSON file (written whole: temporary name, then rename)")->required();
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     if (e.get_exit_code() == 0) return app.exit(e);  // --help
     return fail(std::string(e.what()) + " (see --help)", kExitUsage);
+  }
+  if (evalCmd->parsed()) {
+    if (maxScenes->count() > 0 && e.maxScenes < 1)
+      return fail("--max-scenes must be at least 1 (see spar eval --help)", kExitUsage);
+    try {
+      runEval(e);
+      return kExitOk;
+    } catch (const UsageError& err) {
+      return fail(std::string(err.what()) + " (see spar eval --help)", kExitUsage);
+    } catch (const std::exception& err) {
+      return fail(err.what(), kExitRuntime);
+    }
   }
   a.views.inputs = inputs;
   a.views.targetsGiven = targets->count() > 0;

@@ -1,7 +1,5 @@
 #include "samples/spar_cli/render_command.h"
 
-#include <unistd.h>
-
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -10,15 +8,14 @@
 
 #include "engine/engine.h"
 #include "engine/recorder.h"
-#include "model/bpe_tokenizer.h"
 #include "model/cameras.h"
-#include "model/clip_text.h"
-#include "model/label_maps.h"
 #include "model/image_prep.h"
 #include "model/packed_model.h"
 #include "model/spar_config.h"
 #include "model/spar_pipeline.h"
 #include "samples/spar_cli/errors.h"
+#include "samples/spar_cli/label_text.h"
+#include "samples/spar_cli/progress.h"
 #include "samples/spar_cli/render_outputs.h"
 #include "samples/spar_cli/staged_dir.h"
 
@@ -30,31 +27,6 @@ using Clock = std::chrono::steady_clock;
 constexpr size_t kRenderChunk = 8;  // views per render call for --path / --cameras
 
 double msSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
-
-// Progress on stderr: one line per phase; on a terminal the line is rewritten in place so the
-// run shows as a single updating line.
-class Progress {
- public:
-  Progress() : tty_(::isatty(STDERR_FILENO) == 1) {}
-  ~Progress() { finish(); }
-  void step(const std::string& text) {
-    if (tty_) {
-      std::fprintf(stderr, "\r\033[Kspar: %s", text.c_str());
-      open_ = true;
-    } else {
-      std::fprintf(stderr, "spar: %s\n", text.c_str());
-    }
-    std::fflush(stderr);
-  }
-  // Ends the updating line (before an error message or at the end).
-  void finish() {
-    if (open_) std::fputc('\n', stderr);
-    open_ = false;
-  }
-
- private:
-  bool tty_ = false, open_ = false;
-};
 
 // Everything checked before any device work: the command line, then the files it names.
 struct Validated {
@@ -121,9 +93,7 @@ Validated validate(const RenderArgs& a) {
                   "not available");
   }
   if (a.labels) {
-    if (!v.model->has(BpeTokenizer::kPackedName))
-      throw Error(v.model->path() + ": no CLIP text encoder tokenizer (pack the model with spar-convert --bpe)");
-    v.labelIds = BpeTokenizer::fromModel(*v.model).tokenize(v.labels);
+    v.labelIds = tokenizePrompts(*v.model, v.labels);
   }
 
   t = Clock::now();
@@ -156,22 +126,6 @@ RenderCameras pathCameras(const SparEncoded& e, const std::vector<int64_t>& inpu
     cams[j].k = estimatedCamera(e, inputs.front()).k;
   }
   return toRenderCameras(cams);
-}
-
-// The driver's pipeline cache between runs ($XDG_CACHE_HOME/spar or ~/.cache/spar; none when
-// neither is set or the directory cannot be made): drivers that keep compiled code in it start
-// faster on the second run. SPAR_PIPELINE_CACHE=0 turns it off.
-std::string pipelineCachePath() {
-  const char* off = std::getenv("SPAR_PIPELINE_CACHE");
-  if (off && std::string(off) == "0") return "";
-  const char* xdg = std::getenv("XDG_CACHE_HOME");
-  const char* home = std::getenv("HOME");
-  fs::path dir = xdg && *xdg ? fs::path(xdg) / "spar" : home && *home ? fs::path(home) / ".cache" / "spar" : fs::path();
-  if (dir.empty()) return "";
-  std::error_code ec;
-  fs::create_directories(dir, ec);
-  if (ec) return "";
-  return (dir / "pipelines.bin").string();
 }
 
 std::string viewsText(const PlannedViews& p) {
@@ -225,21 +179,11 @@ void runRender(const RenderArgs& a) {
     r.height = h;
     // --labels: the prompts through CLIP's text encoder on the device, once; its weights are
     // loaded only now, for this request.
-    std::unique_ptr<WeightSet> textWeights;
-    Tensor text;
-    double textGpuMs = 0, textWallMs = 0, labelGpuMs = 0, labelWallMs = 0;
+    PromptEmbeddings text;
+    double labelGpuMs = 0, labelWallMs = 0;
     if (a.labels) {
       progress.step("encoding " + std::to_string(v.labels.size()) + " label prompts");
-      t = Clock::now();
-      textWeights = std::make_unique<WeightSet>(engine, *v.model, po.weightType);
-      ClipTextEncoder encoder(engine, *textWeights, ClipTextConfig::fromJson(cfg.raw.at("clip"), v.model->path()));
-      text = engine.tensor({int64_t(v.labels.size()), encoder.config().embedDim});
-      TransformerWorkspace ws;
-      Recorder rec(engine, true);
-      encoder.forward(rec, v.labelIds, text, ws);
-      rec.run();
-      for (const auto& d : rec.timings()) textGpuMs += d.ms;
-      textWallMs = msSince(t);
+      text = encodePrompts(engine, *v.model, cfg, po.weightType, v.labelIds, int64_t(v.labels.size()));
       r.labels = v.labels;
       r.labelHeight = h / 2;
       r.labelWidth = w / 2;
@@ -255,22 +199,9 @@ void runRender(const RenderArgs& a) {
       }
       if (a.labels) {
         const auto tl = Clock::now();
-        const int64_t views = feats.dim(0);
-        const Tensor maps = engine.tensor({views, h / 2, w / 2}, DType::I32);
-        const Tensor scores =
-            a.scores ? engine.tensor({views, int64_t(v.labels.size()), h / 2, w / 2}) : Tensor();
-        Recorder rec(engine, true);
-        labelMaps(rec, feats, text, maps, scores);
-        rec.run();
-        if (a.scores) {
-          const std::vector<float> sc = engine.download(scores);
-          r.scores.insert(r.scores.end(), sc.begin(), sc.end());
-        }
-        for (const auto& d : rec.timings()) labelGpuMs += d.ms;
-        std::vector<int32_t> all(size_t(maps.numel()));
-        engine.read(maps, all.data(), all.size() * sizeof(int32_t));
-        const size_t per = size_t(h / 2) * size_t(w / 2);
-        for (int64_t j = 0; j < views; ++j) r.labelMaps.emplace_back(all.begin() + j * per, all.begin() + (j + 1) * per);
+        LabelMapsOut maps = computeLabelMaps(engine, feats, text, a.scores ? &r.scores : nullptr);
+        for (auto& m : maps.maps) r.labelMaps.push_back(std::move(m));
+        labelGpuMs += maps.gpuMs;
         labelWallMs += msSince(tl);
       }
     };
@@ -328,7 +259,7 @@ void runRender(const RenderArgs& a) {
     for (const auto& s : pipeline.stageTimes())
       stages.push_back({{"name", s.name}, {"gpu_ms", s.gpuMs}, {"wall_ms", s.wallMs}});
     if (a.labels) {
-      stages.push_back({{"name", "text_encoder"}, {"gpu_ms", textGpuMs}, {"wall_ms", textWallMs}});
+      stages.push_back({{"name", "text_encoder"}, {"gpu_ms", text.gpuMs}, {"wall_ms", text.wallMs}});
       stages.push_back({{"name", "labels"}, {"gpu_ms", labelGpuMs}, {"wall_ms", labelWallMs}});
     }
     nlohmann::ordered_json report = {
@@ -348,7 +279,7 @@ void runRender(const RenderArgs& a) {
         {"total_seconds", msSince(start) / 1000.0},
         {"stages", stages},          // GPU stages that ran (pipeline.stageTimes())
         {"host_stages", host},       // CPU-side phases of the command
-        {"weights_bytes_loaded", pipeline.weightBytesLoaded() + (textWeights ? textWeights->bytesLoaded() : 0)},
+        {"weights_bytes_loaded", pipeline.weightBytesLoaded() + (text.weights ? text.weights->bytesLoaded() : 0)},
     };
     writeJson((fs::path(staged.path()) / "report.json").string(), report);
     ++written;

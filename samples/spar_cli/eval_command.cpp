@@ -1,0 +1,267 @@
+#include "samples/spar_cli/eval_command.h"
+
+#include <nlohmann/json.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <map>
+#include <memory>
+#include <optional>
+
+#include "engine/engine.h"
+#include "model/cameras.h"
+#include "model/packed_model.h"
+#include "model/spar_config.h"
+#include "model/spar_pipeline.h"
+#include "samples/spar_cli/errors.h"
+#include "samples/spar_cli/eval_metrics.h"
+#include "samples/spar_cli/eval_scenes.h"
+#include "samples/spar_cli/label_text.h"
+#include "samples/spar_cli/progress.h"
+#include "samples/spar_cli/render_outputs.h"
+
+namespace spar::cli {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+using namespace spar::cli::eval;
+using ojson = nlohmann::ordered_json;
+
+// PROTOCOL.md: predicted dynamic = P(dynamic) > 0.5.
+constexpr float kMaskThreshold = 0.5f;
+
+double msSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+
+// "2, 3,4" -> {2, 3, 4} (increasing, no repeats); only the syntax is judged here.
+std::vector<int> parseViews(const std::string& text) {
+  std::vector<int> out;
+  std::string item;
+  auto flush = [&]() {
+    if (item.empty()) throw UsageError("--views must be comma-separated numbers of input views, got '" + text + "'");
+    size_t used = 0;
+    int v = 0;
+    try {
+      v = std::stoi(item, &used);
+    } catch (const std::exception&) {
+      used = 0;
+    }
+    if (used != item.size()) throw UsageError("--views must be comma-separated numbers of input views, got '" + text + "'");
+    for (int seen : out)
+      if (seen == v) throw UsageError("--views repeats " + item);
+    out.push_back(v);
+    item.clear();
+  };
+  for (char ch : text) {
+    if (ch == ',') flush();
+    else if (ch != ' ') item += ch;
+  }
+  flush();
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+// Accumulators of one K over all scenes.
+struct KResult {
+  int k = 0;
+  std::vector<int64_t> inputs, targets;
+  double psnrSum = 0, ssimSum = 0;
+  int64_t psnrViews = 0, ssimViews = 0, targetViews = 0;
+  MaskCounts masks;
+  std::unique_ptr<SemanticConfusion> semantic;
+  double seconds = 0;
+  std::vector<double> sceneMs;
+  // Means over the evaluated target views of all scenes.
+  std::optional<double> psnr() const { return psnrViews ? std::optional<double>(psnrSum / double(psnrViews)) : std::nullopt; }
+  std::optional<double> ssim() const { return ssimViews ? std::optional<double>(ssimSum / double(ssimViews)) : std::nullopt; }
+};
+
+ojson orNull(std::optional<double> v) { return v && std::isfinite(*v) ? ojson(*v) : ojson(nullptr); }
+
+std::string cell(std::optional<double> v, const char* format) {
+  if (!v || !std::isfinite(*v)) return "-";
+  char buf[32];
+  std::snprintf(buf, sizeof(buf), format, *v);
+  return buf;
+}
+
+}  // namespace
+
+void runEval(const EvalArgs& a) {
+  const auto start = Clock::now();
+  // 1. The command line alone (exit 2).
+  if (a.noGating && a.assumeStatic) throw UsageError("--no-gating and --assume-static exclude each other");
+  if (a.precision != "fp32" && a.precision != "fp16") throw UsageError("--precision must be fp32 or fp16");
+  if (a.maxScenes < 0) throw UsageError("--max-scenes must be at least 1");  // 0: all scenes
+  const std::vector<int> ks = parseViews(a.views);
+  const std::string mode = a.assumeStatic ? "assume-static" : a.noGating ? "no-gating" : "default";
+
+  // 2. Files (exit 1), cheapest first: nothing heavy is loaded before everything named exists.
+  if (!fs::exists(a.model)) throw Error("model not found: " + a.model);
+  const fs::path outPath = fs::absolute(a.out);
+  std::error_code ec;
+  if (!fs::is_directory(outPath.parent_path(), ec))
+    throw Error("the parent directory of --out does not exist: " + outPath.parent_path().string());
+  if (fs::is_directory(outPath, ec)) throw Error("--out is a directory: " + a.out);
+  const std::vector<SceneInfo> scenes = discoverScenes(a.scenes, a.maxScenes);
+  const int frames = scenes.front().frames;
+  for (const auto& s : scenes) {
+    if (s.frames != frames)
+      throw Error(s.name + " has " + std::to_string(s.frames) + " frames, " + scenes.front().name + " has " +
+                  std::to_string(frames) + " (one F per test set)");
+    // One set of prompts for the run: text embeddings are computed once.
+    if (s.classNames != scenes.front().classNames)
+      throw Error(s.name + "/classes.json differs from " + scenes.front().name + "/classes.json");
+  }
+  for (int k : ks)
+    if (k < 2 || k >= frames)
+      throw UsageError("--views " + std::to_string(k) + ": need 2 .. " + std::to_string(frames - 1) +
+                       " input views (at least one of the " + std::to_string(frames) + " frames must be a target)");
+
+  const PackedModel model = PackedModel::open(a.model);
+  const SparConfig cfg = SparConfig::fromJson(model.config(), model.path());
+  for (const auto& s : scenes)
+    if (s.width != cfg.imageWidth || s.height != cfg.imageHeight)
+      throw Error(s.name + " is " + std::to_string(s.width) + "x" + std::to_string(s.height) + ", the model's size is " +
+                  std::to_string(cfg.imageWidth) + "x" + std::to_string(cfg.imageHeight) +
+                  " (evaluation does not resize)");
+  // Semantic metrics only for models that decode semantics; those need the CLIP tokenizer.
+  const bool semantic = cfg.semanticDecoding();
+  const std::vector<std::string>& classNames = scenes.front().classNames;
+  std::vector<int32_t> promptIds;
+  if (semantic) promptIds = tokenizePrompts(model, classNames);
+
+  const int h = int(cfg.imageHeight), w = int(cfg.imageWidth);
+  const size_t plane = size_t(h) * size_t(w);
+  std::vector<KResult> results(ks.size());
+  for (size_t i = 0; i < ks.size(); ++i) {
+    KResult& r = results[i];
+    r.k = ks[i];
+    r.inputs = inputPositions(frames, r.k);
+    for (int64_t f = 0; f < frames; ++f)
+      if (std::find(r.inputs.begin(), r.inputs.end(), f) == r.inputs.end()) r.targets.push_back(f);
+    if (semantic) r.semantic = std::make_unique<SemanticConfusion>(int(classNames.size()));
+  }
+
+  Progress progress;
+  std::string deviceName;
+  try {
+    progress.step("opening the Vulkan device");
+    EngineOptions eo;
+    eo.device.select = a.device;
+    eo.pipelineCacheFile = pipelineCachePath();
+    Engine engine(eo);
+    deviceName = engine.caps().name;
+    SparPipelineOptions po;
+    po.profile = false;
+    po.weightType = a.precision == "fp16" ? DType::F16 : DType::F32;
+    SparPipeline pipeline(engine, model, po);  // once: weights stay on the device for every scene
+    PromptEmbeddings text;
+    if (semantic) {
+      progress.step("encoding " + std::to_string(classNames.size()) + " class names");
+      text = encodePrompts(engine, model, cfg, po.weightType, promptIds, int64_t(classNames.size()));
+    }
+
+    // Scenes outer, K inner: each scene is read once.
+    for (size_t si = 0; si < scenes.size(); ++si) {
+      const SceneInfo& scene = scenes[si];
+      const SceneData data = loadScene(scene);
+      for (KResult& r : results) {
+        progress.step("scene " + std::to_string(si + 1) + "/" + std::to_string(scenes.size()) + " " + scene.name +
+                      ", K=" + std::to_string(r.k) + " (" + mode + ")");
+        // Wall time of the model's work on this scene: encode, render, label maps on the host.
+        const auto t = Clock::now();
+        SparRequest req;
+        req.images = data.rgb;
+        req.height = h;
+        req.width = w;
+        req.plan.views = frames;
+        req.plan.inputs = r.inputs;
+        req.plan.targets = r.targets;
+        req.assumeStatic = a.assumeStatic;
+        req.targetMotion = !a.assumeStatic;
+        req.gating = !a.noGating;
+        req.semanticFeatures = semantic;
+        const SparEncoded& enc = pipeline.encode(req);
+        const std::vector<float> rgb = pipeline.renderTargets();
+        std::vector<std::vector<int32_t>> labels;
+        if (semantic) labels = computeLabelMaps(engine, pipeline.renderedFeatures(), text).maps;
+        const double ms = msSince(t);
+        r.sceneMs.push_back(ms);
+
+        for (size_t j = 0; j < r.targets.size(); ++j) {
+          const size_t f = size_t(r.targets[j]);
+          const float* gt = &data.rgb[f * 3 * plane];
+          const uint8_t* dyn = &data.dynamic[f * plane];
+          ++r.targetViews;
+          if (const auto p = staticPsnr(&rgb[j * 3 * plane], gt, dyn, h, w)) r.psnrSum += *p, ++r.psnrViews;
+          if (const auto s = staticSsim(&rgb[j * 3 * plane], gt, dyn, h, w)) r.ssimSum += *s, ++r.ssimViews;
+          if (semantic) r.semantic->add(labels[j].data(), &data.classes[f * plane], dyn, h, w);
+        }
+        if (!a.assumeStatic) {
+          for (size_t j = 0; j < r.inputs.size(); ++j)
+            r.masks.add(&enc.motionInput[j * plane], &data.dynamic[size_t(r.inputs[j]) * plane], plane, kMaskThreshold);
+          for (size_t j = 0; j < r.targets.size(); ++j)
+            r.masks.add(&enc.motionTarget[j * plane], &data.dynamic[size_t(r.targets[j]) * plane], plane,
+                        kMaskThreshold);
+        }
+        r.seconds += msSince(t) / 1000.0;
+      }
+    }
+    progress.finish();
+  } catch (...) {
+    progress.finish();
+    throw;
+  }
+
+  // result.json (PROTOCOL.md, "Output JSON").
+  ojson byK = ojson::object();
+  for (const KResult& r : results) {
+    const bool masks = !a.assumeStatic;
+    byK[std::to_string(r.k)] = {
+        {"psnr", orNull(r.psnr())},
+        {"ssim", orNull(r.ssim())},
+        {"mask_miou", masks ? orNull(r.masks.meanIou()) : ojson(nullptr)},
+        {"mask_iou_dynamic", masks ? orNull(r.masks.iouDynamic()) : ojson(nullptr)},
+        {"mask_recall", masks ? orNull(r.masks.recall()) : ojson(nullptr)},
+        {"sem_miou", r.semantic ? orNull(r.semantic->meanIou()) : ojson(nullptr)},
+        {"sem_accuracy", r.semantic ? orNull(r.semantic->accuracy()) : ojson(nullptr)},
+        {"target_views", r.targetViews},
+        {"seconds", r.seconds},
+        {"ms_per_scene", orNull(median(r.sceneMs))},
+    };
+  }
+  const ojson doc = {{"format", "spar-eval"},
+                     {"version", 1},
+                     {"model", absolutePath(a.model)},
+                     {"runner", "engine"},
+                     {"precision", a.precision},
+                     {"mode", mode},
+                     {"scenes", scenes.size()},
+                     {"frames", frames},
+                     {"results", byK}};
+  writeJson(outPath.string(), doc);
+
+  // The table on stdout.
+  std::printf("spar eval: %zu scenes of %d frames, %s, %s, %s on %s\n", scenes.size(), frames, mode.c_str(),
+              a.precision.c_str(), a.model.c_str(), deviceName.c_str());
+  std::printf("%3s %7s %8s %7s %9s %8s %7s %8s %7s %8s %9s\n", "K", "targets", "PSNR", "SSIM", "mask mIoU", "IoU dyn",
+              "recall", "sem mIoU", "sem acc", "seconds", "ms/scene");
+  for (const KResult& r : results) {
+    const bool masks = !a.assumeStatic;
+    std::printf("%3d %7lld %8s %7s %9s %8s %7s %8s %7s %8.2f %9s\n", r.k, (long long)r.targetViews,
+                cell(r.psnr(), "%.2f").c_str(), cell(r.ssim(), "%.4f").c_str(),
+                cell(masks ? r.masks.meanIou() : std::nullopt, "%.4f").c_str(),
+                cell(masks ? r.masks.iouDynamic() : std::nullopt, "%.4f").c_str(),
+                cell(masks ? r.masks.recall() : std::nullopt, "%.4f").c_str(),
+                cell(r.semantic ? r.semantic->meanIou() : std::nullopt, "%.4f").c_str(),
+                cell(r.semantic ? r.semantic->accuracy() : std::nullopt, "%.4f").c_str(), r.seconds,
+                cell(median(r.sceneMs), "%.0f").c_str());
+  }
+  std::printf("wrote %s in %.1f s\n", outPath.string().c_str(), msSince(start) / 1000.0);
+}
+
+}  // namespace spar::cli

@@ -1,0 +1,29 @@
+// `spar eval`: the evaluation protocol of converter/spar_eval/PROTOCOL.md on the engine.
+// For each K of --views and each scene of --scenes (DIR/scene_* sorted bytewise): one SPAR run
+// on all F frames in order with the protocol's K inputs, the other frames as targets rendered
+// with their estimated cameras; static-pixel PSNR / SSIM of the rendered targets (floats, not
+// 8-bit), motion-mask counts over all F frames, semantic confusion of the targets' label maps
+// (semantic models; the scene's class names as prompts). Writes result.json (written whole:
+// temporary name, then rename) and prints a table on stdout; progress on stderr.
+#pragma once
+#include <string>
+#include <vector>
+
+namespace spar::cli {
+
+struct EvalArgs {
+  std::string model;
+  std::string scenes;              // directory of scene_* folders
+  std::string views = "2,3,4";     // K values, comma-separated
+  std::string precision = "fp32";  // fp32 | fp16
+  bool noGating = false;           // CV-DRP runs, no token is gated
+  bool assumeStatic = false;       // no DINOv3 / CV-DRP, no gating, no mask metrics
+  int maxScenes = 0;               // 0: all
+  std::string device;
+  std::string out;                 // result.json
+};
+
+// Throws UsageError (exit 2) or spar::Error (exit 1).
+void runEval(const EvalArgs& args);
+
+}  // namespace spar::cli

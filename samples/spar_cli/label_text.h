@@ -1,0 +1,40 @@
+// Open-vocabulary labels for the `spar` subcommands (render --labels, eval): prompts through
+// CLIP's text encoder on the device once, then label maps from any number of rendered views'
+// semantic features (model/clip_text.*, model/label_maps.*).
+#pragma once
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "engine/engine.h"
+#include "model/packed_model.h"
+#include "model/spar_config.h"
+#include "model/weight_set.h"
+
+namespace spar::cli {
+
+// CLIP token ids [P, 77] of the prompts; throws spar::Error when the model has no tokenizer.
+std::vector<int32_t> tokenizePrompts(const PackedModel& model, const std::vector<std::string>& prompts);
+
+// The prompts' text embeddings [P, E] on the device. The text encoder's weights live in their
+// own WeightSet, loaded only when labels are asked for.
+struct PromptEmbeddings {
+  std::unique_ptr<WeightSet> weights;
+  Tensor text;
+  int64_t prompts = 0;
+  double gpuMs = 0, wallMs = 0;
+};
+PromptEmbeddings encodePrompts(Engine& engine, const PackedModel& model, const SparConfig& config, DType weightType,
+                               const std::vector<int32_t>& ids, int64_t prompts);
+
+// Label maps (argmax over the prompts, first maximum) of features [R, C, h, w]: one [h * w]
+// map per view; with scores also the per-label score maps [R, P, h, w] appended to *scores.
+struct LabelMapsOut {
+  std::vector<std::vector<int32_t>> maps;
+  double gpuMs = 0;
+};
+LabelMapsOut computeLabelMaps(Engine& engine, const Tensor& features, const PromptEmbeddings& prompts,
+                              std::vector<float>* scores = nullptr);
+
+}  // namespace spar::cli

@@ -1,0 +1,224 @@
+// `spar eval` (samples/spar_cli/eval_command.*) as a user runs it: the built binary (SPAR_CLI)
+// on two test scenes made by `converter/spar-scenes split --split test --count 2 --size 128`,
+// with the tiny semantic model of the spar_goldens_semantic fixture (128x128).
+//  - The three modes for --views 2,3: result.json has the protocol's fields (PROTOCOL.md,
+//    "Output JSON"), numbers finite and in range, mask metrics null only with --assume-static,
+//    --no-gating and --assume-static render the same (identical PSNR / SSIM / semantics), and
+//    the default and --no-gating runs share CV-DRP (identical mask metrics).
+//  - A photometric model: semantic metrics null, not an error.
+//  - Wrong input: exit code != 0, one line "spar: error: ...", no output file.
+// Every run has the Khronos validation layer enabled through VK_INSTANCE_LAYERS; the layer logs
+// to stdout / stderr, which must hold no validation message.
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "tests/golden_support.h"
+#include "tests/test_support.h"
+
+#ifndef SPAR_CLI
+#error "SPAR_CLI (path of the built spar binary) is defined by samples/CMakeLists.txt"
+#endif
+
+namespace spar::test {
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+const fs::path& scratch() { return scratchDir("spar_eval"); }
+
+struct RunResult {
+  int code = -1;
+  std::string out, err;
+  std::vector<std::string> errLines() const {
+    std::vector<std::string> lines;
+    std::stringstream ss(err);
+    for (std::string l; std::getline(ss, l);) lines.push_back(l);
+    return lines;
+  }
+};
+
+std::string readText(const fs::path& p) {
+  std::ifstream in(p);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+RunResult run(const std::vector<std::string>& argv, bool validation = false) {
+  const fs::path outFile = scratch() / "stdout.txt", errFile = scratch() / "stderr.txt";
+  std::string cmd = validation ? "VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation " : "";
+  for (const auto& a : argv) cmd += shellQuote(a) + " ";
+  cmd += "> " + shellQuote(outFile.string()) + " 2> " + shellQuote(errFile.string());
+  const int status = std::system(cmd.c_str());
+  RunResult r;
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  r.out = readText(outFile);
+  r.err = readText(errFile);
+  return r;
+}
+
+RunResult sparEval(std::vector<std::string> args, bool validation = false) {
+  args.insert(args.begin(), {SPAR_CLI, "eval"});
+  return run(args, validation);
+}
+
+// The test scenes, made once per process by the scene generator (Debian's python).
+fs::path makeScenes(const std::string& name, int count, int size) {
+  const fs::path dir = scratch() / name;
+  if (fs::exists(dir)) return dir;
+  const RunResult r = run({SPAR_PYTHON, std::string(SPAR_SOURCE_DIR) + "/converter/spar-scenes", "split", "--split",
+                           "test", "--count", std::to_string(count), "--size", std::to_string(size), "--out",
+                           dir.string()});
+  EXPECT_EQ(r.code, 0) << r.err;
+  return dir;
+}
+
+std::string semanticModel() { return semanticGoldenPath("tiny_semantic.spar"); }
+
+void expectNoValidationMessages(const RunResult& r) {
+  for (const std::string* s : {&r.out, &r.err}) {
+    EXPECT_EQ(s->find("VUID"), std::string::npos) << *s;
+    EXPECT_EQ(s->find("Validation"), std::string::npos) << *s;
+  }
+}
+
+json evalOk(const std::vector<std::string>& args, const fs::path& out) {
+  std::vector<std::string> all = args;
+  all.insert(all.end(), {"--out", out.string()});
+  const RunResult r = sparEval(all, true);
+  EXPECT_EQ(r.code, 0) << r.err;
+  expectNoValidationMessages(r);
+  std::printf("%s", r.out.c_str());
+  std::ifstream in(out);
+  EXPECT_TRUE(in.good()) << out;
+  return in.good() ? json::parse(in) : json();
+}
+
+void expectInRange(const json& v, const std::string& what, double lo, double hi) {
+  ASSERT_TRUE(v.is_number()) << what << " = " << v;
+  const double x = v.get<double>();
+  EXPECT_TRUE(std::isfinite(x)) << what;
+  EXPECT_GE(x, lo) << what;
+  EXPECT_LE(x, hi) << what;
+}
+
+// The fields of PROTOCOL.md for --views 2,3 on 2 scenes of 8 frames.
+void expectLayout(const json& doc, const std::string& mode, bool semantic, bool masks) {
+  EXPECT_EQ(doc.at("format"), "spar-eval");
+  EXPECT_EQ(doc.at("version"), 1);
+  EXPECT_TRUE(doc.at("model").is_string());
+  EXPECT_EQ(doc.at("runner"), "engine");
+  EXPECT_EQ(doc.at("precision"), "fp32");
+  EXPECT_EQ(doc.at("mode"), mode);
+  EXPECT_EQ(doc.at("scenes"), 2);
+  EXPECT_EQ(doc.at("frames"), 8);
+  const json& res = doc.at("results");
+  ASSERT_EQ(res.size(), 2u);
+  for (const auto& [k, targets] : {std::pair<std::string, int>{"2", 12}, {"3", 10}}) {
+    const json& r = res.at(k);
+    const std::string at = mode + " K=" + k + " ";
+    for (const char* key : {"psnr", "ssim", "mask_miou", "mask_iou_dynamic", "mask_recall", "sem_miou",
+                            "sem_accuracy", "target_views", "seconds", "ms_per_scene"})
+      EXPECT_TRUE(r.contains(key)) << at << key;
+    EXPECT_EQ(r.size(), 10u) << at;
+    expectInRange(r.at("psnr"), at + "psnr", 0, 100);
+    expectInRange(r.at("ssim"), at + "ssim", -1, 1);
+    for (const char* key : {"mask_miou", "mask_iou_dynamic", "mask_recall"}) {
+      if (masks) expectInRange(r.at(key), at + key, 0, 1);
+      else EXPECT_TRUE(r.at(key).is_null()) << at << key;
+    }
+    for (const char* key : {"sem_miou", "sem_accuracy"}) {
+      if (semantic) expectInRange(r.at(key), at + key, 0, 1);
+      else EXPECT_TRUE(r.at(key).is_null()) << at << key;
+    }
+    EXPECT_EQ(r.at("target_views"), targets) << at;
+    expectInRange(r.at("seconds"), at + "seconds", 1e-6, 1e6);
+    expectInRange(r.at("ms_per_scene"), at + "ms_per_scene", 1e-3, 1e9);
+  }
+}
+
+TEST(spar_eval, ModesOnTheSemanticModel) {
+  const fs::path scenes = makeScenes("scenes", 2, 128);
+  const std::vector<std::string> base = {"--model", semanticModel(), "--scenes", scenes.string(), "--views", "2,3"};
+  auto with = [&](std::vector<std::string> extra) {
+    std::vector<std::string> a = base;
+    a.insert(a.end(), extra.begin(), extra.end());
+    return a;
+  };
+  const json def = evalOk(base, scratch() / "default.json");
+  const json noGating = evalOk(with({"--no-gating"}), scratch() / "no_gating.json");
+  const json still = evalOk(with({"--assume-static"}), scratch() / "assume_static.json");
+  expectLayout(def, "default", true, true);
+  expectLayout(noGating, "no-gating", true, true);
+  expectLayout(still, "assume-static", true, false);
+  for (const char* k : {"2", "3"}) {
+    const json &d = def.at("results").at(k), &n = noGating.at("results").at(k), &s = still.at("results").at(k);
+    // No gating renders as a static scene: the same tokens reach the scene encoder.
+    for (const char* key : {"psnr", "ssim", "sem_miou", "sem_accuracy"})
+      EXPECT_NEAR(n.at(key).get<double>(), s.at(key).get<double>(), 1e-9) << "K=" << k << " " << key;
+    // Gating comes after CV-DRP: the masks do not depend on it.
+    for (const char* key : {"mask_miou", "mask_iou_dynamic", "mask_recall"})
+      EXPECT_EQ(d.at(key), n.at(key)) << "K=" << k << " " << key;
+  }
+}
+
+TEST(spar_eval, PhotometricModelHasNoSemanticMetrics) {
+  const fs::path scenes = makeScenes("scenes", 2, 128);
+  const json doc = evalOk({"--model", tinyModelPath(), "--scenes", scenes.string(), "--views", "3,2"},
+                          scratch() / "photometric.json");
+  expectLayout(doc, "default", false, true);
+}
+
+TEST(spar_eval, WrongInputIsOneLineAndNoOutput) {
+  const fs::path scenes = makeScenes("scenes", 2, 128);
+  const fs::path small = makeScenes("scenes_64", 1, 64);  // not the model's size
+  const fs::path empty = scratch() / "empty";
+  fs::create_directories(empty);
+  const std::string model = semanticModel(), dir = scenes.string();
+  struct Bad {
+    std::string name;
+    std::vector<std::string> args;
+    int code;
+    std::string says;
+  };
+  const std::vector<Bad> cases = {
+      {"missing_dir", {"--model", model, "--scenes", (scratch() / "nope").string()}, 1, "scenes directory not found"},
+      {"no_scenes", {"--model", model, "--scenes", empty.string()}, 1, "no scene_* folders"},
+      {"size_mismatch", {"--model", model, "--scenes", small.string()}, 1, "does not resize"},
+      {"missing_model", {"--model", (scratch() / "nope.spar").string(), "--scenes", dir}, 1, "model not found"},
+      {"views_one", {"--model", model, "--scenes", dir, "--views", "1"}, 2, "--views 1"},
+      {"views_too_many", {"--model", model, "--scenes", dir, "--views", "2,9"}, 2, "--views 9"},
+      {"views_all_frames", {"--model", model, "--scenes", dir, "--views", "8"}, 2, "--views 8"},
+      {"views_not_numbers", {"--model", model, "--scenes", dir, "--views", "2,three"}, 2, "comma-separated"},
+      {"gating_and_static", {"--model", model, "--scenes", dir, "--no-gating", "--assume-static"}, 2, "excludes"},
+      {"max_scenes_zero", {"--model", model, "--scenes", dir, "--max-scenes", "0"}, 2, "--max-scenes"},
+      {"bad_precision", {"--model", model, "--scenes", dir, "--precision", "int8"}, 2, "--precision"},
+  };
+  for (const Bad& c : cases) {
+    const fs::path out = scratch() / ("out_" + c.name + ".json");
+    std::vector<std::string> args = c.args;
+    args.insert(args.end(), {"--out", out.string()});
+    const RunResult r = sparEval(args);
+    EXPECT_EQ(r.code, c.code) << c.name << ": " << r.err;
+    const auto lines = r.errLines();
+    ASSERT_EQ(lines.size(), 1u) << c.name << ": stderr was:\n" << r.err;
+    EXPECT_EQ(lines[0].rfind("spar: error: ", 0), 0u) << lines[0];
+    EXPECT_NE(lines[0].find(c.says), std::string::npos) << c.name << ": " << lines[0];
+    EXPECT_FALSE(fs::exists(out)) << c.name;
+    EXPECT_FALSE(fs::exists(out.string() + ".tmp")) << c.name;
+    std::printf("  %-18s exit %d  %s\n", c.name.c_str(), r.code, lines[0].c_str());
+  }
+}
+
+}  // namespace
+}  // namespace spar::test
