@@ -38,9 +38,13 @@ void WeightSet::checkShape(const std::string& name, const Shape& shape) const {
 
 const Tensor& WeightSet::require(const std::string& name, const Shape& shape) {
   checkShape(name, shape);
-  const bool half = matrixType_ == DType::F16 && isMatrix(name, model_.info(name).shape) &&
-                    model_.info(name).dtype == FileDType::F32;
-  return require(name, shape, half ? DType::F16 : model_.naturalDType(name));
+  const bool matrix = isMatrix(name, model_.info(name).shape);
+  DType want = model_.naturalDType(name);
+  // Matrices follow the requested precision whatever the file stores: an F16 file's matrices
+  // are widened under F32, so an fp32 run uses only the f32 kernel variants (each extra
+  // variant costs seconds of shader JIT on lavapipe) and computes with the same values.
+  if (matrix) want = matrixType_;
+  return require(name, shape, want);
 }
 
 Tensor WeightSet::uploadRounded(const std::string& name, DType want) const {

@@ -22,8 +22,8 @@ class Engine;
 
 class WeightSet {
  public:
-  // The model must outlive the set. matrixType F32: matrices as the file stores them; F16:
-  // matrices as fp16 (norms, biases, tokens and codes are never touched).
+  // The model must outlive the set. matrixType F32: matrices as f32 (an F16 file's widened);
+  // F16: matrices as fp16 (norms, biases, tokens and codes are never touched).
   WeightSet(Engine& engine, const PackedModel& model, DType matrixType = DType::F32);
 
   const PackedModel& model() const { return model_; }

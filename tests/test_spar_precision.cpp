@@ -157,7 +157,7 @@ Outputs runInterleaved(Engine& engine, const std::string& modelPath, DType weigh
 // (measured: rgb max abs 1.2e-7 and motion 6e-8 between the two, against 4.3e-5 between f16
 // and f32 weights).
 TEST_F(SparPrecisionTest, Fp16PackEqualsF16AtUpload) {
-  const Outputs pack = runInterleaved(eng(), fp16Pack(), DType::F32);
+  const Outputs pack = runInterleaved(eng(), fp16Pack(), DType::F16);
   const Outputs upload = runInterleaved(eng(), tinyModelPath(), DType::F16);
   const Outputs fp32 = runInterleaved(eng(), tinyModelPath(), DType::F32);
   const nlohmann::json folded =
@@ -193,6 +193,31 @@ TEST_F(SparPrecisionTest, Fp16PackEqualsF16AtUpload) {
   EXPECT_LE(motion.maxAbs, 1e-6);
   EXPECT_LE(compare(pack.motionTarget, toDouble(upload.motionTarget)).maxAbs, 1e-6);
   EXPECT_GT(toFp32.maxAbs, 10 * rgb.maxAbs);  // the option does change the weights
+}
+
+// The --fp16 pack run at fp32: its F16 matrices are widened at upload (an fp32 run then uses
+// only the f32 kernels: on lavapipe every extra kernel variant costs seconds of JIT), so it
+// loads what an F32 file loads, with the fp16 pack's values, and computes what the f16 run does
+// up to the f32 kernels' own rounding.
+TEST_F(SparPrecisionTest, Fp16PackAtFp32IsWidened) {
+  const Outputs wide = runInterleaved(eng(), fp16Pack(), DType::F32);
+  const Outputs half = runInterleaved(eng(), fp16Pack(), DType::F16);
+  const Outputs fp32 = runInterleaved(eng(), tinyModelPath(), DType::F32);
+  EXPECT_EQ(wide.bytes, fp32.bytes);
+  EXPECT_LT(half.bytes, wide.bytes);
+  size_t widened = 0;
+  for (const auto& [key, values] : wide.weights) {
+    const std::string name = key.substr(0, key.rfind(':'));
+    if (!half.weights.count(name + ":f16")) continue;
+    EXPECT_EQ(key.substr(key.rfind(':') + 1), "f32") << key;
+    ++widened;
+    const std::vector<float>& h = half.weights.at(name + ":f16");
+    EXPECT_EQ(values, h) << name << ": widened values differ from the f16 ones";
+  }
+  EXPECT_GT(widened, 10u);
+  const ErrorStats rgb = compare(wide.rgb, toDouble(half.rgb));
+  std::printf("  fp16 pack at fp32 vs at fp16: %zu matrices widened, rgb max abs %.3e\n", widened, rgb.maxAbs);
+  EXPECT_LE(rgb.maxAbs, 1e-5);
 }
 
 // A copy of the tiny F32 file with one element of `name` set to `value` (the data area starts
