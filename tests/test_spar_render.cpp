@@ -24,6 +24,7 @@
 #include <string>
 #include <vector>
 
+#include <OpenImageIO/imageio.h>
 #include <nlohmann/json.hpp>
 
 #include "model/image_prep.h"
@@ -432,6 +433,27 @@ TEST(spar_render, PathMatchesReference) {
   const auto o = runBoth("path", {"--images", frame(0), frame(2), frame(4), "--path", "3"});
   ASSERT_TRUE(o);
   compareOutputs("path", *o, false, fixtureProb("path"), 3, "path");
+  // path.gif: one frame per rendered view; GIF's 256-colour palette quantizes, so a frame is
+  // close to (not equal to) its view_XX.png
+  std::unique_ptr<OIIO::ImageInput> gif = OIIO::ImageInput::open((o->ours / "path.gif").string());
+  ASSERT_TRUE(gif) << OIIO::geterror();
+  int frames = 0;
+  while (gif->seek_subimage(frames, 0)) {
+    const OIIO::ImageSpec& spec = gif->spec();
+    std::vector<uint8_t> px(size_t(spec.width) * spec.height * spec.nchannels);
+    ASSERT_TRUE(gif->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::UINT8, px.data()));
+    char f[32];
+    std::snprintf(f, sizeof(f), "view_%02d.png", frames);
+    const RgbImage view = loadImageRGB((o->ours / f).string());
+    ASSERT_EQ(spec.width, view.width);
+    ASSERT_EQ(spec.height, view.height);
+    double diff = 0;
+    for (int i = 0; i < view.width * view.height; ++i)
+      for (int c = 0; c < 3; ++c) diff += std::abs(int(px[size_t(i) * spec.nchannels + c]) - int(view.pixels[size_t(i) * 3 + c]));
+    EXPECT_LE(diff / (3.0 * view.width * view.height), 4.0) << "path.gif frame " << frames;
+    ++frames;
+  }
+  EXPECT_EQ(frames, 3);
 }
 
 // On the fixture's frames the tiny model's P(dynamic) is about 0.33 everywhere (empty masks);

@@ -25,7 +25,8 @@ motion_XX.png / mask_XX.png (input views: P(dynamic) as 8-bit grey, mask P > 0.5
 at the model's H x W), cameras.json (every view's estimated camera in the nerfstudio
 convention that --cameras reads, plus "order", "inputs", "targets", "canonical_index" and
 "render_frames" for --path / --cameras), report.json (device, precision, total_seconds,
-stages that ran with their seconds); with --labels labels_XX.png / .json per rendered view
+stages that ran with their seconds), path.gif for a --path of 2 or more views (each view
+beside its label map when --labels is given, 8 frames a second); with --labels labels_XX.png / .json per rendered view
 (argmax of 1/0.07 * <normalized semantic features, normalized CLIP text embeddings> at H/2 x
 W/2; prompts are comma-separated, so a prompt cannot contain a comma); with --features
 features_XX.npy (C x H/2 x W/2 float32). Without --labels / --features the semantic head and
@@ -661,6 +662,11 @@ class Run:
                     }
                     with open(os.path.join(d, f"labels_{j:02d}.json"), "w", encoding="utf-8") as f:
                         json.dump(doc, f, indent=1)
+            if self.render_mode == "path" and rgb.shape[0] > 1:
+                # a smooth camera move: also an animation (as spar render writes it)
+                from .images import save_path_animation
+                pngs = [os.path.join(d, f"labels_{j:02d}.png") for j in range(rgb.shape[0])]
+                save_path_animation(os.path.join(d, "path.gif"), rgb, pngs if self.labels else None)
             if self.want_features:
                 feat = out["semantic_features"][0].float().numpy()
                 for j in range(feat.shape[0]):

@@ -115,3 +115,22 @@ def save_label_map(path: str, labels: np.ndarray, names, out_h: int, out_w: int)
         draw.rectangle([2, y + 1, 12, y + row - 3], fill=palette_colour(k))
         draw.text((16, y), str(name), fill=(255, 255, 255))
     canvas.save(path, format="PNG")
+
+
+def save_path_animation(path: str, views: np.ndarray, label_pngs, fps: int = 8) -> None:
+    """path.gif of a --path render: each rendered view [3, H, W] (beside its label map image
+    when ``label_pngs`` lists them), top-aligned on black, as a looping animated GIF."""
+    from PIL import Image
+    frames = []
+    for j in range(views.shape[0]):
+        parts = [Image.fromarray(to_uint8(views[j]).transpose(1, 2, 0), "RGB")]
+        if label_pngs:
+            parts.append(Image.open(label_pngs[j]).convert("RGB"))
+        canvas = Image.new("RGB", (sum(p.width for p in parts), max(p.height for p in parts)))
+        x = 0
+        for p in parts:
+            canvas.paste(p, (x, 0))
+            x += p.width
+        frames.append(canvas)
+    frames[0].save(path, format="GIF", save_all=True, append_images=frames[1:],
+                   duration=int(round(1000 / fps)), loop=0)

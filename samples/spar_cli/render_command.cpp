@@ -25,6 +25,7 @@ namespace {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 constexpr size_t kRenderChunk = 8;  // views per render call for --path / --cameras
+constexpr int kPathFps = 8;          // frames a second of path.gif
 
 double msSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
 
@@ -232,6 +233,8 @@ void runRender(const RenderArgs& a) {
       }
     }
     r.rendered = count;
+    // A --path is a smooth camera move: also written as path.gif (views beside label maps).
+    if (mode == "path" && count > 1) r.animationFps = kPathFps;
     if (!a.assumeStatic) {
       r.motion = enc.motionInput;
       r.motionViews = int64_t(v.views.inputs.size());

@@ -3,6 +3,7 @@
 //   view_XX.png    rendered views (targets, --path or --cameras cameras), in order
 //   motion_XX.png  P(dynamic) of each input view, 8-bit grey   (not with --assume-static)
 //   mask_XX.png    P(dynamic) > mask threshold as 0 / 255       (not with --assume-static)
+//   path.gif       with --path: the views (beside their label maps) as a looping animation
 //   cameras.json   every view's estimated camera (nerfstudio convention), order, render cameras
 //   report.json    device, precision, views, total time, the stages that ran with GPU times
 // Everything the command line names is checked before any work; the directory appears only

@@ -9,6 +9,7 @@
 #include "model/label_maps.h"
 #include "model/label_outputs.h"
 #include "model/npy.h"
+#include "samples/spar_cli/path_animation.h"
 
 namespace spar::cli {
 
@@ -73,7 +74,30 @@ int writeRenderOutputs(const std::string& dir, const RenderResult& r) {
     for (int64_t j = 0; j < r.rendered; ++j, ++files)
       writeNpy(numbered(dir, "features", j, "npy"), {r.featureChannels, h, w}, r.features.data() + j * per);
   }
+  if (r.animationFps > 0) {
+    writeAnimatedGif((std::filesystem::path(dir) / "path.gif").string(), animationFrames(r), r.animationFps);
+    ++files;
+  }
   return files;
+}
+
+std::vector<RgbImage> animationFrames(const RenderResult& r) {
+  const size_t plane = size_t(r.width) * r.height;
+  std::vector<RgbImage> frames;
+  for (int64_t j = 0; j < r.rendered; ++j) {
+    RgbImage view{r.width, r.height, std::vector<uint8_t>(plane * 3)};
+    const float* p = r.rgb.data() + size_t(j) * 3 * plane;
+    for (size_t i = 0; i < plane; ++i)
+      for (int c = 0; c < 3; ++c) view.pixels[i * 3 + c] = toUint8(p[c * plane + i]);
+    if (size_t(j) < r.labelMaps.size()) {
+      const RgbImage labels = labelImage(r.labelMaps[size_t(j)], r.labelHeight, r.labelWidth, r.labels, r.height,
+                                         r.width);
+      frames.push_back(besideEachOther({&view, &labels}));
+    } else {
+      frames.push_back(std::move(view));
+    }
+  }
+  return frames;
 }
 
 }  // namespace spar::cli

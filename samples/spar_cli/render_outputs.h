@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "model/cameras.h"
+#include "model/image_prep.h"
 
 namespace spar::cli {
 
@@ -27,11 +28,17 @@ struct RenderResult {
   // --features: [R, C, h, w] semantic features
   std::vector<float> features;
   int64_t featureChannels = 0;
+  // > 0: also path.gif, the rendered views (beside their label maps) at this many frames a
+  // second (a --path render: the views are a smooth camera path)
+  int animationFps = 0;
 };
 
 // Writes the images and cameras.json into `dir` (report.json is the caller's, written last
 // so that it can count the time spent here); returns the number of files written.
 int writeRenderOutputs(const std::string& dir, const RenderResult& result);
+
+// The frames of path.gif: each rendered view, beside its label map (with legend) if any.
+std::vector<RgbImage> animationFrames(const RenderResult& result);
 
 // A JSON document, written whole (temporary name + rename) with a trailing newline.
 void writeJson(const std::string& path, const nlohmann::ordered_json& doc);
