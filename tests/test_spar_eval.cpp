@@ -172,6 +172,33 @@ TEST(spar_eval, ModesOnTheSemanticModel) {
   }
 }
 
+// The engine's numbers and the PyTorch reference's (converter/spar-eval-reference, float32) on
+// the same scenes and model agree within 0.005 (dB for PSNR): spar-eval-compare's verdict.
+TEST(spar_eval, EngineAgreesWithReference) {
+  if (clipBpePath().empty()) GTEST_SKIP() << "CLIP BPE table not on this machine (" << SPAR_CLIP_BPE << ")";
+  const fs::path scenes = makeScenes("scenes", 2, 128);
+  const std::string tools = std::string(SPAR_SOURCE_DIR) + "/converter/";
+  for (const std::string mode : {"default", "assume-static"}) {
+    std::vector<std::string> extra;
+    if (mode != "default") extra.push_back("--" + mode);
+    std::vector<std::string> engine = {"--model", semanticModel(), "--scenes", scenes.string(), "--views", "2,3"};
+    engine.insert(engine.end(), extra.begin(), extra.end());
+    evalOk(engine, scratch() / ("engine_" + mode + ".json"));
+    std::vector<std::string> ref = {SPAR_PYTHON, tools + "spar-eval-reference", "--checkpoint",
+                                    semanticGoldenPath("tiny_semantic.pt"), "--config",
+                                    semanticGoldenPath("tiny_semantic.json"), "--bpe", clipBpePath(), "--scenes",
+                                    scenes.string(), "--views", "2,3", "--quiet", "--out",
+                                    (scratch() / ("reference_" + mode + ".json")).string()};
+    ref.insert(ref.end(), extra.begin(), extra.end());
+    const RunResult r = run(ref);
+    ASSERT_EQ(r.code, 0) << r.err;
+    const RunResult cmp = run({SPAR_PYTHON, tools + "spar-eval-compare", (scratch() / ("engine_" + mode + ".json")).string(),
+                               (scratch() / ("reference_" + mode + ".json")).string(), "--tolerance", "0.005"});
+    std::printf("%s", cmp.out.c_str());
+    EXPECT_EQ(cmp.code, 0) << mode << ": " << cmp.out << cmp.err;
+  }
+}
+
 TEST(spar_eval, PhotometricModelHasNoSemanticMetrics) {
   const fs::path scenes = makeScenes("scenes", 2, 128);
   const json doc = evalOk({"--model", tinyModelPath(), "--scenes", scenes.string(), "--views", "3,2"},
