@@ -184,12 +184,6 @@ std::string labelStem(const std::string& dir, int view) {
   return dir + name;
 }
 
-std::string readText(const std::string& path) {
-  std::ifstream f(path, std::ios::binary);
-  std::stringstream s;
-  s << f.rdbuf();
-  return s.str();
-}
 
 TEST_F(LabelMapsTest, WritersMatchReferenceRender) {
   static const ReferenceRender ref;

@@ -38,33 +38,10 @@ using json = nlohmann::json;
 
 const fs::path& scratch() { return scratchDir("spar_eval"); }
 
-struct RunResult {
-  int code = -1;
-  std::string out, err;
-  std::vector<std::string> errLines() const {
-    std::vector<std::string> lines;
-    std::stringstream ss(err);
-    for (std::string l; std::getline(ss, l);) lines.push_back(l);
-    return lines;
-  }
-};
-
-std::string readText(const fs::path& p) {
-  std::ifstream in(p);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
+using RunResult = CommandResult;
 
 RunResult run(const std::vector<std::string>& argv, bool validation = false) {
-  const fs::path outFile = scratch() / "stdout.txt", errFile = scratch() / "stderr.txt";
-  std::string cmd = validation ? "VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation " : "";
-  for (const auto& a : argv) cmd += shellQuote(a) + " ";
-  cmd += "> " + shellQuote(outFile.string()) + " 2> " + shellQuote(errFile.string());
-  const int status = std::system(cmd.c_str());
-  RunResult r;
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  r.out = readText(outFile);
-  r.err = readText(errFile);
-  return r;
+  return runCommand(argv, scratch(), validation ? "VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation" : "");
 }
 
 RunResult sparEval(std::vector<std::string> args, bool validation = false) {

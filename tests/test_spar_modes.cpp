@@ -33,12 +33,6 @@ namespace fs = std::filesystem;
 
 const fs::path& scratch() { return scratchDir("spar_modes"); }
 
-std::string readText(const fs::path& p) {
-  std::ifstream f(p);
-  std::stringstream ss;
-  ss << f.rdbuf();
-  return ss.str();
-}
 
 struct Result {
   int code = -1;

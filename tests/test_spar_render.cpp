@@ -42,31 +42,11 @@ namespace {
 namespace fs = std::filesystem;
 using ojson = nlohmann::ordered_json;
 
-struct RunResult {
-  int code = -1;
-  std::string err;
-  std::vector<std::string> errLines() const {
-    std::vector<std::string> lines;
-    std::stringstream ss(err);
-    for (std::string l; std::getline(ss, l);) lines.push_back(l);
-    return lines;
-  }
-};
+using RunResult = CommandResult;
 
 const fs::path& scratch() { return scratchDir("spar_render"); }
 
-RunResult run(const std::vector<std::string>& argv) {
-  const fs::path errFile = scratch() / "stderr.txt";
-  std::string cmd;
-  for (const auto& a : argv) cmd += shellQuote(a) + " ";
-  cmd += "> /dev/null 2> " + shellQuote(errFile.string());
-  const int status = std::system(cmd.c_str());
-  RunResult r;
-  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  std::ifstream in(errFile);
-  r.err.assign(std::istreambuf_iterator<char>(in), {});
-  return r;
-}
+RunResult run(const std::vector<std::string>& argv) { return runCommand(argv, scratch()); }
 
 RunResult spar(std::vector<std::string> args) {
   args.insert(args.begin(), {SPAR_CLI, "render"});

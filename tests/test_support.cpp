@@ -1,6 +1,10 @@
 #include "tests/test_support.h"
 
+#include <sys/wait.h>
+
 #include <algorithm>
+#include <fstream>
+#include <sstream>
 #include <cstring>
 
 #include "engine/half.h"
@@ -159,6 +163,32 @@ struct ScratchDir {
 const std::filesystem::path& scratchDir(const std::string& prefix) {
   static const ScratchDir d(prefix);  // one per process: each test executable uses one prefix
   return d.path;
+}
+
+std::vector<std::string> CommandResult::errLines() const {
+  std::vector<std::string> lines;
+  std::stringstream ss(err);
+  for (std::string l; std::getline(ss, l);) lines.push_back(l);
+  return lines;
+}
+
+std::string readText(const std::filesystem::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+CommandResult runCommand(const std::vector<std::string>& argv, const std::filesystem::path& dir,
+                         const std::string& env) {
+  const std::filesystem::path outFile = dir / "command_stdout.txt", errFile = dir / "command_stderr.txt";
+  std::string cmd = env.empty() ? "" : env + " ";
+  for (const auto& a : argv) cmd += shellQuote(a) + " ";
+  cmd += "> " + shellQuote(outFile.string()) + " 2> " + shellQuote(errFile.string());
+  const int status = std::system(cmd.c_str());
+  CommandResult r;
+  r.code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  r.out = readText(outFile);
+  r.err = readText(errFile);
+  return r;
 }
 
 }  // namespace spar::test

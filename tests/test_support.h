@@ -25,6 +25,19 @@ std::string shellQuote(const std::string& s);
 // SPAR_KEEP_TEST_OUTPUT is set (to look at the outputs).
 const std::filesystem::path& scratchDir(const std::string& prefix);
 
+// A program the test runs (the built `spar`, the Python tools): exit code and what it printed.
+struct CommandResult {
+  int code = -1;  // exit code; -1 when it did not exit normally
+  std::string out, err;
+  std::vector<std::string> errLines() const;
+};
+// Runs argv (each word shell-quoted) with `env` ("NAME=value ..." or "") before it; stdout and
+// stderr go through files in `dir`.
+CommandResult runCommand(const std::vector<std::string>& argv, const std::filesystem::path& dir,
+                         const std::string& env = "");
+// A whole text file ("" when it cannot be read).
+std::string readText(const std::filesystem::path& path);
+
 // The engine every test uses; created once with the Khronos validation layer enabled.
 Engine& engine();
 
