@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # One command for a newcomer: install dependencies, build, and run the main job: render novel
-# views with `spar render` from the sample photos in samples/data/room/ (scripts/demo.sh).
+# views, motion masks and label maps with `spar render` from a shipped scene (scripts/demo.sh).
 # Arguments go to `spar render` (e.g. --device 0, --assume-static).
 set -euo pipefail
 cd "$(dirname "$0")"

@@ -1,0 +1,150 @@
+// The shipped trained model (samples/data/spar_rooms.spar, converter/spar_train/README.md) on
+// the shipped held-out scenes (samples/data/scenes: test seeds, never trained on), through the
+// built `spar` as a user runs it:
+//  - the README's demo (scripts/demo.sh) on a short path: views, path.gif, label maps that see
+//    the room's classes, input masks;
+//  - its quality with `spar eval`: above the measured values less a margin (a regression of the
+//    engine or of the shipped file shows), and clearly above a model that learned nothing
+//    (the mean colour of the input views as the rendering).
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include <OpenImageIO/imageio.h>
+#include <nlohmann/json.hpp>
+
+#include "model/image_prep.h"
+#include "tests/test_support.h"
+
+#ifndef SPAR_CLI
+#error "SPAR_CLI (path of the built spar binary) is defined by samples/CMakeLists.txt"
+#endif
+
+namespace spar::test {
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+const fs::path kData = fs::path(SPAR_SOURCE_DIR) / "samples" / "data";
+const std::string kLabels = "wall,floor,ceiling,sofa,table,window,door,plant,person,pet";
+
+const fs::path& scratch() { return scratchDir("shipped_model"); }
+
+// `spar` with the validation layer on: exit code; its output in `log`.
+int runSpar(const std::vector<std::string>& args, const fs::path& log) {
+  std::vector<std::string> argv = {SPAR_CLI};
+  argv.insert(argv.end(), args.begin(), args.end());
+  const CommandResult r = runCommand(argv, scratch(), "VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation");
+  std::ofstream(log) << r.out << r.err;
+  return r.code;
+}
+
+json readJson(const fs::path& p) {
+  std::ifstream in(p);
+  return json::parse(in);
+}
+
+TEST(shipped_model, DemoRender) {
+  const fs::path scene = kData / "scenes" / "scene_1000002", out = scratch() / "demo";
+  fs::remove_all(out);
+  std::vector<std::string> args = {"render", "--model", (kData / "spar_rooms.spar").string(), "--frames"};
+  for (int i = 0; i < 8; ++i) args.push_back((scene / ("rgb_0" + std::to_string(i) + ".png")).string());
+  for (const char* a : {"--inputs", "0,4,7", "--path", "4", "--labels"}) args.push_back(a);
+  args.push_back(kLabels);
+  args.push_back("--out");
+  args.push_back(out.string());
+  const fs::path log = scratch() / "demo.log";
+  ASSERT_EQ(runSpar(args, log), 0) << readText(log);
+  const std::string text = readText(log);
+  EXPECT_EQ(text.find("VUID"), std::string::npos) << text;
+  for (int j = 0; j < 4; ++j) {
+    const std::string n = "_0" + std::to_string(j);
+    EXPECT_TRUE(fs::exists(out / ("view" + n + ".png"))) << j;
+    const json labels = readJson(out / ("labels" + n + ".json"));
+    // A room seen from inside: the map holds several of its classes, and walls and floor
+    // among them (a model that learned nothing gives one label everywhere).
+    int present = 0;
+    double wallFloor = 0;
+    for (const auto& l : labels["labels"]) {
+      present += l["share"].get<double>() > 0.02;
+      if (l["label"] == "wall" || l["label"] == "floor") wallFloor += l["share"].get<double>();
+    }
+    EXPECT_GE(present, 3) << labels.dump();
+    EXPECT_GE(wallFloor, 0.3) << labels.dump();
+  }
+  for (int j = 0; j < 3; ++j) EXPECT_TRUE(fs::exists(out / ("mask_0" + std::to_string(j) + ".png"))) << j;
+  std::unique_ptr<OIIO::ImageInput> gif = OIIO::ImageInput::open((out / "path.gif").string());
+  ASSERT_TRUE(gif) << OIIO::geterror();
+  int frames = 0;
+  while (gif->seek_subimage(frames, 0)) ++frames;
+  EXPECT_EQ(frames, 4);
+}
+
+// PSNR on static target pixels of "render the mean colour of the input views", with the
+// protocol's inputs for K = 3 of 8 frames (0, 4, 7): what a model that learned nothing scores.
+double meanColourPsnr(const fs::path& scenes) {
+  double sum = 0;
+  int views = 0;
+  for (const auto& e : fs::directory_iterator(scenes)) {
+    if (!e.is_directory()) continue;
+    auto load = [&](const std::string& stem, int i) { return loadImageRGB((e.path() / (stem + "_0" + std::to_string(i) + ".png")).string()); };
+    double mean[3] = {0, 0, 0};
+    size_t n = 0;
+    for (int i : {0, 4, 7}) {
+      const RgbImage im = load("rgb", i);
+      for (size_t p = 0; p < im.pixels.size() / 3; ++p, ++n)
+        for (int c = 0; c < 3; ++c) mean[c] += im.pixels[p * 3 + c] / 255.0;
+    }
+    for (double& m : mean) m /= double(n);
+    for (int t : {1, 2, 3, 5, 6}) {
+      const RgbImage im = load("rgb", t), mask = load("mask", t);
+      double se = 0;
+      size_t cnt = 0;
+      for (size_t p = 0; p < im.pixels.size() / 3; ++p) {
+        if (mask.pixels[p * 3] > 127) continue;
+        for (int c = 0; c < 3; ++c) se += std::pow(im.pixels[p * 3 + c] / 255.0 - mean[c], 2);
+        cnt += 3;
+      }
+      sum += 10 * std::log10(1.0 / (se / double(cnt)));
+      ++views;
+    }
+  }
+  return sum / views;
+}
+
+// `spar eval --views 3` of the shipped model on the three shipped scenes when it was shipped
+// (lavapipe, fp32); the engine is deterministic, so only a real change moves these.
+constexpr double kMeasuredPsnr = 18.14, kMeasuredSsim = 0.5239, kMeasuredMaskMiou = 0.6019,
+                 kMeasuredRecall = 0.2811, kMeasuredSemAccuracy = 0.7344;
+// How far the model must beat the mean-colour rendering (dB).
+constexpr double kPsnrOverBaseline = 1.0;
+
+TEST(shipped_model, QualityOnShippedScenes) {
+  const fs::path out = scratch() / "eval.json", log = scratch() / "eval.log";
+  ASSERT_EQ(runSpar({"eval", "--model", (kData / "spar_rooms.spar").string(), "--scenes",
+                     (kData / "scenes").string(), "--views", "3", "--out", out.string()},
+                    log),
+            0)
+      << readText(log);
+  std::printf("%s", readText(log).c_str());
+  const json r = readJson(out)["results"]["3"];
+  const double baseline = meanColourPsnr(kData / "scenes");
+  std::printf("  mean-colour baseline PSNR %.2f dB\n", baseline);
+  EXPECT_GE(r["psnr"].get<double>(), baseline + kPsnrOverBaseline);
+  EXPECT_GE(r["psnr"].get<double>(), kMeasuredPsnr - 0.2);
+  EXPECT_GE(r["ssim"].get<double>(), kMeasuredSsim - 0.01);
+  EXPECT_GE(r["mask_recall"].get<double>(), kMeasuredRecall - 0.02);
+  EXPECT_GE(r["mask_miou"].get<double>(), kMeasuredMaskMiou - 0.02);
+  EXPECT_GE(r["sem_accuracy"].get<double>(), kMeasuredSemAccuracy - 0.02);
+}
+
+}  // namespace
+}  // namespace spar::test
