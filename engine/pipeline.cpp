@@ -1,5 +1,8 @@
 #include "engine/pipeline.h"
 
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <iterator>
 
@@ -118,6 +121,7 @@ const Kernel& PipelineCache::get(const KernelSpec& spec) {
   info.stage.pName = "main";
   info.stage.pSpecializationInfo = &specInfo;
   info.layout = kernel->layout;
+  const auto t0 = std::chrono::steady_clock::now();
   VkResult r = vkCreateComputePipelines(dev, driverCache_, 1, &info, nullptr, &kernel->pipeline);
   vkDestroyShaderModule(dev, module, nullptr);
   vkCheck(r, ("creating the pipeline of " + spec.shader).c_str());
@@ -125,6 +129,12 @@ const Kernel& PipelineCache::get(const KernelSpec& spec) {
   for (size_t i = 3; i < spec.constants.size(); ++i)
     kernel->name += (i == 3 ? "<" : ",") + std::to_string(spec.constants[i]);
   if (spec.constants.size() > 3) kernel->name += ">";
+  // Pipeline creation is where a JIT driver (lavapipe) compiles: SPAR_LOG_PIPELINES=1 shows
+  // what each variant costs at start-up.
+  if (const char* log = std::getenv("SPAR_LOG_PIPELINES"); log && std::string(log) == "1") {
+    const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    std::fprintf(stderr, "pipeline %s: %.0f ms\n", kernel->name.c_str(), ms);
+  }
   return *(kernels_[key] = std::move(kernel));
 }
 
