@@ -4,22 +4,27 @@
 # dynamic-region-aware loss, on the engine (`spar eval`) and on the PyTorch reference
 # (`spar-eval-reference`), which must agree to the second decimal (`spar-eval-compare`).
 #
-#   bash scripts/evaluate.sh [MAIN_RUN] [NO_DYN_RUN] [SCENES]
+#   bash scripts/evaluate.sh [MAIN_RUN] [NO_DYN_RUN] [SCENES] [CONTROL_RUN]
 #
 # MAIN_RUN / NO_DYN_RUN: spar-train run directories (checkpoint.pt, config.json, model.spar);
 # default build/train/main and build/train/no-dyn (rows left out when it is missing). SCENES:
-# number of test scenes (default 12). Writes build/eval/*.json (an existing result is kept:
-# delete it to run again) and build/eval/table.md. Runs one thing at a time (2 cores).
+# number of test scenes (default 12). CONTROL_RUN: when MAIN_RUN was trained longer than the
+# ablation, a run with the dynamic-region-aware loss and exactly the ablation's seed, steps and
+# teacher, so the ablation is compared at an equal budget (rows left out when not given).
+# Writes $EVAL_OUT/*.json (default build/eval; an existing result is kept: delete it to run
+# again) and $EVAL_OUT/table.md. Runs one thing at a time (2 cores).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 main=${1:-build/train/main}
 nodyn=${2:-build/train/no-dyn}
 count=${3:-12}
-out=build/eval
-scenes=$out/test-scenes-$count
+control=${4:-}
+out=${EVAL_OUT:-build/eval}
+scenes=build/eval/test-scenes-$count
 spar=${SPAR_BUILD:-build}/samples/spar
 py=/usr/bin/python3
-mkdir -p "$out"
+mkdir -p "$out" build/eval
+steps() { grep -o -m1 '[0-9]* steps of' "$1/train_log.txt" | cut -d' ' -f1; }
 [[ -d $scenes ]] || $py converter/spar-scenes split --split test --count "$count" --out "$scenes"
 
 engine() {  # name model [spar eval options]
@@ -45,12 +50,19 @@ reference no-gating "$main" --no-gating
 reference assume-static "$main" --assume-static
 names="trained no-gating assume-static"
 rows=()
+if [[ -n $control ]]; then
+  engine control "$control/model.spar"
+  reference control "$control"
+  names="$names control"
+  rows+=(--row "with the loss, $(steps "$control") steps (control)=$out/engine-control.json"
+         --row "reference: control=$out/reference-control.json")
+fi
 if [[ -f $nodyn/model.spar ]]; then
   engine no-dyn-loss "$nodyn/model.spar"
   reference no-dyn-loss "$nodyn"
   names="$names no-dyn-loss"
-  rows=(--row "trained without the dynamic-region-aware loss=$out/engine-no-dyn-loss.json"
-        --row "reference: without the dynamic-region-aware loss=$out/reference-no-dyn-loss.json")
+  rows+=(--row "without the dynamic-region-aware loss, $(steps "$nodyn") steps=$out/engine-no-dyn-loss.json"
+         --row "reference: without the dynamic-region-aware loss=$out/reference-no-dyn-loss.json")
 fi
 
 status=0
@@ -60,7 +72,7 @@ for name in $names; do
   tail -1 "$out/compare-$name.txt" | sed "s/^/$name: /"
 done
 $py converter/spar-eval-table --out "$out/table.md" \
-  --row "SPAR small, fp32=$out/engine-trained.json" \
+  --row "SPAR small, $(steps "$main") steps, fp32=$out/engine-trained.json" \
   --row "SPAR small, fp16 weights=$out/engine-trained-fp16.json" \
   --row "no gating (every token kept)=$out/engine-no-gating.json" \
   --row "--assume-static (no DINOv3, no CV-DRP)=$out/engine-assume-static.json" \
