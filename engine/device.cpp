@@ -137,7 +137,7 @@ Device::Device(const DeviceOptions& options) {
   if (options.verbose) {
     std::cerr << "device: " << caps_.name << " (" << typeName(caps_.type) << ", Vulkan "
               << VK_API_VERSION_MAJOR(caps_.apiVersion) << "." << VK_API_VERSION_MINOR(caps_.apiVersion)
-              << ")\n  features used: subgroup size " << caps_.subgroupSize
+              << (caps_.driverInfo.empty() ? "" : ", " + caps_.driverInfo) << ")\n  features used: subgroup size " << caps_.subgroupSize
               << ", fp16 storage " << (caps_.supportsFp16Storage() ? "yes" : "no")
               << ", timestamps " << (caps_.timestamps ? "yes" : "no")
               << ", host-visible device memory " << (caps_.hostVisibleDeviceLocal ? "yes" : "no (staging)")
@@ -206,7 +206,9 @@ void Device::pickPhysicalDevice(const std::string& select) {
 }
 
 void Device::readCaps() {
+  VkPhysicalDeviceDriverProperties driver{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DRIVER_PROPERTIES};
   VkPhysicalDeviceSubgroupProperties subgroup{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_PROPERTIES};
+  subgroup.pNext = &driver;
   VkPhysicalDeviceMaintenance3Properties maintenance3{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_MAINTENANCE_3_PROPERTIES};
   maintenance3.pNext = &subgroup;
   VkPhysicalDeviceProperties2 props2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2};
@@ -217,6 +219,9 @@ void Device::readCaps() {
   caps_.name = p.deviceName;
   caps_.type = p.deviceType;
   caps_.apiVersion = p.apiVersion;
+  caps_.driverId = driver.driverID;
+  caps_.driverInfo = driver.driverInfo;
+  caps_.driverVersion = p.driverVersion;
   caps_.subgroupSize = subgroup.subgroupSize;
   caps_.maxStorageBufferRange = l.maxStorageBufferRange;
   caps_.maxTexelBufferElements = l.maxTexelBufferElements;

@@ -24,6 +24,9 @@ struct DeviceOptions {
 struct DeviceCaps {
   std::string name;
   VkPhysicalDeviceType type = VK_PHYSICAL_DEVICE_TYPE_OTHER;
+  VkDriverId driverId = static_cast<VkDriverId>(0);
+  std::string driverInfo;      // e.g. "Mesa 22.3.6 (LLVM 15.0.6)"
+  uint32_t driverVersion = 0;  // vendor-encoded; Mesa's is VK_MAKE_VERSION(major, minor, patch)
   uint32_t apiVersion = 0;
   uint32_t subgroupSize = 1;
   uint64_t maxStorageBufferRange = 0;
@@ -42,6 +45,9 @@ struct DeviceCaps {
   bool fp16TexelBuffers = false;     // R16G16B16A16_SFLOAT / R16_SFLOAT as uniform texel buffers
   bool hostVisibleDeviceLocal = false;  // a memory type both device-local and mappable
   bool isCpu() const { return type == VK_PHYSICAL_DEVICE_TYPE_CPU; }
+  bool isLlvmpipe() const { return driverId == VK_DRIVER_ID_MESA_LLVMPIPE; }
+  // Mesa's major version for Mesa drivers (22, 25, ...), 0 for others.
+  uint32_t mesaMajor() const { return isLlvmpipe() ? VK_VERSION_MAJOR(driverVersion) : 0; }
   bool supportsFp16Storage() const { return storageBuffer16BitAccess && fp16TexelBuffers; }
 };
 

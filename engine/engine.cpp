@@ -22,8 +22,12 @@ Engine::~Engine() {
 
 Tensor Engine::tensor(const Shape& shape, DType dtype) {
   VkDeviceSize bytes = static_cast<VkDeviceSize>(shapeNumel(shape)) * dtypeSize(dtype);
-  // Round up to 16 bytes so every tensor can be read through 4-component texel views.
-  VkDeviceSize padded = std::max<VkDeviceSize>(16, (bytes + 15) / 16 * 16);
+  // Rounded up to 16 bytes so every tensor can be read through 4-component texel views, plus
+  // kTexelViewSlack bytes a texel view may reach past the tensor, and never a power of two:
+  // a CPU driver keys compiled variants on both (engine/recorder.cpp, stableTexelRange), so
+  // every buffer looks the same to it and each pipeline is compiled once.
+  VkDeviceSize padded = (bytes + 15) / 16 * 16 + kTexelViewSlack;
+  if (!(padded & (padded - 1))) padded += 16;
   auto buffer = std::make_shared<Buffer>(*device_, *memory_, padded, MemoryUsage::Tensor);
   return Tensor(std::move(buffer), 0, shape, dtype);
 }

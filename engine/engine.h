@@ -12,6 +12,9 @@
 
 namespace spar {
 
+// Bytes every tensor's buffer holds beyond the tensor (see Engine::tensor).
+constexpr VkDeviceSize kTexelViewSlack = 256;
+
 struct EngineOptions {
   DeviceOptions device;
   std::string pipelineCacheFile;  // "" keeps no cache across runs

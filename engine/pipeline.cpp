@@ -1,10 +1,13 @@
 #include "engine/pipeline.h"
 
+#include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <iterator>
+#include <thread>
 
 #include "engine/error.h"
 #include "engine/shader_registry.h"
@@ -24,7 +27,22 @@ VkDescriptorType descriptorType(Bind b) {
   return b == Bind::Texel ? VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
 }
 
+// The signature is only worth a name when it is not all f32.
+std::string pipelineName(const Kernel& kernel, const std::string& signature) {
+  bool allF32 = true;
+  for (size_t i = 0; i < signature.size(); i += 6) allF32 = allF32 && signature.compare(i, 3, "f32") == 0;
+  return allF32 ? kernel.name : kernel.name + "{" + signature + "}";
+}
+
 }  // namespace
+
+bool logPipelines() {
+  static const bool on = [] {
+    const char* v = std::getenv("SPAR_LOG_PIPELINES");
+    return v && std::string(v) == "1";
+  }();
+  return on;
+}
 
 PipelineCache::PipelineCache(Device& device, std::string cacheFile) : device_(device), cacheFile_(std::move(cacheFile)) {
   std::vector<char> initial;
@@ -58,8 +76,8 @@ PipelineCache::~PipelineCache() {
       }
     }
   }
+  for (auto& [key, p] : pipelines_) vkDestroyPipeline(dev, p->handle, nullptr);
   for (auto& [key, k] : kernels_) {
-    vkDestroyPipeline(dev, k->pipeline, nullptr);
     vkDestroyPipelineLayout(dev, k->layout, nullptr);
     vkDestroyDescriptorSetLayout(dev, k->setLayout, nullptr);
   }
@@ -72,15 +90,22 @@ const Kernel& PipelineCache::get(const KernelSpec& spec) {
   if (spec.constants.size() < 3) throw Error("kernel " + spec.shader + ": constants 0-2 must give the workgroup size");
   if (spec.pushBytes > device_.caps().maxPushConstantsSize)
     throw Error("kernel " + spec.shader + " needs more push-constant bytes than the device offers");
+  findShader(spec.shader);  // an unknown variant fails here, where the op asks for it
 
   VkDevice dev = device_.handle();
   auto kernel = std::make_unique<Kernel>();
   kernel->name = spec.shader;
+  kernel->spec = spec;
   kernel->bindings = spec.bindings;
   kernel->pushBytes = spec.pushBytes;
   for (int i = 0; i < 3; ++i) kernel->localSize[i] = static_cast<uint32_t>(spec.constants[i]);
   if (kernel->localSize[0] * kernel->localSize[1] * kernel->localSize[2] > device_.caps().maxWorkGroupInvocations)
     throw Error("kernel " + spec.shader + ": workgroup larger than the device allows");
+  for (size_t i = 3; i < spec.constants.size(); ++i)
+    kernel->name += (i == 3 ? "<" : ",") + std::to_string(spec.constants[i]);
+  if (spec.constants.size() > 3) kernel->name += ">";
+  kernel->name += "[" + std::to_string(spec.constants[0]) + "x" + std::to_string(spec.constants[1]) + "x" +
+                  std::to_string(spec.constants[2]) + "]";
 
   std::vector<VkDescriptorSetLayoutBinding> bindings;
   for (uint32_t i = 0; i < spec.bindings.size(); ++i)
@@ -96,23 +121,32 @@ const Kernel& PipelineCache::get(const KernelSpec& spec) {
   layoutInfo.pSetLayouts = &kernel->setLayout;
   layoutInfo.pushConstantRangeCount = spec.pushBytes ? 1 : 0;
   layoutInfo.pPushConstantRanges = spec.pushBytes ? &push : nullptr;
-  SPAR_VK(vkCreatePipelineLayout(dev, &layoutInfo, nullptr, &kernel->layout));
+  VkResult r = vkCreatePipelineLayout(dev, &layoutInfo, nullptr, &kernel->layout);
+  if (r != VK_SUCCESS) {
+    vkDestroyDescriptorSetLayout(dev, kernel->setLayout, nullptr);
+    vkCheck(r, "vkCreatePipelineLayout");
+  }
+  return *(kernels_[key] = std::move(kernel));
+}
 
-  auto words = findShader(spec.shader);
+VkPipeline PipelineCache::build(const Kernel& kernel, double* ms) {
+  VkDevice dev = device_.handle();
+  auto words = findShader(kernel.spec.shader);
   VkShaderModuleCreateInfo moduleInfo{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
   moduleInfo.codeSize = words.size() * sizeof(uint32_t);
   moduleInfo.pCode = words.data();
   VkShaderModule module = VK_NULL_HANDLE;
   SPAR_VK(vkCreateShaderModule(dev, &moduleInfo, nullptr, &module));
 
+  const auto& constants = kernel.spec.constants;
   std::vector<VkSpecializationMapEntry> entries;
-  for (uint32_t i = 0; i < spec.constants.size(); ++i)
+  for (uint32_t i = 0; i < constants.size(); ++i)
     entries.push_back({i, static_cast<uint32_t>(i * sizeof(int32_t)), sizeof(int32_t)});
   VkSpecializationInfo specInfo{};
   specInfo.mapEntryCount = static_cast<uint32_t>(entries.size());
   specInfo.pMapEntries = entries.data();
-  specInfo.dataSize = spec.constants.size() * sizeof(int32_t);
-  specInfo.pData = spec.constants.data();
+  specInfo.dataSize = constants.size() * sizeof(int32_t);
+  specInfo.pData = constants.data();
 
   VkComputePipelineCreateInfo info{VK_STRUCTURE_TYPE_COMPUTE_PIPELINE_CREATE_INFO};
   info.stage = {VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_CREATE_INFO};
@@ -120,22 +154,90 @@ const Kernel& PipelineCache::get(const KernelSpec& spec) {
   info.stage.module = module;
   info.stage.pName = "main";
   info.stage.pSpecializationInfo = &specInfo;
-  info.layout = kernel->layout;
+  info.layout = kernel.layout;
+  VkPipeline pipeline = VK_NULL_HANDLE;
   const auto t0 = std::chrono::steady_clock::now();
-  VkResult r = vkCreateComputePipelines(dev, driverCache_, 1, &info, nullptr, &kernel->pipeline);
+  VkResult r = vkCreateComputePipelines(dev, driverCache_, 1, &info, nullptr, &pipeline);
+  *ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
   vkDestroyShaderModule(dev, module, nullptr);
-  vkCheck(r, ("creating the pipeline of " + spec.shader).c_str());
+  vkCheck(r, ("creating the pipeline of " + kernel.name).c_str());
+  return pipeline;
+}
 
-  for (size_t i = 3; i < spec.constants.size(); ++i)
-    kernel->name += (i == 3 ? "<" : ",") + std::to_string(spec.constants[i]);
-  if (spec.constants.size() > 3) kernel->name += ">";
-  // Pipeline creation is where a JIT driver (lavapipe) compiles: SPAR_LOG_PIPELINES=1 shows
-  // what each variant costs at start-up.
-  if (const char* log = std::getenv("SPAR_LOG_PIPELINES"); log && std::string(log) == "1") {
-    const double ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-    std::fprintf(stderr, "pipeline %s: %.0f ms\n", kernel->name.c_str(), ms);
+Pipeline* PipelineCache::find(const Kernel& kernel, const std::string& signature) {
+  auto it = pipelines_.find({&kernel, signature});
+  return it == pipelines_.end() ? nullptr : it->second.get();
+}
+
+Pipeline& PipelineCache::pipeline(const Kernel& kernel, const std::string& signature) {
+  if (Pipeline* p = find(kernel, signature)) return *p;
+  create({{&kernel, signature}});
+  return *find(kernel, signature);
+}
+
+void PipelineCache::create(const std::vector<std::pair<const Kernel*, std::string>>& wanted) {
+  std::vector<std::unique_ptr<Pipeline>> fresh;
+  for (const auto& [kernel, signature] : wanted) {
+    if (find(*kernel, signature)) continue;
+    bool listed = false;
+    for (const auto& f : fresh) listed = listed || (f->kernel == kernel && f->signature == signature);
+    if (listed) continue;
+    auto p = std::make_unique<Pipeline>();
+    p->kernel = kernel;
+    p->signature = signature;
+    p->name = pipelineName(*kernel, signature);
+    fresh.push_back(std::move(p));
   }
-  return *(kernels_[key] = std::move(kernel));
+  if (fresh.empty()) return;
+
+  // Pipelines are independent: create them from a few threads at once. A failure is kept
+  // and rethrown after every thread is done, so no half-made pipeline is left behind.
+  std::vector<std::string> errors(fresh.size());
+  std::atomic<size_t> next{0};
+  auto work = [&] {
+    for (size_t i; (i = next++) < fresh.size();) {
+      try {
+        fresh[i]->handle = build(*fresh[i]->kernel, &fresh[i]->stats.createMs);
+      } catch (const std::exception& e) {
+        errors[i] = e.what();
+      }
+    }
+  };
+  const size_t threads = std::min<size_t>(fresh.size(), std::max(1u, std::thread::hardware_concurrency()));
+  std::vector<std::thread> pool;
+  for (size_t t = 1; t < threads; ++t) pool.emplace_back(work);
+  work();
+  for (auto& t : pool) t.join();
+
+  std::string firstError;
+  for (size_t i = 0; i < fresh.size(); ++i) {
+    if (!errors[i].empty()) {
+      if (firstError.empty()) firstError = errors[i];
+      continue;
+    }
+    if (logPipelines())
+      std::fprintf(stderr, "pipeline %s: created in %.1f ms (texel formats %s)\n", fresh[i]->name.c_str(), fresh[i]->stats.createMs, fresh[i]->signature.empty() ? "none" : fresh[i]->signature.c_str());
+    order_.push_back(fresh[i].get());
+    auto key = std::make_pair(fresh[i]->kernel, fresh[i]->signature);
+    pipelines_[key] = std::move(fresh[i]);
+  }
+  if (!firstError.empty()) throw Error(firstError);
+}
+
+std::vector<const Pipeline*> PipelineCache::pipelines() const { return order_; }
+
+PipelineTotals PipelineCache::totals() const {
+  PipelineTotals t;
+  for (const Pipeline* p : order_) {
+    ++t.pipelines;
+    t.createMs += p->stats.createMs;
+    t.builds += p->stats.builds;
+    t.rebuilds += p->stats.rebuildCount();
+    t.buildMs += p->stats.buildMs;
+    t.dispatches += p->stats.dispatches;
+    t.gpuMs += p->stats.gpuMs;
+  }
+  return t;
 }
 
 }  // namespace spar

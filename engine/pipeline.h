@@ -1,5 +1,12 @@
-// Compute pipelines built lazily from embedded SPIR-V, once per (shader variant, binding
-// layout, specialization constants), and kept for the life of the engine.
+// Compute pipelines built from embedded SPIR-V. A Kernel is a shader variant with its
+// specialization constants and binding layout; the driver pipelines made from it are kept
+// here, one per texel signature (the formats of its texel bindings), for the life of the
+// engine, together with what the process measured about each (engine/pipeline_stats.h).
+//
+// Why one pipeline per texel signature: a CPU driver (llvmpipe) compiles a machine-code variant
+// of a pipeline for each texel format it sees bound, and only the first variant of a pipeline
+// gets a stable key in Mesa's disk cache (later ones hash an IR the first compile rewrote).
+// One signature per pipeline makes every pipeline compile once per driver cache.
 #pragma once
 #include <vulkan/vulkan.h>
 
@@ -7,9 +14,11 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "engine/device.h"
+#include "engine/pipeline_stats.h"
 
 namespace spar {
 
@@ -32,31 +41,60 @@ struct KernelSpec {
 
 struct Kernel {
   std::string name;  // shader name plus constants, for profiles and errors
+  KernelSpec spec;
   std::vector<Bind> bindings;
   uint32_t pushBytes = 0;
   uint32_t localSize[3] = {1, 1, 1};
   VkDescriptorSetLayout setLayout = VK_NULL_HANDLE;
   VkPipelineLayout layout = VK_NULL_HANDLE;
-  VkPipeline pipeline = VK_NULL_HANDLE;
+};
+
+// One driver pipeline: a kernel for one texel signature.
+struct Pipeline {
+  const Kernel* kernel = nullptr;
+  std::string signature;  // e.g. "f32x4,f16x4,f32x1"; "" for kernels without texel bindings
+  std::string name;       // kernel name, plus the signature when a texel binding is not f32
+  VkPipeline handle = VK_NULL_HANDLE;
+  PipelineStats stats;
 };
 
 class PipelineCache {
  public:
   // cacheFile: where the driver's pipeline cache is kept across runs ("" for none); it
-  // saves the JIT of every kernel at start-up on drivers that honour it.
+  // saves the compile of every kernel at start-up on drivers that honour it (GPU drivers;
+  // lavapipe 22.3 stores nothing there and relies on Mesa's shader disk cache instead).
   PipelineCache(Device& device, std::string cacheFile = "");
   ~PipelineCache();
   PipelineCache(const PipelineCache&) = delete;
   PipelineCache& operator=(const PipelineCache&) = delete;
 
+  // The kernel for a spec: layouts only; no driver pipeline is made until a dispatch needs one.
   const Kernel& get(const KernelSpec& spec);
   size_t size() const { return kernels_.size(); }
 
+  // The pipeline of a kernel for a texel signature, created on first request.
+  Pipeline& pipeline(const Kernel& kernel, const std::string& signature);
+  // Creates every missing pipeline of the list at once, on several threads where the device
+  // has more than one core to give (vkCreateComputePipelines is where GPU drivers compile).
+  void create(const std::vector<std::pair<const Kernel*, std::string>>& wanted);
+
+  // Every pipeline made so far, in creation order.
+  std::vector<const Pipeline*> pipelines() const;
+  PipelineTotals totals() const;
+
  private:
+  VkPipeline build(const Kernel& kernel, double* ms);
+  Pipeline* find(const Kernel& kernel, const std::string& signature);
+
   Device& device_;
   std::string cacheFile_;
   VkPipelineCache driverCache_ = VK_NULL_HANDLE;
   std::map<std::string, std::unique_ptr<Kernel>> kernels_;
+  std::map<std::pair<const Kernel*, std::string>, std::unique_ptr<Pipeline>> pipelines_;
+  std::vector<const Pipeline*> order_;
 };
+
+// SPAR_LOG_PIPELINES=1: every pipeline's creation and every driver build on stderr.
+bool logPipelines();
 
 }  // namespace spar

@@ -1,6 +1,8 @@
 #include "engine/recorder.h"
 
 #include <algorithm>
+#include <cstdio>
+#include <cstring>
 
 #include "engine/engine.h"
 #include "engine/error.h"
@@ -15,6 +17,48 @@ VkFormat texelFormat(DType dtype, int components) {
   if (dtype == DType::F32) return components == 4 ? VK_FORMAT_R32G32B32A32_SFLOAT : VK_FORMAT_R32_SFLOAT;
   if (dtype == DType::F16) return components == 4 ? VK_FORMAT_R16G16B16A16_SFLOAT : VK_FORMAT_R16_SFLOAT;
   return components == 4 ? VK_FORMAT_R32G32B32A32_SINT : VK_FORMAT_R32_SINT;
+}
+
+bool powerOfTwo(VkDeviceSize v) { return v && !(v & (v - 1)); }
+
+// llvmpipe (Mesa 22.3) compiles a new machine-code variant of a pipeline whenever the
+// static state of a bound texel buffer changes, and that state holds two size bits: whether
+// the VkBuffer's size is a power of two, and (read through a union) whether bits 8-15 of the
+// view's byte range are all zero. Engine::tensor makes no buffer size a power of two and
+// leaves kTexelViewSlack bytes after every tensor; here a range whose bits 8-15 are zero is
+// extended by 256 bytes into that slack. Every dispatch of a pipeline then shows the driver
+// the same state and the pipeline is compiled once. Kernels never read past their tensor,
+// so the longer view changes nothing they read, on any device.
+VkDeviceSize stableTexelRange(VkDeviceSize offset, VkDeviceSize range, VkDeviceSize bufferSize,
+                              VkDeviceSize texelBytes, uint64_t maxTexels) {
+  if ((range >> 8) & 0xff) return range;
+  const VkDeviceSize longer = range + 256;
+  if (offset + longer > bufferSize || longer / texelBytes > maxTexels) return range;
+  return longer;
+}
+
+// What a driver may key compiled variants on beyond the formats (in the signature): the two
+// size bits above, per texel binding ("p"/"-": power-of-two buffer; "z"/"-": zero bits 8-15).
+std::string texelStateOf(VkDeviceSize bufferSize, VkDeviceSize range) {
+  std::string s;
+  s += powerOfTwo(bufferSize) ? 'p' : '-';
+  s += ((range >> 8) & 0xff) ? '-' : 'z';
+  return s;
+}
+
+std::string texelTypeName(DType dtype, int components) {
+  return std::string(dtype == DType::F32 ? "f32" : dtype == DType::F16 ? "f16" : "i32") + "x" +
+         std::to_string(components);
+}
+
+std::string hexOf(const std::vector<uint8_t>& bytes) {
+  static const char* digits = "0123456789abcdef";
+  std::string s;
+  for (uint8_t b : bytes) {
+    s += digits[b >> 4];
+    s += digits[b & 15];
+  }
+  return s;
 }
 
 }  // namespace
@@ -36,25 +80,11 @@ Recorder::Recorder(Engine& engine, bool profile) : engine_(engine), profile_(pro
 
 Recorder::~Recorder() {
   VkDevice dev = engine_.device().handle();
-  if (recording_) vkEndCommandBuffer(cmd_);  // abandoned recording: never submitted
   releaseTransient();
   for (auto p : descriptorPools_) vkDestroyDescriptorPool(dev, p, nullptr);
   for (auto q : queryPools_) vkDestroyQueryPool(dev, q, nullptr);
   vkDestroyFence(dev, fence_, nullptr);
   vkDestroyCommandPool(dev, pool_, nullptr);
-}
-
-void Recorder::begin() {
-  VkCommandBufferBeginInfo info{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
-  info.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
-  SPAR_VK(vkBeginCommandBuffer(cmd_, &info));
-  recording_ = true;
-  queriesUsed_ = 0;
-  labels_.clear();
-  stages_.clear();
-  writtenSinceBarrier_.clear();
-  readSinceBarrier_.clear();
-  if (profile_) writeTimestamp();
 }
 
 void Recorder::writeTimestamp() {
@@ -100,7 +130,7 @@ VkDescriptorSet Recorder::allocateSet(VkDescriptorSetLayout layout) {
   }
 }
 
-void Recorder::barrierIfNeeded(const std::vector<Arg>& args) {
+bool Recorder::barrierNeeded(const std::vector<Arg>& args) {
   bool hazard = false;
   for (const auto& a : args) {
     VkBuffer b = a.tensor.buffer().handle();
@@ -108,11 +138,6 @@ void Recorder::barrierIfNeeded(const std::vector<Arg>& args) {
     if (writtenSinceBarrier_.count(b) || (writes && readSinceBarrier_.count(b))) hazard = true;
   }
   if (hazard) {
-    VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
-    barrier.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT | VK_ACCESS_SHADER_READ_BIT;
-    barrier.dstAccessMask = VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT;
-    vkCmdPipelineBarrier(cmd_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, 0, 1,
-                         &barrier, 0, nullptr, 0, nullptr);
     writtenSinceBarrier_.clear();
     readSinceBarrier_.clear();
     ++barrierCount_;
@@ -122,6 +147,7 @@ void Recorder::barrierIfNeeded(const std::vector<Arg>& args) {
     if (a.kind == Bind::Write || a.kind == Bind::ReadWrite) writtenSinceBarrier_.insert(b);
     if (a.kind != Bind::Write) readSinceBarrier_.insert(b);
   }
+  return hazard;
 }
 
 void Recorder::dispatch(const Kernel& kernel, const std::vector<Arg>& args, const void* push, uint32_t pushBytes,
@@ -136,10 +162,10 @@ void Recorder::dispatch(const Kernel& kernel, const std::vector<Arg>& args, cons
   if (gx > caps.maxWorkGroupCount[0] || gy > caps.maxWorkGroupCount[1] || gz > caps.maxWorkGroupCount[2])
     throw Error(name + ": " + std::to_string(gx) + "x" + std::to_string(gy) + "x" + std::to_string(gz) +
                 " workgroups exceed the device's limit");
-  if (!recording_) begin();
 
   VkDevice dev = engine_.device().handle();
-  VkDescriptorSet set = allocateSet(kernel.setLayout);
+  Pending d;
+  d.kernel = &kernel;
   std::vector<VkDescriptorBufferInfo> bufferInfos(args.size());
   std::vector<VkWriteDescriptorSet> writes(args.size());
   std::vector<VkBufferView> newViews(args.size(), VK_NULL_HANDLE);
@@ -150,7 +176,6 @@ void Recorder::dispatch(const Kernel& kernel, const std::vector<Arg>& args, cons
     const VkDeviceSize offset = a.tensor.byteOffset();
     VkWriteDescriptorSet& w = writes[i];
     w = {VK_STRUCTURE_TYPE_WRITE_DESCRIPTOR_SET};
-    w.dstSet = set;
     w.dstBinding = static_cast<uint32_t>(i);
     w.descriptorCount = 1;
     if (a.kind == Bind::Texel) {
@@ -165,11 +190,14 @@ void Recorder::dispatch(const Kernel& kernel, const std::vector<Arg>& args, cons
       vi.buffer = a.tensor.buffer().handle();
       vi.format = texelFormat(a.tensor.dtype(), a.components);
       vi.offset = offset;
-      vi.range = a.tensor.bytes();
+      vi.range = stableTexelRange(offset, a.tensor.bytes(), a.tensor.buffer().size(), texelBytes,
+                                  caps.maxTexelBufferElements);
       SPAR_VK(vkCreateBufferView(dev, &vi, nullptr, &newViews[i]));
       views_.push_back(newViews[i]);
       w.descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
       w.pTexelBufferView = &newViews[i];
+      d.signature += (d.signature.empty() ? "" : ",") + texelTypeName(a.tensor.dtype(), a.components);
+      d.texelState += texelStateOf(a.tensor.buffer().size(), vi.range);
     } else {
       if ((a.kind != Bind::Read) && a.tensor.dtype() == DType::F16 && !caps.storageBuffer16BitAccess)
         throw Error(name + ": this device cannot store fp16 buffers; use fp32");
@@ -187,24 +215,72 @@ void Recorder::dispatch(const Kernel& kernel, const std::vector<Arg>& args, cons
     }
     keepAlive_.push_back(a.tensor.bufferPtr());
   }
+  d.set = allocateSet(kernel.setLayout);
+  for (auto& w : writes) w.dstSet = d.set;
   vkUpdateDescriptorSets(dev, static_cast<uint32_t>(writes.size()), writes.data(), 0, nullptr);
 
-  barrierIfNeeded(args);
-  vkCmdBindPipeline(cmd_, VK_PIPELINE_BIND_POINT_COMPUTE, kernel.pipeline);
-  vkCmdBindDescriptorSets(cmd_, VK_PIPELINE_BIND_POINT_COMPUTE, kernel.layout, 0, 1, &set, 0, nullptr);
-  if (pushBytes) vkCmdPushConstants(cmd_, kernel.layout, VK_SHADER_STAGE_COMPUTE_BIT, 0, pushBytes, push);
-  vkCmdDispatch(cmd_, gx, gy, gz);
-  ++dispatchCount_;
-  if (profile_) {
-    writeTimestamp();
-    labels_.push_back(name);
-    stages_.push_back(stage_);
+  d.barrierBefore = barrierNeeded(args);
+  d.push.assign(static_cast<const uint8_t*>(push), static_cast<const uint8_t*>(push) + pushBytes);
+  d.groups[0] = gx;
+  d.groups[1] = gy;
+  d.groups[2] = gz;
+  d.label = name;
+  d.stage = stage_;
+  pending_.push_back(std::move(d));
+}
+
+void Recorder::emit(const Pending& d, const Pipeline& pipeline) {
+  if (d.barrierBefore) {
+    VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
+    barrier.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT | VK_ACCESS_SHADER_READ_BIT;
+    barrier.dstAccessMask = VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT;
+    vkCmdPipelineBarrier(cmd_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, 0, 1,
+                         &barrier, 0, nullptr, 0, nullptr);
   }
+  vkCmdBindPipeline(cmd_, VK_PIPELINE_BIND_POINT_COMPUTE, pipeline.handle);
+  vkCmdBindDescriptorSets(cmd_, VK_PIPELINE_BIND_POINT_COMPUTE, d.kernel->layout, 0, 1, &d.set, 0, nullptr);
+  if (!d.push.empty())
+    vkCmdPushConstants(cmd_, d.kernel->layout, VK_SHADER_STAGE_COMPUTE_BIT, 0, static_cast<uint32_t>(d.push.size()),
+                       d.push.data());
+  if (profile_) {
+    // The empty dispatch: same pipeline, bindings and push constants, no workgroups. A driver
+    // that compiles at dispatch (llvmpipe) does it here, so the stretch up to the next stamp
+    // is its build time and the real dispatch after it is compute only.
+    vkCmdDispatch(cmd_, 0, 0, 0);
+    writeTimestamp();
+  }
+  vkCmdDispatch(cmd_, d.groups[0], d.groups[1], d.groups[2]);
+  if (profile_) writeTimestamp();
 }
 
 void Recorder::run() {
   timings_.clear();
-  if (!recording_) return;
+  if (pending_.empty()) return;
+  try {
+    submitPending();
+  } catch (...) {
+    // Nothing of a failed batch survives: the next batch starts from an empty recorder.
+    vkResetCommandBuffer(cmd_, 0);
+    releaseTransient();
+    barrierCount_ = 0;
+    throw;
+  }
+}
+
+void Recorder::submitPending() {
+  PipelineCache& cache = engine_.pipelines();
+  std::vector<std::pair<const Kernel*, std::string>> wanted;
+  for (const auto& d : pending_) wanted.emplace_back(d.kernel, d.signature);
+  cache.create(wanted);
+  std::vector<Pipeline*> pipelines;
+  for (const auto& d : pending_) pipelines.push_back(&cache.pipeline(*d.kernel, d.signature));
+
+  VkCommandBufferBeginInfo info{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
+  info.flags = VK_COMMAND_BUFFER_USAGE_ONE_TIME_SUBMIT_BIT;
+  SPAR_VK(vkBeginCommandBuffer(cmd_, &info));
+  queriesUsed_ = 0;
+  if (profile_) writeTimestamp();
+  for (size_t i = 0; i < pending_.size(); ++i) emit(pending_[i], *pipelines[i]);
   // Make every shader write visible to the host reads that follow the fence.
   VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
   barrier.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT;
@@ -213,7 +289,6 @@ void Recorder::run() {
                        VK_PIPELINE_STAGE_HOST_BIT | VK_PIPELINE_STAGE_TRANSFER_BIT, 0, 1, &barrier, 0, nullptr, 0,
                        nullptr);
   SPAR_VK(vkEndCommandBuffer(cmd_));
-  recording_ = false;
   VkDevice dev = engine_.device().handle();
   VkSubmitInfo submit{VK_STRUCTURE_TYPE_SUBMIT_INFO};
   submit.commandBufferCount = 1;
@@ -222,27 +297,44 @@ void Recorder::run() {
   SPAR_VK(vkQueueSubmit(engine_.device().queue(), 1, &submit, fence_));
   SPAR_VK(vkWaitForFences(dev, 1, &fence_, VK_TRUE, UINT64_MAX));
 
-  if (profile_ && queriesUsed_ > 1) {
-    std::vector<uint64_t> stamps(queriesUsed_);
-    for (uint32_t done = 0; done < queriesUsed_;) {
-      uint32_t pool = done / kQueriesPerPool, n = std::min(kQueriesPerPool, queriesUsed_ - done);
-      SPAR_VK(vkGetQueryPoolResults(dev, queryPools_[pool], 0, n, n * sizeof(uint64_t), stamps.data() + done,
-                                    sizeof(uint64_t), VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT));
-      done += n;
-    }
-    const double period = engine_.device().caps().timestampPeriodNs;
-    for (size_t i = 0; i + 1 < stamps.size(); ++i)
-      timings_.push_back({labels_[i], stages_[i], static_cast<double>(stamps[i + 1] - stamps[i]) * period * 1e-6});
-  }
+  if (profile_) collectTimings(pipelines);
   SPAR_VK(vkResetCommandBuffer(cmd_, 0));
   releaseTransient();
-  dispatchCount_ = 0;
   barrierCount_ = 0;
+}
+
+void Recorder::collectTimings(const std::vector<Pipeline*>& pipelines) {
+  VkDevice dev = engine_.device().handle();
+  std::vector<uint64_t> stamps(queriesUsed_);
+  for (uint32_t done = 0; done < queriesUsed_;) {
+    uint32_t pool = done / kQueriesPerPool, n = std::min(kQueriesPerPool, queriesUsed_ - done);
+    SPAR_VK(vkGetQueryPoolResults(dev, queryPools_[pool], 0, n, n * sizeof(uint64_t), stamps.data() + done,
+                                  sizeof(uint64_t), VK_QUERY_RESULT_64_BIT | VK_QUERY_RESULT_WAIT_BIT));
+    done += n;
+  }
+  const double toMs = engine_.device().caps().timestampPeriodNs * 1e-6;
+  auto span = [&](size_t a) { return static_cast<double>(stamps[a + 1] - stamps[a]) * toMs; };
+  for (size_t i = 0; i < pending_.size(); ++i) {
+    const Pending& d = pending_[i];
+    Pipeline& p = *pipelines[i];
+    DispatchObservation seen{span(2 * i), span(2 * i + 1), d.texelState, hexOf(d.push)};
+    BuildCause cause{};
+    if (p.stats.observe(seen, &cause) && logPipelines())
+      std::fprintf(stderr, "pipeline %s: driver build %.1f ms at %s (%s)\n", p.name.c_str(), seen.buildMs,
+                   d.label.c_str(), buildCauseName(cause));
+    timings_.push_back({d.label, d.stage, p.name, seen.ms, seen.buildMs >= kDriverBuildThresholdMs ? seen.buildMs : 0});
+  }
 }
 
 double Recorder::totalMs() const {
   double t = 0;
   for (const auto& d : timings_) t += d.ms;
+  return t;
+}
+
+double Recorder::totalBuildMs() const {
+  double t = 0;
+  for (const auto& d : timings_) t += d.buildMs;
   return t;
 }
 
@@ -253,6 +345,9 @@ void Recorder::releaseTransient() {
   for (auto p : descriptorPools_) vkResetDescriptorPool(dev, p, 0);
   currentPool_ = 0;
   keepAlive_.clear();
+  pending_.clear();
+  writtenSinceBarrier_.clear();
+  readSinceBarrier_.clear();
 }
 
 }  // namespace spar

@@ -1,9 +1,12 @@
-// Records many dispatches into one command buffer, inserts the barriers their data
-// dependencies need, and submits them at once. Optionally times every dispatch with
-// timestamp queries.
+// Records many dispatches, inserts the barriers their data dependencies need, and submits
+// them at once. Dispatches are kept until run(), which first creates every pipeline the
+// batch needs that does not exist yet (all at once, see PipelineCache::create), then writes
+// the command buffer. Optionally times every dispatch with timestamp queries, keeping the
+// driver's build (compile) time of a dispatch apart from its compute time.
 #pragma once
 #include <vulkan/vulkan.h>
 
+#include <cstdint>
 #include <set>
 #include <string>
 #include <vector>
@@ -30,8 +33,10 @@ struct Arg {
 
 struct DispatchTiming {
   std::string label;
-  std::string stage;  // the stage set by Recorder::setStage when the dispatch was recorded
-  double ms = 0;
+  std::string stage;     // the stage set by Recorder::setStage when the dispatch was recorded
+  std::string pipeline;  // the pipeline's name (kernel name, texel formats when not f32)
+  double ms = 0;         // compute time of the dispatch
+  double buildMs = 0;    // time the driver spent building code for it just before (0: none)
 };
 
 class Recorder {
@@ -57,20 +62,33 @@ class Recorder {
   // Submits everything recorded so far, waits for it, and makes results readable by the host.
   void run();
 
-  size_t pending() const { return dispatchCount_; }
+  size_t pending() const { return pending_.size(); }
   // Barriers recorded since the last run() (dependency tracking is per buffer).
   size_t barriers() const { return barrierCount_; }
   // Per-dispatch GPU times of the last run() (empty unless profiling on a device with timestamps).
   const std::vector<DispatchTiming>& timings() const { return timings_; }
-  double totalMs() const;
+  double totalMs() const;       // compute time of the last run()
+  double totalBuildMs() const;  // driver build time of the last run()
 
   Engine& engine() { return engine_; }
 
  private:
-  void begin();
-  void barrierIfNeeded(const std::vector<Arg>& args);
+  struct Pending {
+    const Kernel* kernel = nullptr;
+    std::string signature, texelState;
+    VkDescriptorSet set = VK_NULL_HANDLE;
+    std::vector<uint8_t> push;
+    uint32_t groups[3] = {1, 1, 1};
+    bool barrierBefore = false;
+    std::string label, stage;
+  };
+
+  bool barrierNeeded(const std::vector<Arg>& args);
   VkDescriptorSet allocateSet(VkDescriptorSetLayout layout);
   void writeTimestamp();
+  void submitPending();
+  void emit(const Pending& d, const Pipeline& pipeline);
+  void collectTimings(const std::vector<Pipeline*>& pipelines);
   void releaseTransient();
 
   Engine& engine_;
@@ -78,8 +96,7 @@ class Recorder {
   VkCommandPool pool_ = VK_NULL_HANDLE;
   VkCommandBuffer cmd_ = VK_NULL_HANDLE;
   VkFence fence_ = VK_NULL_HANDLE;
-  bool recording_ = false;
-  size_t dispatchCount_ = 0;
+  std::vector<Pending> pending_;
   size_t barrierCount_ = 0;
 
   std::vector<VkDescriptorPool> descriptorPools_;
@@ -92,7 +109,6 @@ class Recorder {
 
   std::vector<VkQueryPool> queryPools_;
   uint32_t queriesUsed_ = 0;
-  std::vector<std::string> labels_, stages_;
   std::string stage_;
   std::vector<DispatchTiming> timings_;
 };

@@ -1,5 +1,7 @@
 // spar-bench: per op, GPU time, GFLOPS (or GB/s) and NMSE against a float64 CPU
-// reference, for every precision the engine offers. --json prints one JSON object.
+// reference, for every precision the engine offers, and beside them what the first use of
+// the op's kernels cost: pipeline creation and the driver's build at the first dispatch
+// (compile time, kept apart from run time). --json prints one JSON object.
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cstdio>
@@ -36,11 +38,18 @@ int main(int argc, char** argv) {
     nlohmann::json report;
     report["device"] = engine.caps().name;
     report["ops"] = nlohmann::json::array();
-    if (!json) std::printf("%-15s %-30s %10s %10s %12s\n", "op", "shape", "ms", "GFLOPS", "NMSE");
+    if (!json)
+      std::printf("%-15s %-30s %10s %10s %12s %10s %10s\n", "op", "shape", "ms", "GFLOPS", "NMSE", "create ms",
+                  "build ms");
     for (auto& c : cases) {
       spar::Recorder rec(engine, /*profile=*/true);
-      c.record(rec);  // warm-up: pipeline creation and the driver's JIT
+      // First run: pipeline creation (where GPU drivers compile) and the driver's build at
+      // the first dispatch (llvmpipe's JIT), each measured apart from the compute.
+      const double createdBefore = engine.pipelines().totals().createMs;
+      c.record(rec);
       rec.run();
+      const double createMs = engine.pipelines().totals().createMs - createdBefore;
+      const double buildMs = rec.totalBuildMs();
       std::vector<double> ms;
       for (int r = 0; r < repeats; ++r) {
         c.record(rec);
@@ -51,7 +60,8 @@ int main(int argc, char** argv) {
       const double median = ms[ms.size() / 2];
       const double nmse = c.nmse();
       const double rate = c.flops > 0 ? c.flops / (median * 1e6) : c.bytes / (median * 1e6);
-      nlohmann::json op = {{"name", c.name}, {"shape", c.shape}, {"ms", median}, {"nmse", nmse}};
+      nlohmann::json op = {{"name", c.name}, {"shape", c.shape}, {"ms", median}, {"nmse", nmse},
+                           {"create_ms", createMs}, {"build_ms", buildMs}};
       // Memory-bound ops count bytes, not flops: "gflops" is null and "gbps" says their rate.
       if (c.flops > 0) {
         op["gflops"] = rate;
@@ -61,8 +71,8 @@ int main(int argc, char** argv) {
       }
       report["ops"].push_back(op);
       if (!json)
-        std::printf("%-15s %-30s %10.2f %10.1f%s %12.3e\n", c.name.c_str(), c.shape.c_str(), median, rate,
-                    c.flops > 0 ? "" : " GB/s", nmse);
+        std::printf("%-15s %-30s %10.2f %10.1f%s %12.3e %10.1f %10.1f\n", c.name.c_str(), c.shape.c_str(), median,
+                    rate, c.flops > 0 ? "" : " GB/s", nmse, createMs, buildMs);
       std::fflush(stdout);
     }
     if (json) std::cout << report.dump(2) << "\n";

@@ -25,20 +25,27 @@ ConvTiles chooseConvTiles(const DeviceCaps& caps, int64_t kh, int64_t kw, int64_
     throw Error("SPAR_CONV_TILES must be RC,RY,RX,LX,LY (positive integers)");
   }
   // The unrolled loop body holds channels x 4 input channels x kh x kw x rows x cols
-  // multiply-adds; beyond about 9k of them (16 channels of 3x3) compiling takes seconds
-  // (10 s for 5x5, 27 s for 7x7 at 16 channels on llvmpipe), so big kernels get fewer channels.
-  ConvTiles t = caps.isCpu() ? ConvTiles{16, 2, 8, std::max<int>(8, caps.subgroupSize), 1} : ConvTiles{4, 1, 4, 16, 8};
+  // multiply-adds, and its compile time grows with it: on llvmpipe (Mesa 22.3, 8 lanes)
+  // 16 x 2 x 8 outputs of 3x3 (9k multiply-adds) took 3-5 s per variant, 8 x 1 x 8 (2.3k)
+  // 0.8-1.0 s and ran as fast or faster (spar-bench conv3x3 and drp_*: 20-23 GFLOPS against
+  // 17-22), so that is the CPU block and bigger kernels get fewer channels.
+  const int lanes = std::max<int>(8, caps.subgroupSize);
+  const bool bigCpuBlock = lanes > 8;  // AVX-512 llvmpipe: the 16 x 2 x 8 block was measured there
+  const int64_t budget = bigCpuBlock ? 9216 : 2304;
+  ConvTiles t = !caps.isCpu() ? ConvTiles{4, 1, 4, 16, 8}
+                : bigCpuBlock ? ConvTiles{16, 2, 8, lanes, 1}
+                              : ConvTiles{8, 1, 8, lanes, 1};
   // Fewer output channels than the block (CV-DRP's 16 -> 1 head): channels past Cout would be
   // computed and dropped, so the block trades them for rows (up to 8, bounding the tile, and
   // within the unrolled-body budget below).
   if (caps.isCpu() && cout < t.channels) {
     const int64_t c = std::max<int64_t>(cout, 1);
-    const int64_t budgetRows = 9216 / (4 * std::max<int64_t>(1, kh * kw) * t.cols * c);
+    const int64_t budgetRows = budget / (4 * std::max<int64_t>(1, kh * kw) * t.cols * c);
     t.rows = static_cast<int>(std::max<int64_t>(t.rows, std::min<int64_t>({8, t.rows * t.channels / c, budgetRows})));
     t.channels = static_cast<int>(c);
   }
   const int64_t perChannel = 4 * std::max<int64_t>(1, kh * kw) * t.rows * t.cols;
-  t.channels = static_cast<int>(std::clamp<int64_t>(9216 / perChannel, 1, t.channels));
+  t.channels = static_cast<int>(std::clamp<int64_t>(budget / perChannel, 1, t.channels));
   return t;
 }
 

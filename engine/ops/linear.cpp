@@ -26,9 +26,19 @@ GemmTiles chooseGemmTiles(const DeviceCaps& caps) {
       return t;
     throw Error("SPAR_GEMM_TILES must be RM,RN,LX,LY,KU (positive integers)");
   }
-  // 16 x 32 outputs per invocation: 58-64 GFLOPS on 2 lavapipe threads at SPAR's sizes;
-  // 32 x 32 is within noise of it but takes ~20 s to JIT per variant instead of ~2 s.
-  if (caps.isCpu()) return {16, 32, std::max<int>(8, caps.subgroupSize), 4, 2};
+  if (caps.isCpu()) {
+    const int lanes = std::max<int>(8, caps.subgroupSize);
+    // llvmpipe with 16 lanes (AVX-512): 16 x 32 outputs per invocation measured 58-64 GFLOPS
+    // at SPAR's sizes, 32 x 32 within noise of it at ~20 s of compile per variant.
+    if (lanes > 8) return {16, 32, lanes, 4, 2};
+    // Mesa after 22 reads texel buffers through separately compiled functions: every block
+    // from 2 x 8 to 16 x 32 ran 7-9 GFLOPS there (Mesa 25.0.7), so the block that compiles
+    // fastest (4 x 4: 0.4 s) is the one to take.
+    if (caps.isLlvmpipe() && caps.mesaMajor() > 22) return {4, 4, lanes, 8, 2};
+    // Mesa 22.3, 8 lanes (AVX2): 4 x 16 runs as fast as 16 x 32 at every size measured (17-24
+    // GFLOPS from 512 x 384 x 128 to 1024 x 3072 x 768) and compiles in 0.4 s instead of 4-7 s.
+    return {4, 16, lanes, 8, 2};
+  }
   return {4, 4, 16, 16, 1};
 }
 
@@ -54,11 +64,15 @@ void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   const int texelK = K % 4 == 0 ? 4 : 1;
   const int64_t kTexels = K / texelK;
   GemmTiles tiles = chooseGemmTiles(caps);
-  // Small outputs (heads with N = 1 or 9, a handful of rows) would mostly compute
-  // clamped duplicates with the big blocks: halve the blocks down to the problem.
-  while (tiles.colsPerInvocation > 4 && tiles.colsPerInvocation / 2 >= N) tiles.colsPerInvocation /= 2;
-  while (tiles.localY > 1 && int64_t(tiles.colsPerInvocation) * tiles.localY / 2 >= N) tiles.localY /= 2;
-  while (tiles.rowsPerInvocation > 4 && tiles.rowsPerInvocation / 2 >= M) tiles.rowsPerInvocation /= 2;
+  // Small outputs (heads with N = 1 or 9, a handful of rows) would mostly compute clamped
+  // duplicates with big blocks: on GPUs the blocks are halved down to the problem. CPU blocks
+  // are small already, and every other block is one more variant to compile (0.3-0.4 s each
+  // on llvmpipe) for work that takes microseconds either way.
+  if (!caps.isCpu()) {
+    while (tiles.colsPerInvocation > 4 && tiles.colsPerInvocation / 2 >= N) tiles.colsPerInvocation /= 2;
+    while (tiles.localY > 1 && int64_t(tiles.colsPerInvocation) * tiles.localY / 2 >= N) tiles.localY /= 2;
+    while (tiles.rowsPerInvocation > 4 && tiles.rowsPerInvocation / 2 >= M) tiles.rowsPerInvocation /= 2;
+  }
   const Kernel& kernel = engine.kernel({y.dtype() == DType::F16 ? "gemm_f16out" : "gemm_f32",
                                         {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
                                         sizeof(GemmPush),

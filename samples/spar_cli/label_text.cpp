@@ -29,7 +29,8 @@ PromptEmbeddings encodePrompts(Engine& engine, const PackedModel& model, const S
   Recorder rec(engine, true);
   encoder.forward(rec, ids, p.text, ws);
   rec.run();
-  for (const auto& d : rec.timings()) p.gpuMs += d.ms;
+  p.gpuMs = rec.totalMs();
+  p.buildMs = rec.totalBuildMs();
   p.wallMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
   return p;
 }
@@ -43,7 +44,8 @@ LabelMapsOut computeLabelMaps(Engine& engine, const Tensor& features, const Prom
   labelMaps(rec, features, prompts.text, maps, logits);
   rec.run();
   LabelMapsOut out;
-  for (const auto& d : rec.timings()) out.gpuMs += d.ms;
+  out.gpuMs = rec.totalMs();
+  out.buildMs = rec.totalBuildMs();
   if (scores) {
     const std::vector<float> sc = engine.download(logits);
     scores->insert(scores->end(), sc.begin(), sc.end());

@@ -23,7 +23,7 @@ struct PromptEmbeddings {
   std::unique_ptr<WeightSet> weights;
   Tensor text;
   int64_t prompts = 0;
-  double gpuMs = 0, wallMs = 0;
+  double gpuMs = 0, wallMs = 0, buildMs = 0;
 };
 PromptEmbeddings encodePrompts(Engine& engine, const PackedModel& model, const SparConfig& config, DType weightType,
                                const std::vector<int32_t>& ids, int64_t prompts);
@@ -32,7 +32,7 @@ PromptEmbeddings encodePrompts(Engine& engine, const PackedModel& model, const S
 // map per view; with scores also the per-label score maps [R, P, h, w] appended to *scores.
 struct LabelMapsOut {
   std::vector<std::vector<int32_t>> maps;
-  double gpuMs = 0;
+  double gpuMs = 0, buildMs = 0;
 };
 LabelMapsOut computeLabelMaps(Engine& engine, const Tensor& features, const PromptEmbeddings& prompts,
                               std::vector<float>* scores = nullptr);

@@ -14,6 +14,7 @@
 #include "model/spar_config.h"
 #include "model/spar_pipeline.h"
 #include "samples/spar_cli/errors.h"
+#include "samples/spar_cli/kernel_report.h"
 #include "samples/spar_cli/label_text.h"
 #include "samples/spar_cli/progress.h"
 #include "samples/spar_cli/render_outputs.h"
@@ -181,7 +182,7 @@ void runRender(const RenderArgs& a) {
     // --labels: the prompts through CLIP's text encoder on the device, once; its weights are
     // loaded only now, for this request.
     PromptEmbeddings text;
-    double labelGpuMs = 0, labelWallMs = 0;
+    double labelGpuMs = 0, labelWallMs = 0, labelBuildMs = 0;
     if (a.labels) {
       progress.step("encoding " + std::to_string(v.labels.size()) + " label prompts");
       text = encodePrompts(engine, *v.model, cfg, po.weightType, v.labelIds, int64_t(v.labels.size()));
@@ -203,6 +204,7 @@ void runRender(const RenderArgs& a) {
         LabelMapsOut maps = computeLabelMaps(engine, feats, text, a.scores ? &r.scores : nullptr);
         for (auto& m : maps.maps) r.labelMaps.push_back(std::move(m));
         labelGpuMs += maps.gpuMs;
+        labelBuildMs += maps.buildMs;
         labelWallMs += msSince(tl);
       }
     };
@@ -259,11 +261,15 @@ void runRender(const RenderArgs& a) {
     host.push_back({{"name", "write_outputs"}, {"wall_ms", msSince(t)}});
 
     nlohmann::ordered_json stages = nlohmann::ordered_json::array();
+    // gpu_ms: compute only; build_ms: the driver building kernels during the stage (first
+    // dispatches on llvmpipe); wall_ms includes both and pipeline creation.
     for (const auto& s : pipeline.stageTimes())
-      stages.push_back({{"name", s.name}, {"gpu_ms", s.gpuMs}, {"wall_ms", s.wallMs}});
+      stages.push_back({{"name", s.name}, {"gpu_ms", s.gpuMs}, {"build_ms", s.buildMs}, {"wall_ms", s.wallMs}});
     if (a.labels) {
-      stages.push_back({{"name", "text_encoder"}, {"gpu_ms", text.gpuMs}, {"wall_ms", text.wallMs}});
-      stages.push_back({{"name", "labels"}, {"gpu_ms", labelGpuMs}, {"wall_ms", labelWallMs}});
+      stages.push_back(
+          {{"name", "text_encoder"}, {"gpu_ms", text.gpuMs}, {"build_ms", text.buildMs}, {"wall_ms", text.wallMs}});
+      stages.push_back(
+          {{"name", "labels"}, {"gpu_ms", labelGpuMs}, {"build_ms", labelBuildMs}, {"wall_ms", labelWallMs}});
     }
     nlohmann::ordered_json report = {
         {"tool", "spar"},
@@ -282,6 +288,7 @@ void runRender(const RenderArgs& a) {
         {"total_seconds", msSince(start) / 1000.0},
         {"stages", stages},          // GPU stages that ran (pipeline.stageTimes())
         {"host_stages", host},       // CPU-side phases of the command
+        {"kernels", kernelReport(engine)},  // pipelines: creation, driver builds, compute
         {"weights_bytes_loaded", pipeline.weightBytesLoaded() + (text.weights ? text.weights->bytesLoaded() : 0)},
     };
     writeJson((fs::path(staged.path()) / "report.json").string(), report);
