@@ -94,19 +94,26 @@ double msSince(Clock::time_point t0) {
 
 void SparPipeline::addStageTimes(const Recorder& rec, double wallMs) {
   const std::string& name = rec.stage();
-  double gpu = 0;
-  // SPAR_PROFILE=1: every dispatch's GPU time on stderr (what a stage spends its time on).
+  double gpu = 0, build = 0;
+  // SPAR_PROFILE=1: every dispatch's GPU time on stderr (what a stage spends its time on),
+  // and the driver's build before it where there was one.
   static const bool profile = std::getenv("SPAR_PROFILE") && std::string(std::getenv("SPAR_PROFILE")) != "0";
   for (const DispatchTiming& t : rec.timings()) {
     gpu += t.ms;
-    if (profile) std::fprintf(stderr, "profile %-16s %-28s %10.3f ms\n", name.c_str(), t.label.c_str(), t.ms);
+    build += t.buildMs;
+    if (profile && t.buildMs > 0)
+      std::fprintf(stderr, "profile %-16s %-28s %10.3f ms (driver build before it: %.1f ms)\n", name.c_str(),
+                   t.label.c_str(), t.ms, t.buildMs);
+    else if (profile)
+      std::fprintf(stderr, "profile %-16s %-28s %10.3f ms\n", name.c_str(), t.label.c_str(), t.ms);
   }
   auto it = std::find_if(stageTimes_.begin(), stageTimes_.end(), [&](const StageTime& s) { return s.name == name; });
   if (it == stageTimes_.end()) {
-    stageTimes_.push_back({name, gpu, wallMs});
+    stageTimes_.push_back({name, gpu, wallMs, build});
   } else {
     it->gpuMs += gpu;
     it->wallMs += wallMs;
+    it->buildMs += build;
   }
 }
 

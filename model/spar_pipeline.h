@@ -77,10 +77,13 @@ struct SparEncoded {
   int64_t canonicalIndex = 0;
 };
 
-// GPU time of one stage (sum of its dispatches' timestamps) and host wall time around it.
+// GPU time of one stage (sum of its dispatches' timestamps: compute only), the time the driver
+// spent building kernels for it (compiles at first dispatch; 0 once they are in its cache, and
+// on drivers that compile at pipeline creation), and host wall time around it (which includes
+// both and pipeline creation).
 struct StageTime {
   std::string name;
-  double gpuMs = 0, wallMs = 0;
+  double gpuMs = 0, wallMs = 0, buildMs = 0;
 };
 
 struct SparPipelineOptions {
