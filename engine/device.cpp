@@ -222,6 +222,7 @@ void Device::readCaps() {
   caps_.driverId = driver.driverID;
   caps_.driverInfo = driver.driverInfo;
   caps_.driverVersion = p.driverVersion;
+  if (caps_.driverInfo.rfind("Mesa ", 0) == 0) caps_.mesaMajor = static_cast<uint32_t>(std::atoi(caps_.driverInfo.c_str() + 5));
   caps_.subgroupSize = subgroup.subgroupSize;
   caps_.maxStorageBufferRange = l.maxStorageBufferRange;
   caps_.maxTexelBufferElements = l.maxTexelBufferElements;

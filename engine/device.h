@@ -26,7 +26,8 @@ struct DeviceCaps {
   VkPhysicalDeviceType type = VK_PHYSICAL_DEVICE_TYPE_OTHER;
   VkDriverId driverId = static_cast<VkDriverId>(0);
   std::string driverInfo;      // e.g. "Mesa 22.3.6 (LLVM 15.0.6)"
-  uint32_t driverVersion = 0;  // vendor-encoded; Mesa's is VK_MAKE_VERSION(major, minor, patch)
+  uint32_t driverVersion = 0;  // vendor-encoded (lavapipe reports 1: its version is in driverInfo)
+  uint32_t mesaMajor = 0;      // Mesa drivers: the major version from driverInfo (22, 25, ...); else 0
   uint32_t apiVersion = 0;
   uint32_t subgroupSize = 1;
   uint64_t maxStorageBufferRange = 0;
@@ -46,8 +47,6 @@ struct DeviceCaps {
   bool hostVisibleDeviceLocal = false;  // a memory type both device-local and mappable
   bool isCpu() const { return type == VK_PHYSICAL_DEVICE_TYPE_CPU; }
   bool isLlvmpipe() const { return driverId == VK_DRIVER_ID_MESA_LLVMPIPE; }
-  // Mesa's major version for Mesa drivers (22, 25, ...), 0 for others.
-  uint32_t mesaMajor() const { return isLlvmpipe() ? VK_VERSION_MAJOR(driverVersion) : 0; }
   bool supportsFp16Storage() const { return storageBuffer16BitAccess && fp16TexelBuffers; }
 };
 

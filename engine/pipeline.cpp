@@ -232,6 +232,7 @@ PipelineTotals PipelineCache::totals() const {
     ++t.pipelines;
     t.createMs += p->stats.createMs;
     t.builds += p->stats.builds;
+    t.compiles += p->stats.compiles;
     t.rebuilds += p->stats.rebuildCount();
     t.buildMs += p->stats.buildMs;
     t.dispatches += p->stats.dispatches;

@@ -1,5 +1,7 @@
 #include "engine/pipeline_stats.h"
 
+#include <algorithm>
+
 namespace spar {
 
 const char* buildCauseName(BuildCause cause) {
@@ -19,14 +21,16 @@ bool PipelineStats::observe(const DispatchObservation& d, BuildCause* cause) {
   gpuMs += d.ms;
   if (d.buildMs < kDriverBuildThresholdMs) return false;
   // A later build takes about as long as the first one (a compile, or a reload from the
-  // driver's cache); a much shorter stretch is the thread being preempted, not a build.
-  if (builds > 0 && d.buildMs < 0.5 * firstBuildMs) return false;
+  // driver's cache); a much shorter stretch, or one under kLaterBuildFloorMs after a first
+  // build that was itself a reload of about a millisecond, is the thread being preempted.
+  if (builds > 0 && d.buildMs < std::max(kLaterBuildFloorMs, 0.5 * firstBuildMs)) return false;
   if (builds == 0) firstBuildMs = d.buildMs;
   const BuildCause c = builds == 0 ? BuildCause::FirstUse
                        : newState  ? BuildCause::NewTexelState
                        : newPush   ? BuildCause::NewPushValues
                                    : BuildCause::Repeat;
   ++builds;
+  if (d.buildMs >= kCompileThresholdMs) ++compiles;
   buildMs += d.buildMs;
   ++rebuilds[static_cast<int>(c)];
   if (cause) *cause = c;

@@ -17,6 +17,12 @@ namespace spar {
 // an empty dispatch of a built variant takes ~0.01 ms, reloading a variant from Mesa's disk
 // cache 1-10 ms, compiling one 30 ms to seconds).
 constexpr double kDriverBuildThresholdMs = 0.5;
+// A pipeline's later builds must take at least this long, and half its first one.
+constexpr double kLaterBuildFloorMs = 2.0;
+// A build this long is taken for a compile rather than a reload from the driver's cache (an
+// estimate: the app cannot see which. On lavapipe here reloads took 1-15 ms, the smallest
+// compile 30 ms on Mesa 22.3 and 200 ms on 25.0.7).
+constexpr double kCompileThresholdMs = 20.0;
 
 enum class BuildCause {
   FirstUse,       // the pipeline's first build
@@ -37,6 +43,7 @@ struct DispatchObservation {
 struct PipelineStats {
   double createMs = 0;  // vkCreateComputePipelines
   int builds = 0;       // driver builds seen at dispatches
+  int compiles = 0;     // those of them long enough to be compiles (kCompileThresholdMs)
   double buildMs = 0;
   double firstBuildMs = 0;
   int rebuilds[4] = {0, 0, 0, 0};  // builds by BuildCause (FirstUse counts the first)
@@ -54,6 +61,7 @@ struct PipelineTotals {
   int pipelines = 0;
   double createMs = 0;
   int builds = 0;
+  int compiles = 0;
   int rebuilds = 0;  // builds beyond one per pipeline
   double buildMs = 0;
   int dispatches = 0;

@@ -143,7 +143,7 @@ DinoV3::DinoV3(Engine& engine, WeightSet& weights, const DinoConfig& config)
   const Tensor cls = weights.require(kPrefix + "cls_token", {1, 1, E}, DType::F32);
   prefixTokens_ = engine_.tensor({1, 1 + S, E});
   {
-    Recorder rec(engine_);
+    Recorder rec(engine_, /*profile=*/true);  // setup dispatches: their builds are counted too
     patchify(rec, conv, patchWeight_, static_cast<int>(p));
     if (S > 0)
       concat(rec, {cls, weights.require(kPrefix + "storage_tokens", {1, S, E}, DType::F32)}, prefixTokens_, 1);
@@ -185,7 +185,7 @@ DinoV3::Buffers& DinoV3::buffers(int64_t views, int64_t height, int64_t width) {
   b.prefix = engine_.tensor({views, P, E});
   b.x = engine_.tensor({views, P + n, E});
   // The prefix tokens are the same for every call: repeat them per view once.
-  Recorder rec(engine_);
+  Recorder rec(engine_, /*profile=*/true);  // setup dispatches: their builds are counted too
   concat(rec, std::vector<Tensor>(static_cast<size_t>(views), prefixTokens_), b.prefix, 0);
   rec.run();
   b.views = views;

@@ -183,7 +183,7 @@ void LSegEncoder::loadWeights(WeightSet& weights) {
   patchWeight_ = engine_.tensor({W, 1, p * p * 3});
   posCls_ = engine_.tensor({1, W});
   posGrid_ = engine_.tensor({1, W, g, g});
-  Recorder rec(engine_);
+  Recorder rec(engine_, /*profile=*/true);  // setup dispatches: their builds are counted too
   patchify(rec, conv, patchWeight_, static_cast<int>(p));
   slice(rec, pos.reshape({1 + g * g, W}), 0, 0, 1, posCls_);
   // The grid's tokens [g*g, W] as a channel-major image [1, W, g, g], what resize reads
@@ -242,7 +242,7 @@ const Tensor& LSegEncoder::positions(int64_t gh, int64_t gw) {
   const int64_t W = config_.width, n = gh * gw;
   const Tensor table = engine_.tensor({1 + n, W});
   const Tensor resized = engine_.tensor({1, W, gh, gw});
-  Recorder rec(engine_);
+  Recorder rec(engine_, /*profile=*/true);  // setup dispatches: their builds are counted too
   copy2d(rec, posCls_, W, 0, table, W, 0, 1, W);  // the cls position is not resized
   resizeBilinear(rec, posGrid_, resized, /*alignCorners=*/false);
   patchify(rec, resized, table.view(W, {1, n, W}), 1);  // back to token-major rows
@@ -284,7 +284,7 @@ LSegEncoder::Buffers& LSegEncoder::buffers(int64_t views, int64_t height, int64_
   b.scratchA = engine_.tensor({level1 * f});
   b.scratchB = engine_.tensor({level1 * std::max(f, c.featureDim)});
   // The cls token is the same for every call: repeat it per view once.
-  Recorder rec(engine_);
+  Recorder rec(engine_, /*profile=*/true);  // setup dispatches: their builds are counted too
   concat(rec, std::vector<Tensor>(static_cast<size_t>(V), cls_), b.prefix, 0);
   rec.run();
   b.views = views;

@@ -357,12 +357,15 @@ std::vector<float> SparPipeline::renderTargets() {
   if (t == 0) return {};
   // The targets' estimated cameras, gathered on the device.
   const Tensor c2w = engine_.tensor({t, 4, 4}), k = engine_.tensor({t, 4});
-  Recorder rec(engine_, false);
+  const auto t0 = Clock::now();
+  Recorder rec(engine_, options_.profile);
+  rec.setStage("render_rays");
   for (int64_t j = 0; j < t; ++j) {
     copy2d(rec, st.c2w.reshape({request_.plan.views, 16}).view(targets[j] * 16, {1, 16}), 16, 0, c2w.view(j * 16, {1, 16}), 16, 0, 1, 16);
     copy2d(rec, st.fxfycxcy.view(targets[j] * 4, {1, 4}), 4, 0, k.view(j * 4, {1, 4}), 4, 0, 1, 4);
   }
   rec.run();
+  addStageTimes(rec, msSince(t0));
   return renderRays(c2w, k, t);
 }
 

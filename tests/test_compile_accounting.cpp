@@ -145,6 +145,7 @@ TEST(PipelineStats, ClassifiesBuilds) {
   EXPECT_TRUE(s.observe(seen(80, "--", "a"), &c));
   EXPECT_EQ(c, BuildCause::Repeat);
   EXPECT_EQ(s.builds, 4);
+  EXPECT_EQ(s.compiles, 4);
   EXPECT_EQ(s.rebuildCount(), 3);
   EXPECT_EQ(s.dispatches, 6);
   EXPECT_DOUBLE_EQ(s.buildMs, 100 + 90 + 95 + 80);

@@ -86,6 +86,27 @@ TEST(shipped_model, DemoRender) {
   int frames = 0;
   while (gif->seek_subimage(frames, 0)) ++frames;
   EXPECT_EQ(frames, 4);
+
+  // What was compiled: stage times are compute with builds apart, and every pipeline showed
+  // the driver one texel binding state (one compiled variant each on llvmpipe).
+  const json report = readJson(out / "report.json");
+  const json& kernels = report["kernels"];
+  ASSERT_TRUE(kernels.is_object()) << report.dump();
+  EXPECT_GT(kernels["pipelines"].get<int>(), 20);
+  EXPECT_EQ(kernels["list"].size(), kernels["pipelines"].get<size_t>());
+  EXPECT_LE(kernels["builds"].get<int>(), kernels["pipelines"].get<int>() + kernels["rebuilds"].get<int>());
+  for (const auto& p : kernels["list"]) {
+    EXPECT_LE(p["texel_states"].get<int>(), 1) << p.dump();
+    EXPECT_GE(p["dispatches"].get<int>(), 1) << p.dump();  // every recorder is profiled
+  }
+  double stageGpu = 0;
+  for (const auto& s : report["stages"]) {
+    EXPECT_TRUE(s.contains("build_ms")) << s.dump();
+    stageGpu += s["gpu_ms"].get<double>();
+  }
+  // The stages hold all compute but the one-time weight preparation.
+  EXPECT_GT(stageGpu, 0.0);
+  EXPECT_LE(stageGpu, kernels["compute_ms"].get<double>() * (1 + 1e-9));
 }
 
 // PSNR on static target pixels of "render the mean colour of the input views", with the

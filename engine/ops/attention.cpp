@@ -6,6 +6,7 @@
 
 #include "engine/engine.h"
 #include "engine/error.h"
+#include "engine/ops/cpu_tiles.h"
 
 namespace spar {
 namespace {
@@ -55,9 +56,14 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   const bool cpu = engine.caps().isCpu();
   // CPU: 8 queries per invocation; blocks of 16 keys for 64-wide heads (spar-bench's case,
   // 20-27 GFLOPS), 8 for narrower ones, which runs as fast there and compiles in 60 % of the
-  // time (llvmpipe, 32-wide heads: 2.1 s instead of 3.5 s).
-  int queriesPerInvocation = cpu ? 8 : 2, keysPerBlock = cpu && headDim < 64 ? 8 : 16;
-  int localX = cpu ? std::max<int>(8, engine.caps().subgroupSize) : 64;
+  // time (Mesa 22.3, 32-wide heads: 2.1 s instead of 3.5 s). Mesa 25.0.7 compiles 3x slower:
+  // 4 queries per invocation run as fast as 8 there and compile in a third of the time (3.7 s
+  // against 11 s); narrower heads take 2 (1.4 s of compile, at 60 % of the speed: attention is
+  // about a tenth of the shipped model's compute, its compile a third of the first run).
+  const bool newer = cpu && ops::cpuTiles(engine.caps()) == ops::CpuTiles::Newer;
+  const int newerQueries = headDim < 64 ? 2 : 4;
+  int queriesPerInvocation = cpu ? (newer ? newerQueries : 8) : 2, keysPerBlock = cpu && headDim < 64 ? 8 : 16;
+  int localX = cpu ? ops::cpuLanes(engine.caps()) : 64;
   if (const char* env = std::getenv("SPAR_ATTENTION_TILES")) {
     if (std::sscanf(env, "%d,%d,%d", &queriesPerInvocation, &keysPerBlock, &localX) != 3 || queriesPerInvocation <= 0 ||
         keysPerBlock <= 0 || localX <= 0)

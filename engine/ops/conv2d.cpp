@@ -6,6 +6,7 @@
 #include <numeric>
 
 #include "engine/ops/binding_range.h"
+#include "engine/ops/cpu_tiles.h"
 
 namespace spar {
 namespace {
@@ -27,14 +28,18 @@ ConvTiles chooseConvTiles(const DeviceCaps& caps, int64_t kh, int64_t kw, int64_
   // The unrolled loop body holds channels x 4 input channels x kh x kw x rows x cols
   // multiply-adds, and its compile time grows with it: on llvmpipe (Mesa 22.3, 8 lanes)
   // 16 x 2 x 8 outputs of 3x3 (9k multiply-adds) took 3-5 s per variant, 8 x 1 x 8 (2.3k)
-  // 0.8-1.0 s and ran as fast or faster (spar-bench conv3x3 and drp_*: 20-23 GFLOPS against
-  // 17-22), so that is the CPU block and bigger kernels get fewer channels.
-  const int lanes = std::max<int>(8, caps.subgroupSize);
-  const bool bigCpuBlock = lanes > 8;  // AVX-512 llvmpipe: the 16 x 2 x 8 block was measured there
-  const int64_t budget = bigCpuBlock ? 9216 : 2304;
-  ConvTiles t = !caps.isCpu() ? ConvTiles{4, 1, 4, 16, 8}
-                : bigCpuBlock ? ConvTiles{16, 2, 8, lanes, 1}
-                              : ConvTiles{8, 1, 8, lanes, 1};
+  // 0.8-1.0 s and ran faster (spar-bench conv3x3 and drp_*_conv3x3, medians of 3 interleaved
+  // runs: 16-23 GFLOPS against 16-19; 16 x 1 x 8 another 10 % at 1.0-1.3 s), so that is the
+  // CPU block and bigger kernels get fewer channels.
+  // Mesa 25.0.7: 4 x 1 x 8 ran 13-14 GFLOPS against 11-12 for 8 x 1 x 8 and compiled in 0.7 s
+  // instead of 2.3 s. With 16 lanes: the earlier default, 16 x 2 x 8.
+  const int lanes = ops::cpuLanes(caps);
+  const ops::CpuTiles family = ops::cpuTiles(caps);
+  const int64_t budget = family == ops::CpuTiles::Wide ? 9216 : family == ops::CpuTiles::Newer ? 1152 : 2304;
+  ConvTiles t = !caps.isCpu()                     ? ConvTiles{4, 1, 4, 16, 8}
+                : family == ops::CpuTiles::Wide  ? ConvTiles{16, 2, 8, lanes, 1}
+                : family == ops::CpuTiles::Newer ? ConvTiles{4, 1, 8, lanes, 1}
+                                                 : ConvTiles{8, 1, 8, lanes, 1};
   // Fewer output channels than the block (CV-DRP's 16 -> 1 head): channels past Cout would be
   // computed and dropped, so the block trades them for rows (up to 8, bounding the tile, and
   // within the unrolled-body budget below).

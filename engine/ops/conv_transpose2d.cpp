@@ -5,6 +5,7 @@
 #include <cstdlib>
 
 #include "engine/ops/binding_range.h"
+#include "engine/ops/cpu_tiles.h"
 
 namespace spar {
 namespace {
@@ -19,7 +20,7 @@ struct Tiles {
   int channels, rows, cols, localX, localY;
 };
 
-Tiles chooseTiles(const DeviceCaps& caps, int k) {
+Tiles chooseTiles(const DeviceCaps& caps, int k, double multiplyAdds) {
   // SPAR_CONVT_TILES="RC,RY,RX,LX,LY" overrides (for tuning with spar-bench --only drp_).
   if (const char* env = std::getenv("SPAR_CONVT_TILES")) {
     Tiles t{};
@@ -28,12 +29,16 @@ Tiles chooseTiles(const DeviceCaps& caps, int k) {
       return t;
     throw Error("SPAR_CONVT_TILES must be RC,RY,RX,LX,LY (positive integers)");
   }
-  // CPU (llvmpipe): 4 input columns = one RGBA texel. With 8 lanes (Mesa 22.3) 64 outputs per
-  // invocation for k = 2 run as fast as 256 (spar-bench drp_*_convt) and compile in 0.4 s
-  // instead of 1.4-2 s; with 16 lanes the 256-512 outputs measured there stay.
-  const int lanes = std::max<int>(8, caps.subgroupSize);
-  if (caps.isCpu() && lanes > 8) return {k > 4 ? 1 : 4, std::clamp(512 / (16 * k * k), 1, 4), 4, lanes, 1};
-  if (caps.isCpu()) return {k > 4 ? 1 : 4, 1, 4, lanes, 1};
+  // CPU (llvmpipe): 4 input columns = one RGBA texel. Mesa 22.3: about 256-512 outputs per
+  // invocation for layers of 2^26 multiply-adds and more (spar-bench's drp_*_convt, 2^27: bigger
+  // blocks compile for seconds and run no faster, 64 outputs compile in 0.4 s instead of 1.4 s
+  // but ran 10-15 % slower); 64 outputs for smaller layers, where the compile is most of the
+  // cost. Mesa 25.0.7 compiles 3x slower and ran 64 outputs as fast: 4 channels x 1 row there,
+  // 2 channels for k = 4 (4 took 4 s).
+  const int lanes = ops::cpuLanes(caps);
+  if (caps.isCpu() && ops::cpuTiles(caps) == ops::CpuTiles::Newer) return {k > 4 ? 1 : k > 2 ? 2 : 4, 1, 4, lanes, 1};
+  if (caps.isCpu() && multiplyAdds < double(1 << 26)) return {k > 4 ? 1 : 4, 1, 4, lanes, 1};
+  if (caps.isCpu()) return {k > 4 ? 1 : 4, std::clamp(512 / (16 * k * k), 1, 4), 4, lanes, 1};
   return {2, 1, 4, 16, 8};
 }
 
@@ -64,7 +69,7 @@ void convTranspose2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tens
   if (Cin == 0) throw Error("convTranspose2d: input has no channels");
 
   const int ks = static_cast<int>(k);
-  const Tiles tiles = chooseTiles(caps, ks);
+  const Tiles tiles = chooseTiles(caps, ks, double(N) * double(Cin) * double(Cout) * double(H * W) * double(k * k));
   const BoundRange wr = bindRange(caps, w, 0, w.numel(), true);
   const BoundRange br = bias.defined() ? bindRange(caps, bias, 0, Cout, true) : wr;
   const bool rgbaW = (k * k) % 4 == 0 && wr.base % 4 == 0;

@@ -6,6 +6,7 @@
 
 #include "engine/engine.h"
 #include "engine/error.h"
+#include "engine/ops/cpu_tiles.h"
 #include "engine/ops/op_support.h"
 
 namespace spar {
@@ -17,7 +18,7 @@ struct GemmPush {
 
 }  // namespace
 
-GemmTiles chooseGemmTiles(const DeviceCaps& caps) {
+GemmTiles chooseGemmTiles(const DeviceCaps& caps, double multiplyAdds) {
   if (const char* env = std::getenv("SPAR_GEMM_TILES")) {
     GemmTiles t{};
     if (std::sscanf(env, "%d,%d,%d,%d,%d", &t.rowsPerInvocation, &t.colsPerInvocation, &t.localX, &t.localY,
@@ -27,17 +28,26 @@ GemmTiles chooseGemmTiles(const DeviceCaps& caps) {
     throw Error("SPAR_GEMM_TILES must be RM,RN,LX,LY,KU (positive integers)");
   }
   if (caps.isCpu()) {
-    const int lanes = std::max<int>(8, caps.subgroupSize);
-    // llvmpipe with 16 lanes (AVX-512): 16 x 32 outputs per invocation measured 58-64 GFLOPS
-    // at SPAR's sizes, 32 x 32 within noise of it at ~20 s of compile per variant.
-    if (lanes > 8) return {16, 32, lanes, 4, 2};
-    // Mesa after 22 reads texel buffers through separately compiled functions: every block
-    // from 2 x 8 to 16 x 32 ran 7-9 GFLOPS there (Mesa 25.0.7), so the block that compiles
-    // fastest (4 x 4: 0.4 s) is the one to take.
-    if (caps.isLlvmpipe() && caps.mesaMajor() > 22) return {4, 4, lanes, 8, 2};
-    // Mesa 22.3, 8 lanes (AVX2): 4 x 16 runs as fast as 16 x 32 at every size measured (17-24
-    // GFLOPS from 512 x 384 x 128 to 1024 x 3072 x 768) and compiles in 0.4 s instead of 4-7 s.
-    return {4, 16, lanes, 8, 2};
+    const int lanes = ops::cpuLanes(caps);
+    switch (ops::cpuTiles(caps)) {
+      // The earlier default (58-64 GFLOPS on an AVX-512 machine; 32 x 32 within noise of it at
+      // ~20 s of compile per variant).
+      case ops::CpuTiles::Wide: return {16, 32, lanes, 4, 2};
+      // Every block from 2 x 8 to 16 x 32 ran 7-9 GFLOPS (Mesa 25.0.7): the one that compiles
+      // fastest (4 x 4: 0.4 s; 16 x 32: 40 s).
+      case ops::CpuTiles::Newer: return {4, 4, lanes, 8, 2};
+      // By the product's multiply-adds (medians of interleaved spar-bench runs against the
+      // earlier 16 x 32 everywhere):
+      //   < 2^28 (the shipped model's, 2^22-2^27): 4 x 16, as fast (17-23 GFLOPS at 512 x 384 x
+      //     128 .. 770 x 1536 x 512) and 0.3-0.7 s to compile instead of 4-7 s;
+      //   2^28 .. 2^31 (spar-bench's 1024^3): 8 x 16, as fast there with fp32 and fp16 weights
+      //     (4 x 16 lost 10-15 % with fp16 ones, whose every fetch converts), 0.6-1 s;
+      //   >= 2^31 (1024 x 768 x 3072, the full-size model's MLPs): 16 x 32, which stayed 5-10 %
+      //     ahead there.
+      case ops::CpuTiles::Mesa22:
+        if (multiplyAdds >= 2147483648.0) return {16, 32, lanes, 4, 2};
+        return multiplyAdds >= double(1 << 28) ? GemmTiles{8, 16, lanes, 4, 2} : GemmTiles{4, 16, lanes, 8, 2};
+    }
   }
   return {4, 4, 16, 16, 1};
 }
@@ -63,7 +73,7 @@ void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
 
   const int texelK = K % 4 == 0 ? 4 : 1;
   const int64_t kTexels = K / texelK;
-  GemmTiles tiles = chooseGemmTiles(caps);
+  GemmTiles tiles = chooseGemmTiles(caps, double(B) * double(M) * double(N) * double(K));
   // Small outputs (heads with N = 1 or 9, a handful of rows) would mostly compute clamped
   // duplicates with big blocks: on GPUs the blocks are halved down to the problem. CPU blocks
   // are small already, and every other block is one more variant to compile (0.3-0.4 s each

@@ -12,6 +12,7 @@ nlohmann::ordered_json kernelReport(const Engine& engine) {
                                 {"texel_formats", p->signature},
                                 {"create_ms", s.createMs},
                                 {"builds", s.builds},
+                                {"compiles", s.compiles},
                                 {"build_ms", s.buildMs},
                                 {"dispatches", s.dispatches},
                                 // distinct texel binding states the driver saw: 1 keeps a CPU
@@ -29,6 +30,7 @@ nlohmann::ordered_json kernelReport(const Engine& engine) {
   return {{"pipelines", t.pipelines},
           {"create_ms", t.createMs},  // summed over pipelines (they are created several at a time)
           {"builds", t.builds},       // driver builds at dispatch: compiles, or reloads from its cache
+          {"compiles", t.compiles},   // builds long enough to be compiles (an estimate, see pipeline_stats.h)
           {"rebuilds", t.rebuilds},   // builds beyond the first of a pipeline (0 when each is built once)
           {"build_ms", t.buildMs},
           {"dispatches", t.dispatches},
