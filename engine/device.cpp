@@ -117,11 +117,7 @@ std::vector<std::string> Device::listDevices() {
 Device::Device(const DeviceOptions& options) {
   try {
     createInstance(options.validation);
-    std::string select = options.select;
-    if (select.empty()) {
-      if (const char* env = std::getenv("SPAR_DEVICE")) select = env;
-    }
-    pickPhysicalDevice(select);
+    pickPhysicalDevice(options.select);
     readCaps();
     createLogicalDevice();
   } catch (...) {

@@ -11,8 +11,8 @@ namespace spar {
 
 struct DeviceOptions {
   // Which device: an index from listDevices() or a case-insensitive part of its name.
-  // Empty: the SPAR_DEVICE environment variable, else the first discrete, integrated,
-  // virtual, then CPU device.
+  // Empty: the first discrete, integrated, virtual, then CPU device (EngineOptions::
+  // fromEnvironment reads SPAR_DEVICE into it).
   std::string select;
   // Enable VK_LAYER_KHRONOS_validation and count its messages (tests always do).
   bool validation = false;

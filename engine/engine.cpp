@@ -9,10 +9,20 @@
 
 namespace spar {
 
+namespace {
+
+DeviceOptions deviceOptions(const EngineOptions& o) {
+  o.tuning.validate();
+  return {o.device, o.validation, o.verbose};
+}
+
+}  // namespace
+
 Engine::Engine(const EngineOptions& options)
-    : device_(std::make_unique<Device>(options.device)),
+    : options_(options),
+      device_(std::make_unique<Device>(deviceOptions(options))),
       memory_(std::make_unique<MemoryAllocator>(*device_)),
-      pipelines_(std::make_unique<PipelineCache>(*device_, options.pipelineCacheFile)) {}
+      pipelines_(std::make_unique<PipelineCache>(*device_, options.pipelineCacheFile, options.logPipelines)) {}
 
 Engine::~Engine() {
   pipelines_.reset();

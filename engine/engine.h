@@ -9,16 +9,13 @@
 #include "engine/memory.h"
 #include "engine/pipeline.h"
 #include "engine/tensor.h"
+#include "spar/engine_options.h"
 
 namespace spar {
 
 // Bytes every tensor's buffer holds beyond the tensor (see Engine::tensor).
 constexpr VkDeviceSize kTexelViewSlack = 256;
 
-struct EngineOptions {
-  DeviceOptions device;
-  std::string pipelineCacheFile;  // "" keeps no cache across runs
-};
 
 class Engine {
  public:
@@ -27,6 +24,13 @@ class Engine {
   Engine(const Engine&) = delete;
   Engine& operator=(const Engine&) = delete;
 
+  const EngineOptions& options() const { return options_; }
+  // Replaces the tile overrides between batches (tests run one device's kernel shapes on
+  // another; kernels are keyed by their shapes, so nothing made earlier goes stale).
+  void setTuning(const KernelTuning& tuning) {
+    tuning.validate();
+    options_.tuning = tuning;
+  }
   Device& device() { return *device_; }
   const DeviceCaps& caps() const { return device_->caps(); }
   MemoryAllocator& memory() { return *memory_; }
@@ -47,6 +51,7 @@ class Engine {
  private:
   void stagedCopy(const Tensor& t, void* data, size_t bytes, bool toDevice);
 
+  EngineOptions options_;
   std::unique_ptr<Device> device_;
   std::unique_ptr<MemoryAllocator> memory_;
   std::unique_ptr<PipelineCache> pipelines_;

@@ -2,14 +2,11 @@
 #pragma once
 #include <vulkan/vulkan.h>
 
-#include <stdexcept>
 #include <string>
 
-namespace spar {
+#include "spar/error.h"  // spar::Error, the public exception type
 
-struct Error : std::runtime_error {
-  using std::runtime_error::runtime_error;
-};
+namespace spar {
 
 // Name and meaning of a VkResult, e.g. "VK_ERROR_OUT_OF_DEVICE_MEMORY (device memory exhausted)".
 std::string describeVkResult(VkResult result);

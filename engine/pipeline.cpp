@@ -36,15 +36,8 @@ std::string pipelineName(const Kernel& kernel, const std::string& signature) {
 
 }  // namespace
 
-bool logPipelines() {
-  static const bool on = [] {
-    const char* v = std::getenv("SPAR_LOG_PIPELINES");
-    return v && std::string(v) == "1";
-  }();
-  return on;
-}
-
-PipelineCache::PipelineCache(Device& device, std::string cacheFile) : device_(device), cacheFile_(std::move(cacheFile)) {
+PipelineCache::PipelineCache(Device& device, std::string cacheFile, bool log)
+    : device_(device), cacheFile_(std::move(cacheFile)), log_(log) {
   std::vector<char> initial;
   if (!cacheFile_.empty()) {
     std::ifstream in(cacheFile_, std::ios::binary);
@@ -215,7 +208,7 @@ void PipelineCache::create(const std::vector<std::pair<const Kernel*, std::strin
       if (firstError.empty()) firstError = errors[i];
       continue;
     }
-    if (logPipelines())
+    if (log_)
       std::fprintf(stderr, "pipeline %s: created in %.1f ms (texel formats %s)\n", fresh[i]->name.c_str(), fresh[i]->stats.createMs, fresh[i]->signature.empty() ? "none" : fresh[i]->signature.c_str());
     order_.push_back(fresh[i].get());
     auto key = std::make_pair(fresh[i]->kernel, fresh[i]->signature);

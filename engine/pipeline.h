@@ -63,7 +63,8 @@ class PipelineCache {
   // cacheFile: where the driver's pipeline cache is kept across runs ("" for none); it
   // saves the compile of every kernel at start-up on drivers that honour it (GPU drivers;
   // lavapipe 22.3 stores nothing there and relies on Mesa's shader disk cache instead).
-  PipelineCache(Device& device, std::string cacheFile = "");
+  // log: every pipeline's creation on stderr (EngineOptions::logPipelines).
+  PipelineCache(Device& device, std::string cacheFile = "", bool log = false);
   ~PipelineCache();
   PipelineCache(const PipelineCache&) = delete;
   PipelineCache& operator=(const PipelineCache&) = delete;
@@ -88,13 +89,11 @@ class PipelineCache {
 
   Device& device_;
   std::string cacheFile_;
+  bool log_ = false;
   VkPipelineCache driverCache_ = VK_NULL_HANDLE;
   std::map<std::string, std::unique_ptr<Kernel>> kernels_;
   std::map<std::pair<const Kernel*, std::string>, std::unique_ptr<Pipeline>> pipelines_;
   std::vector<const Pipeline*> order_;
 };
-
-// SPAR_LOG_PIPELINES=1: every pipeline's creation and every driver build on stderr.
-bool logPipelines();
 
 }  // namespace spar

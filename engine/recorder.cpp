@@ -319,7 +319,7 @@ void Recorder::collectTimings(const std::vector<Pipeline*>& pipelines) {
     Pipeline& p = *pipelines[i];
     DispatchObservation seen{span(2 * i), span(2 * i + 1), d.texelState, hexOf(d.push)};
     BuildCause cause{};
-    if (p.stats.observe(seen, &cause) && logPipelines())
+    if (p.stats.observe(seen, &cause) && engine_.options().logPipelines)
       std::fprintf(stderr, "pipeline %s: driver build %.1f ms at %s (%s)\n", p.name.c_str(), seen.buildMs,
                    d.label.c_str(), buildCauseName(cause));
     timings_.push_back({d.label, d.stage, p.name, seen.ms, seen.buildMs >= kDriverBuildThresholdMs ? seen.buildMs : 0});

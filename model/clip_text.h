@@ -2,7 +2,7 @@
 // Reference: converter/spar_reference/clip_text.py (CLIPTextEncoder), OpenAI's key layout under
 // "clip." in the packed file (converter/FORMAT.md):
 //
-//   ids [P, 77] (model/bpe_tokenizer.h)
+//   ids [P, 77] (text/bpe_tokenizer.h)
 //     -> token_embedding[ids] + positional_embedding          (embedding op + add)
 //     -> layers x TransformerBlock (options clipText: LayerNorm with bias, biases, causal
 //        attention, QuickGELU), weights clip.transformer.resblocks.<i>.{ln_1, attn.in_proj_*,

@@ -1,4 +1,4 @@
-// Token fusion and gating (model/gating.h); kernel shaders/token_gate.comp.
+// Token fusion and gating (model/gating.h); kernel model/shaders/token_gate.comp.
 #include "model/gating.h"
 
 #include "engine/ops/binary.h"
@@ -8,6 +8,7 @@
 #include "engine/ops/norm.h"
 #include "engine/ops/pool.h"
 #include "model/sincos_codes.h"
+#include "model/model_shaders.h"
 
 namespace spar {
 namespace {
@@ -73,6 +74,7 @@ void TokenGating::gate(Recorder& rec, const Tensor& fused, const Tensor& prob, c
     return;
   }
   const bool soft = config_.inputMaskingMode == "soft_with_pe";
+  registerModelShaders();  // model/shaders/token_gate.comp
   const Kernel& kernel = engine_.kernel({"token_gate",
                                          {Bind::Read, Bind::Read, Bind::Read, Bind::Read, Bind::Write},
                                          sizeof(GatePush),

@@ -1,7 +1,7 @@
 // Input tokens of the scene encoder: mlp_fuse over (image token, ray token) of each input view,
 // then soft_with_pe gating by the motion probability (reference: converter/spar_reference/
 // spar.py SPAR.forward "gating of the input tokens" and SPAR.gate). Gating kernel:
-// shaders/token_gate.comp.
+// model/shaders/token_gate.comp.
 //
 //   fused  = mlp_fuse(concat(img, ray)) + view_type_embedding[0]   mlp_fuse = LN(2D, no bias)
 //            -> Linear(2D, D) -> SiLU -> Linear(D, D)

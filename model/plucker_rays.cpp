@@ -1,5 +1,6 @@
-// Plücker rays (model/plucker_rays.h); the kernel is shaders/plucker_rays.comp.
+// Plücker rays (model/plucker_rays.h); the kernel is model/shaders/plucker_rays.comp.
 #include "model/plucker_rays.h"
+#include "model/model_shaders.h"
 
 #include "engine/ops/dispatch_helpers.h"
 
@@ -35,6 +36,7 @@ void pluckerRays(Recorder& rec, const Tensor& c2w, const Tensor& fxfycxcy, const
   if (uint64_t(rays.bytes()) > engine.device().bindingRangeLimit())
     throw Error(op + ": rays " + rays.describe() + " exceed one storage binding");
 
+  registerModelShaders();  // model/shaders/plucker_rays.comp
   const Kernel& kernel = engine.kernel(
       {"plucker_rays", {Bind::Read, Bind::Read, Bind::Write}, sizeof(PluckerPush), {ops::kElementLocalX, 1, 1}});
   const PluckerPush push{uint32_t(V), uint32_t(H), uint32_t(W)};

@@ -1,4 +1,4 @@
-// Plücker ray maps of pinhole cameras on the engine (kernel: shaders/plucker_rays.comp;
+// Plücker ray maps of pinhole cameras on the engine (kernel: model/shaders/plucker_rays.comp;
 // reference: converter/spar_reference/spar.py plucker_rays).
 //
 //   c2w       [V, 4, 4] f32, camera-to-world, OpenCV frame (+z forward), [R | t] row-major

@@ -1,5 +1,6 @@
-// Pose head (model/pose_head.h); the kernel is shaders/pose_head.comp.
+// Pose head (model/pose_head.h); the kernel is model/shaders/pose_head.comp.
 #include "model/pose_head.h"
+#include "model/model_shaders.h"
 
 #include "engine/ops/dispatch_helpers.h"
 
@@ -42,6 +43,7 @@ void poseHead(Recorder& rec, const Tensor& rel, const Tensor& kraw, const Tensor
   if (ops::overlaps(c2w, fxfycxcy)) throw Error(op + ": c2w and fxfycxcy overlap");
   if (B == 0 || V == 0) return;
 
+  registerModelShaders();  // model/shaders/pose_head.comp
   const Kernel& kernel = engine.kernel({"pose_head",
                                         {Bind::Read, Bind::Read, Bind::Write, Bind::Write},
                                         sizeof(PoseHeadPush),

@@ -1,4 +1,4 @@
-// Cameras from the pose estimator's head outputs, on the engine (kernel: shaders/pose_head.comp;
+// Cameras from the pose estimator's head outputs, on the engine (kernel: model/shaders/pose_head.comp;
 // reference: converter/spar_reference/spar.py PoseEstimator.forward, cam_info_to_se3 and
 // rot6d_to_mat with reorthogonalize=True).
 //

@@ -95,9 +95,9 @@ double msSince(Clock::time_point t0) {
 void SparPipeline::addStageTimes(const Recorder& rec, double wallMs) {
   const std::string& name = rec.stage();
   double gpu = 0, build = 0;
-  // SPAR_PROFILE=1: every dispatch's GPU time on stderr (what a stage spends its time on),
-  // and the driver's build before it where there was one.
-  static const bool profile = std::getenv("SPAR_PROFILE") && std::string(std::getenv("SPAR_PROFILE")) != "0";
+  // EngineOptions::profileDispatches (SPAR_PROFILE=1): every dispatch's GPU time on stderr
+  // (what a stage spends its time on), and the driver's build before it where there was one.
+  const bool profile = engine_.options().profileDispatches;
   for (const DispatchTiming& t : rec.timings()) {
     gpu += t.ms;
     build += t.buildMs;

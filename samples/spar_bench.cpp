@@ -29,8 +29,9 @@ int main(int argc, char** argv) {
       return 0;
     }
     spar::EngineOptions options;
-    options.device.select = device;
-    options.device.verbose = !json;
+    options.device = device;
+    options.verbose = !json;
+    options = spar::EngineOptions::fromEnvironment(options);
     spar::Engine engine(options);
     auto cases = spar::bench::makeCases(engine, only);
     if (cases.empty()) throw spar::Error("no benchmark case matches '" + only + "'");

@@ -20,7 +20,7 @@
 #include <sstream>
 
 #include "engine/error.h"
-#include "model/image_prep.h"
+#include "imaging/image_prep.h"
 #include "model/packed_model.h"
 #include "model/spar_config.h"
 #include "samples/spar_modes/accuracy.h"
@@ -125,7 +125,8 @@ int run(Args a) {
       anyStatic ? loadReference(refIn, true, (out / "reference_static").string()) : Reference{};
 
   EngineOptions engineOptions;
-  engineOptions.device.select = a.device;
+  engineOptions.device = a.device;
+  engineOptions = EngineOptions::fromEnvironment(engineOptions);
   std::vector<ModeResult> results;
   std::string deviceName;
   for (const Mode& m : modes) {

@@ -1,10 +1,10 @@
 #!/usr/bin/python3
-"""Writes model/html_entities.inc: the tables Python's html.unescape decodes with (the HTML5
+"""Writes text/html_entities.inc: the tables Python's html.unescape decodes with (the HTML5
 named character references of html.entities.html5, and html's _invalid_charrefs /
-_invalid_codepoints for numeric references), as C++ initializers for model/bpe_tokenizer.cpp.
+_invalid_codepoints for numeric references), as C++ initializers for text/bpe_tokenizer.cpp.
 The file is generated, never edited by hand; rerun after a Python upgrade:
 
-    scripts/make_html_entities.py > model/html_entities.inc
+    scripts/make_html_entities.py > text/html_entities.inc
 """
 import html
 import html.entities

@@ -2,6 +2,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <stdexcept>
 
 #include "engine/error.h"
 
@@ -13,7 +14,11 @@ std::string fullGoldenPath(const std::string& rel) { return std::string(SPAR_FUL
 std::string semanticGoldenPath(const std::string& rel) {
   return std::string(SPAR_SEMANTIC_GOLDENS_DIR) + "/" + rel;
 }
-std::string clipBpePath() { return std::filesystem::exists(SPAR_CLIP_BPE) ? std::string(SPAR_CLIP_BPE) : std::string(); }
+std::string clipBpePath() {
+  if (!std::filesystem::exists(SPAR_CLIP_BPE))
+    throw std::runtime_error(std::string("CLIP BPE merges table not found: ") + SPAR_CLIP_BPE);
+  return SPAR_CLIP_BPE;
+}
 
 GoldenCase::GoldenCase(const std::string& name)
     : name_(name), dir_(!name.empty() && name[0] == '/' ? name : goldenPath(name)) {

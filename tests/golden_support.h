@@ -7,7 +7,7 @@
 #include <string>
 #include <vector>
 
-#include "model/npy.h"
+#include "formats/npy.h"
 
 namespace spar::test {
 
@@ -20,8 +20,9 @@ std::string fullGoldenPath(const std::string& rel);
 // The semantic branch's goldens (fixture spar_goldens_semantic): SPAR_SEMANTIC_GOLDENS_DIR/<rel>
 // (tiny_semantic.spar, labels.json, case dirs "semantic" and "semantic_path").
 std::string semanticGoldenPath(const std::string& rel);
-// The CLIP BPE merges table the fixture packed, or "" when it is not on this machine (then the
-// model has no tokenizer and the goldens no label maps: text-side tests GTEST_SKIP, saying why).
+// The CLIP BPE merges table the fixtures packed: the repository's copy (text/data/clip/) unless
+// the build names another (-DSPAR_CLIP_BPE). Throws when the file is missing: text-side tests
+// fail rather than skip.
 std::string clipBpePath();
 
 class GoldenCase {

@@ -6,9 +6,9 @@
 #include <cstdio>
 
 #include "engine/recorder.h"
-#include "model/bpe_tokenizer.h"
+#include "text/bpe_tokenizer.h"
 #include "model/clip_text.h"
-#include "model/image_prep.h"
+#include "imaging/image_prep.h"
 #include "model/label_maps.h"
 #include "model/packed_model.h"
 #include "test_support.h"

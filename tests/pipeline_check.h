@@ -38,7 +38,7 @@ struct CaseOptions {
 // Runs the case and checks all stages; returns the pipeline's stage times for further checks.
 std::vector<StageTime> runGoldenCase(Engine& engine, const std::string& caseName, const CaseOptions& options);
 
-// The input images of a case, prepared by the engine (model/image_prep.h).
+// The input images of a case, prepared by the engine (imaging/image_prep.h).
 std::vector<float> prepareFrames(const GoldenCase& g, int64_t h, int64_t w);
 
 }  // namespace spar::test

@@ -15,7 +15,7 @@
 #include <unistd.h>
 
 #include "engine/error.h"
-#include "model/cameras.h"
+#include "formats/cameras.h"
 
 namespace spar {
 namespace {

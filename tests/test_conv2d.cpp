@@ -216,7 +216,7 @@ TEST_F(EngineTest, Conv2dOutputSplitIntoChunks) {
   Tensor tx = eng().fromFloats({c.N, c.Cin, c.H, c.W}, x), tw = eng().fromFloats({c.Cout, c.Cin, 3, 3}, w);
   Tensor tb = eng().fromFloats({c.Cout}, b);
   GuardedOutput y(eng(), outShape(c));
-  const int64_t block = chooseConvTiles(eng().caps(), 3, 3).channels;
+  const int64_t block = chooseConvTiles(eng().caps(), eng().options().tuning, 3, 3).channels;
   const int64_t units = c.N * ((c.Cout + block - 1) / block);
   const uint64_t saved = eng().device().bindingRangeLimit();
   // Room for two units (plus alignment slack) per binding.

@@ -12,8 +12,8 @@
 #include <sstream>
 
 #include "engine/error.h"
-#include "model/image_prep.h"
-#include "model/npy.h"
+#include "imaging/image_prep.h"
+#include "formats/npy.h"
 
 namespace spar::test {
 namespace {

@@ -1,4 +1,5 @@
 // LayerNorm and RMSNorm (shaders/norm.comp via engine/ops/norm.cpp) against float64 references.
+#include <array>
 #include <cstdlib>
 
 #include "engine/ops/norm.h"
@@ -261,8 +262,11 @@ TEST_F(EngineTest, RmsNormRejectsBadShapes) {
 // The workgroup shapes other devices get (lines split over 16-64 invocations, several lines
 // a workgroup) give the same results as lavapipe's.
 TEST_F(EngineTest, NormWorkgroupShapesAgree) {
-  for (const char* shape : {"1,16,4", "1,64,2", "1,8,3", "0,16,2", "0,8,1"}) {
-    setenv("SPAR_LINE_GROUP", shape, 1);
+  for (const std::array<int, 3> group : {std::array{1, 16, 4}, {1, 64, 2}, {1, 8, 3}, {0, 16, 2}, {0, 8, 1}}) {
+    KernelTuning tuning;
+    tuning.lineGroup = group;
+    eng().setTuning(tuning);
+    const std::string shape = std::to_string(group[0]) + "," + std::to_string(group[1]) + "," + std::to_string(group[2]);
     for (int64_t d : {7, 61, 256, 257}) {
       const int64_t rows = 29;
       auto x = randomNormal(rows * d, 3.0f, 2.0f, 44);
@@ -273,7 +277,7 @@ TEST_F(EngineTest, NormWorkgroupShapesAgree) {
       layerNorm(rec, tx, tw, tb, ln.tensor());
       rmsNorm(rec, tx, tw, rms.tensor());
       rec.run();
-      const std::string what = std::string(shape) + " D=" + std::to_string(d);
+      const std::string what = shape + " D=" + std::to_string(d);
       expectClose(ln.read(), layerNormRef(x, rows, d, w, b, 1e-5), 1e-9, 1e-5, "layernorm " + what);
       expectClose(rms.read(), rmsNormRef(x, rows, d, 0, std::vector<float>(x.size()), d, 0, 1, w, 1e-6), 1e-9, 1e-5,
                   "rmsnorm " + what);
@@ -281,7 +285,7 @@ TEST_F(EngineTest, NormWorkgroupShapesAgree) {
       rms.expectAllWritten();
     }
   }
-  unsetenv("SPAR_LINE_GROUP");
+  eng().setTuning({});
 }
 
 }  // namespace

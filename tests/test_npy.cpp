@@ -7,7 +7,7 @@
 #include <fstream>
 
 #include "engine/error.h"
-#include "model/npy.h"
+#include "formats/npy.h"
 
 namespace spar {
 namespace {

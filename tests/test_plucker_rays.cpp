@@ -9,7 +9,7 @@
 
 #include <unistd.h>
 
-#include "model/npy.h"
+#include "formats/npy.h"
 #include "model/plucker_rays.h"
 #include "model/pose_head.h"
 #include "tests/test_support.h"

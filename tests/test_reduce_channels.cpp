@@ -1,5 +1,6 @@
 // Softmax, L2 normalization and argmax along an axis (shaders/reduce_channels.comp via
 // engine/ops/reduce_channels.cpp) against float64 references.
+#include <array>
 #include <cstdlib>
 #include <limits>
 
@@ -343,8 +344,11 @@ TEST_F(EngineTest, ArgmaxNaNAndInfinity) {
 // The workgroup shapes other devices get (lines split over 16-64 invocations, several lines
 // a workgroup) give the same results as lavapipe's.
 TEST_F(EngineTest, ReduceChannelsWorkgroupShapesAgree) {
-  for (const char* shape : {"1,16,4", "1,64,2", "1,8,3", "0,16,2", "0,8,1"}) {
-    setenv("SPAR_LINE_GROUP", shape, 1);
+  for (const std::array<int, 3> group : {std::array{1, 16, 4}, {1, 64, 2}, {1, 8, 3}, {0, 16, 2}, {0, 8, 1}}) {
+    KernelTuning tuning;
+    tuning.lineGroup = group;
+    eng().setTuning(tuning);
+    const std::string shape = std::to_string(group[0]) + "," + std::to_string(group[1]) + "," + std::to_string(group[2]);
     for (const AxisCase& c :
          {AxisCase{{29, 7}, -1}, AxisCase{{29, 256}, -1}, AxisCase{{29, 257}, -1}, AxisCase{{2, 61, 7, 9}, 1}}) {
       int64_t outer, C, inner;
@@ -360,7 +364,7 @@ TEST_F(EngineTest, ReduceChannelsWorkgroupShapesAgree) {
       l2Normalize(rec, tx, l2.tensor(), c.axis);
       argmax(rec, tx, idx, c.axis);
       rec.run();
-      const std::string what = std::string(shape) + " " + caseName(c);
+      const std::string what = shape + " " + caseName(c);
       expectClose(sm.read(), softmaxRef(x, outer, C, inner), 1e-9, 1e-6, "softmax " + what);
       expectClose(l2.read(), l2Ref(x, outer, C, inner, 1e-12), 1e-9, 1e-6, "l2 " + what);
       EXPECT_EQ(readIndices(eng(), idx), argmaxRef(x, outer, C, inner)) << what;
@@ -368,7 +372,7 @@ TEST_F(EngineTest, ReduceChannelsWorkgroupShapesAgree) {
       l2.expectAllWritten();
     }
   }
-  unsetenv("SPAR_LINE_GROUP");
+  eng().setTuning({});
 }
 
 TEST_F(EngineTest, ReduceChannelsRejectsBadShapes) {

@@ -20,7 +20,7 @@
 #include <OpenImageIO/imageio.h>
 #include <nlohmann/json.hpp>
 
-#include "model/image_prep.h"
+#include "imaging/image_prep.h"
 #include "tests/test_support.h"
 
 #ifndef SPAR_CLI

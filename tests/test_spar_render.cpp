@@ -27,8 +27,8 @@
 #include <OpenImageIO/imageio.h>
 #include <nlohmann/json.hpp>
 
-#include "model/image_prep.h"
-#include "model/npy.h"
+#include "imaging/image_prep.h"
+#include "formats/npy.h"
 #include "tests/golden_support.h"
 #include "tests/test_support.h"
 
@@ -461,7 +461,6 @@ TEST(spar_render, MixedMasksMatchReference) {
 // reference; views within 1/255; label maps (JSON pixel counts, PNG colours) identical except at
 // near-ties of the top-2 prompts; the features themselves within an NMSE of 1e-10 (fp32 both).
 TEST(spar_render, LabelsAndFeaturesMatchReference) {
-  if (clipBpePath().empty()) GTEST_SKIP() << "CLIP BPE table not on this machine (" << SPAR_CLIP_BPE << ")";
   const std::vector<std::string> labels = {"--labels", "sofa, window,person,floor", "--features"};
   const auto o = runBoth("labels", cat(cat(cat({"--frames"}, frames()), {"--inputs", "0,2,4"}), labels),
                          semanticGoldenPath("tiny_semantic.spar"), semanticGoldenPath("tiny_semantic.pt"),
@@ -507,7 +506,6 @@ TEST(spar_render, LabelsAndFeaturesMatchReference) {
 // Without --labels / --features the semantic head and the text encoder do not run and their
 // weights are not loaded (fewer weight bytes than with them).
 TEST(spar_render, SemanticHeadOnlyWhenAsked) {
-  if (clipBpePath().empty()) GTEST_SKIP() << "CLIP BPE table not on this machine (" << SPAR_CLIP_BPE << ")";
   const fs::path plain = scratch() / "sem_plain", asked = scratch() / "sem_asked";
   fs::remove_all(plain);
   fs::remove_all(asked);
@@ -527,7 +525,6 @@ TEST(spar_render, SemanticHeadOnlyWhenAsked) {
 
 // --scores: per-label score maps whose argmax is the label map (pixel counts of labels_XX.json).
 TEST(spar_render, ScoresAreTheLabelMapsScores) {
-  if (clipBpePath().empty()) GTEST_SKIP() << "CLIP BPE table not on this machine (" << SPAR_CLIP_BPE << ")";
   const fs::path out = scratch() / "scores";
   fs::remove_all(out);
   const RunResult r = spar({"--model", semanticGoldenPath("tiny_semantic.spar"), "--images", frame(0), frame(2),

@@ -21,9 +21,9 @@ constexpr uint32_t kUnwrittenWord = 0x7fc0dead;
 Engine& engine() {
   if (!gEngine) {
     EngineOptions options;
-    options.device.validation = true;
-    options.device.verbose = true;
-    gEngine = new Engine(options);  // lives until exit: tests share pipelines
+    options.validation = true;
+    options.verbose = true;
+    gEngine = new Engine(EngineOptions::fromEnvironment(options));  // lives until exit: tests share pipelines
   }
   return *gEngine;
 }

@@ -7,7 +7,7 @@
 #include <map>
 #include <set>
 
-#include "model/npy.h"
+#include "formats/npy.h"
 #include "model/transformer_block.h"
 #include "tests/test_support.h"
 

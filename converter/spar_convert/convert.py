@@ -41,6 +41,10 @@ RUNTIME_FIELDS = ("image_height", "image_width", "num_views", "num_input_views")
 
 PREFIX = {"spar": "", "dino": "dino.", "lseg": "lseg.", "clip": "clip."}
 BPE_NAME = "clip.bpe_merges"
+# The repository's copy of CLIP's merges table (MIT licence beside it), packed by default
+# whenever the model has a CLIP text encoder, so its labels work without extra files.
+DEFAULT_BPE = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..",
+                                            "text", "data", "clip", "bpe_simple_vocab_16e6.txt.gz"))
 
 
 class ConvertError(Exception):
@@ -262,21 +266,22 @@ def _read_inputs(inp, args):
         inp.clip.where = (os.path.basename(lseg_path),
                           stored[: stored.index("clip_pretrained.") + len("clip_pretrained.")])
 
-    if args.bpe:
+    bpe = args.bpe or (DEFAULT_BPE if inp.clip else None)
+    if bpe:
         try:
-            with open(args.bpe, "rb") as f:
+            with open(bpe, "rb") as f:
                 data = f.read()
         except OSError as e:
-            raise ConvertError("cannot read --bpe %s: %s" % (args.bpe, e.strerror or e)) from None
+            raise ConvertError("cannot read --bpe %s: %s" % (bpe, e.strerror or e)) from None
         try:
             text = gzip.decompress(data)
         except (OSError, EOFError, zlib.error) as e:
-            raise ConvertError("--bpe %s is not a gzip file (%s)" % (args.bpe, e)) from None
+            raise ConvertError("--bpe %s is not a gzip file (%s)" % (bpe, e)) from None
         if b"#version" not in text.split(b"\n", 1)[0]:
             raise ConvertError("--bpe %s does not look like CLIP's merges table (no #version "
-                               "line)" % args.bpe)
+                               "line)" % bpe)
         inp.bpe = np.frombuffer(data, dtype=np.uint8)
-        inp.files.append(("bpe", args.bpe, len(data)))
+        inp.files.append(("bpe", bpe, len(data)))
     else:
         inp.bpe = None
 
@@ -915,7 +920,9 @@ def build_parser():
     ap.add_argument("--clip", help="CLIP state_dict (OpenAI key layout; text tower is kept); "
                                    "default: the CLIP inside the LSeg checkpoint")
     ap.add_argument("--bpe", help="CLIP BPE merges table (bpe_simple_vocab_16e6.txt.gz), packed "
-                                  "as the U8 tensor %s" % BPE_NAME)
+                                  "as the U8 tensor %s; default: the repository's copy "
+                                  "(text/data/clip/) when the model has a CLIP text encoder"
+                                  % BPE_NAME)
     ap.add_argument("-q", "--quiet", action="store_true", help="print only errors and the summary")
     return ap
 

@@ -54,7 +54,9 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 import numpy as np
 
 PROG = "spar-reference"
-DEFAULT_BPE = "/work/shared/data/clip/bpe_simple_vocab_16e6.txt.gz"
+# The repository's copy of CLIP's merges table (text/data/clip/, MIT licence beside it).
+DEFAULT_BPE = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..",
+                                            "text", "data", "clip", "bpe_simple_vocab_16e6.txt.gz"))
 CLIP_PREFIX = "lseg_model.clip_pretrained."   # official: LSegNet.clip_pretrained inside lseg_model
 CLIP_TEXT_ROOTS = ("token_embedding.", "positional_embedding", "transformer.", "ln_final.",
                    "text_projection")
@@ -67,14 +69,7 @@ class CliError(Exception):
 
 # ============================================================================ helpers
 def default_bpe() -> str:
-    env = os.environ.get("SPAR_CLIP_BPE")
-    if env:
-        return env
-    if os.path.exists(DEFAULT_BPE):
-        return DEFAULT_BPE
-    here = os.path.dirname(os.path.abspath(__file__))
-    return os.path.normpath(os.path.join(here, "..", "..", "..", "shared", "data", "clip",
-                                         "bpe_simple_vocab_16e6.txt.gz"))
+    return os.environ.get("SPAR_CLIP_BPE") or DEFAULT_BPE
 
 
 class StageTimer:

@@ -5,8 +5,9 @@ import sys
 
 
 def default_bpe() -> str:
+    # the repository's copy of CLIP's merges table (text/data/clip/, MIT licence beside it)
     here = os.path.dirname(os.path.abspath(__file__))
-    return os.path.normpath(os.path.join(here, "..", "..", "..", "shared", "data", "clip",
+    return os.path.normpath(os.path.join(here, "..", "..", "text", "data", "clip",
                                          "bpe_simple_vocab_16e6.txt.gz"))
 
 

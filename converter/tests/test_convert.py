@@ -276,7 +276,10 @@ def test_lseg_file_with_clip_bpe_and_bare_state_dict(work):
         assert rec2["converted"]["clip." + k] == "float16 -> F32"
     assert rec2["sources"]["clip"].endswith("clip.pt")
     assert any(v == "overridden by --clip" for v in rec2["dropped"].values())
-    assert "clip.bpe_merges" not in f2.keys() and not json.loads(meta2["components"])["bpe"]
+    # no --bpe: a model with a CLIP text encoder gets the repository's merges table
+    assert json.loads(meta2["components"])["bpe"]
+    with open(REPO_BPE, "rb") as fh:
+        assert f2.get("clip.bpe_merges").tobytes() == fh.read()
 
 
 def test_config_file(work):
@@ -297,16 +300,11 @@ def test_config_file(work):
     assert without(read(out)[2], {"clip"}) == without(want, {"clip"})
 
 
-def _bpe_path():
-    path = os.environ.get("SPAR_CLIP_BPE") or os.path.join(
-        HERE, "..", "..", "..", "shared", "data", "clip", "bpe_simple_vocab_16e6.txt.gz")
-    return path if os.path.exists(path) else None
+REPO_BPE = os.path.join(HERE, "..", "..", "text", "data", "clip", "bpe_simple_vocab_16e6.txt.gz")
 
 
 def test_real_bpe_table_packed(work):
-    path = _bpe_path()
-    if path is None:
-        pytest.skip("CLIP merges table not found (set SPAR_CLIP_BPE)")
+    path = os.environ.get("SPAR_CLIP_BPE") or REPO_BPE
     out, so, se = convert(work, "bpe.spar", "--bpe", path)
     f = read(out)[0]
     with open(path, "rb") as fh:

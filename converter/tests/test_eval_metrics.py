@@ -26,9 +26,7 @@ from spar_eval.protocol import ProtocolError, Scene, view_indices  # noqa: E402
 from spar_eval.run_reference import METRIC_KEYS, Accumulator, Prediction  # noqa: E402
 
 REPO = os.path.dirname(os.path.dirname(HERE))
-BPE_PATH = os.environ.get("SPAR_CLIP_BPE",
-                          os.path.join(REPO, "..", "shared", "data", "clip", "bpe_simple_vocab_16e6.txt.gz"))
-needs_bpe = pytest.mark.skipif(not os.path.exists(BPE_PATH), reason=f"no CLIP merges table at {BPE_PATH}")
+BPE_PATH = os.environ.get("SPAR_CLIP_BPE", os.path.join(REPO, "text", "data", "clip", "bpe_simple_vocab_16e6.txt.gz"))
 
 
 def tool(name, *args):
@@ -231,7 +229,6 @@ def check_doc(doc, mode):
                 assert 0.0 <= r[m] <= 1.0
 
 
-@needs_bpe
 def test_reference_modes(runs):
     for mode, doc in runs.items():
         check_doc(doc, mode)
@@ -245,7 +242,6 @@ def test_reference_modes(runs):
             assert ng[m] == df[m], (k, m)
 
 
-@needs_bpe
 def test_reference_separate_clip_file(e2e, runs):
     """--clip: the same CLIP text weights from a separate file give the same label maps."""
     import torch
@@ -258,7 +254,6 @@ def test_reference_separate_clip_file(e2e, runs):
         assert doc["results"]["2"][m] == runs["assume-static"]["results"]["2"][m]
 
 
-@needs_bpe
 def test_cli_outputs_and_tools(e2e, runs, tmp_path):
     out = tmp_path / "r.json"
     p = tool("spar-eval-reference", "--checkpoint", e2e["ckpt"], "--config", e2e["cfg"],
@@ -291,7 +286,6 @@ def test_cli_outputs_and_tools(e2e, runs, tmp_path):
     assert " - | - |" in rows[1]             # assume-static: mask columns null
 
 
-@needs_bpe
 def test_cli_errors_leave_no_output(e2e, tmp_path):
     out = tmp_path / "r.json"
     common = ["--checkpoint", e2e["ckpt"], "--config", e2e["cfg"], "--bpe", BPE_PATH, "--out", out]

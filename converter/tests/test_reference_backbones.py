@@ -5,8 +5,7 @@ The expected key lists below are written from the official code (facebookresearc
 ``dinov3/models/vision_transformer.py``, ``dinov3/layers/*``, ``dinov3/hub/backbones.py``;
 isl-org/lang-seg ``modules/models/lseg_net.py``, ``lseg_blocks.py``, ``lseg_vit.py`` with timm
 0.4.12's VisionTransformer; openai/CLIP ``clip/model.py``), independently of the modules.
-The CLIP merges table is data outside the repository: $SPAR_CLIP_BPE or
-../shared/data/clip/bpe_simple_vocab_16e6.txt.gz next to the repository.
+The CLIP merges table is the repository's copy (text/data/clip/), or $SPAR_CLIP_BPE.
 """
 import math
 import os
@@ -29,9 +28,7 @@ from spar_reference import bpe  # noqa: E402
 torch.set_num_threads(2)
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-BPE_PATH = os.environ.get("SPAR_CLIP_BPE",
-                          os.path.join(REPO, "..", "shared", "data", "clip", "bpe_simple_vocab_16e6.txt.gz"))
-needs_bpe = pytest.mark.skipif(not os.path.exists(BPE_PATH), reason=f"no CLIP merges table at {BPE_PATH}")
+BPE_PATH = os.environ.get("SPAR_CLIP_BPE", os.path.join(REPO, "text", "data", "clip", "bpe_simple_vocab_16e6.txt.gz"))
 
 
 def nmse(a, b):
@@ -256,7 +253,6 @@ def test_lseg_float32_matches_float64():
     assert nmse(a, b) < 1e-10
 
 
-@needs_bpe
 def test_clip_float32_matches_float64():
     m32, m64 = _pair(CLIPTextEncoder, "clip")
     ids = bpe.tokenize(["a photo of a sofa", "", "chair"], BPE_PATH)
@@ -364,7 +360,6 @@ def _nn_mha_block(blk, x, mask):
     return x + blk.mlp.c_proj(y)
 
 
-@needs_bpe
 def test_clip_matches_multihead_attention_formulation():
     m = CLIPTextEncoder(backbone_config("clip", "tiny"), seed=9, perturb=True).double()
     ids = bpe.tokenize(["a photo of a sofa", "a lamp on a table", ""], BPE_PATH)
@@ -379,7 +374,6 @@ def test_clip_matches_multihead_attention_formulation():
         assert nmse(m(ids), ref) < 1e-20
 
 
-@needs_bpe
 def test_clip_is_causal_and_pools_at_end_token():
     m = CLIPTextEncoder(backbone_config("clip", "tiny"), seed=9, perturb=True).double()
     ids = bpe.tokenize(["a photo of a sofa"], BPE_PATH)
@@ -447,7 +441,6 @@ def test_bytes_to_unicode_order():
     assert table[0] == chr(256) and table[ord(" ")] == chr(256 + 32)
 
 
-@needs_bpe
 def test_tokenizer_vocabulary():
     t = bpe.get_tokenizer(BPE_PATH)
     assert t.vocab_size == 49408
@@ -460,7 +453,6 @@ def test_tokenizer_vocabulary():
 PROMPTS = ["", "a photo of a sofa", "Straße", "沙发", "a photo of a cat", "a photo of a dog"]
 
 
-@needs_bpe
 def test_tokenizer_prompts():
     ids = bpe.tokenize(PROMPTS, BPE_PATH)
     assert ids.shape == (len(PROMPTS), 77) and ids.dtype == torch.int64
@@ -484,7 +476,6 @@ def test_tokenizer_prompts():
     assert t.encoder[bpe.bytes_to_unicode()[0xC3]] == 127   # first byte of ß
 
 
-@needs_bpe
 def test_tokenizer_truncation():
     long = " ".join(["sofa"] * 100)
     ids = bpe.tokenize([long], BPE_PATH)
@@ -499,7 +490,6 @@ def test_tokenizer_truncation():
     assert short.shape == (1, 8)
 
 
-@needs_bpe
 def test_tokenizer_cleanup():
     t = lambda s: bpe.tokenize([s], BPE_PATH)[0].tolist()
     assert t("  A   PHOTO\tof a\n sofa ") == t("a photo of a sofa")

@@ -26,9 +26,7 @@ from spar_reference.cameras import interpolate_path, mat_to_quat, quat_to_mat  #
 
 TOOL = os.path.join(HERE, "..", "spar-reference")
 REPO = os.path.dirname(os.path.dirname(HERE))
-BPE_PATH = os.environ.get("SPAR_CLIP_BPE",
-                          os.path.join(REPO, "..", "shared", "data", "clip", "bpe_simple_vocab_16e6.txt.gz"))
-needs_bpe = pytest.mark.skipif(not os.path.exists(BPE_PATH), reason=f"no CLIP merges table at {BPE_PATH}")
+BPE_PATH = os.environ.get("SPAR_CLIP_BPE", os.path.join(REPO, "text", "data", "clip", "bpe_simple_vocab_16e6.txt.gz"))
 
 CFG = spar_config.tiny()
 H, W = CFG.image_height, CFG.image_width
@@ -240,7 +238,6 @@ def test_render_cameras_transforms_json(work, tmp_path):
     assert np.abs(a - b).max() <= 1
 
 
-@needs_bpe
 def test_render_labels_and_features(work, tmp_path):
     f = work["frames"]
     out = tmp_path / "l"
@@ -274,7 +271,6 @@ GOLDEN_NAMES = {"images", "c2w", "fxfycxcy", "cam_info", "plucker", "ray_tokens"
                 "label_maps", "layers.transformer_decoder.00"}
 
 
-@needs_bpe
 def test_goldens_manifest(work, tmp_path):
     f = work["frames"]
     out = tmp_path / "g"

@@ -64,11 +64,10 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   const int newerQueries = headDim < 64 ? 2 : 4;
   int queriesPerInvocation = cpu ? (newer ? newerQueries : 8) : 2, keysPerBlock = cpu && headDim < 64 ? 8 : 16;
   int localX = cpu ? ops::cpuLanes(engine.caps()) : 64;
-  if (const char* env = std::getenv("SPAR_ATTENTION_TILES")) {
-    if (std::sscanf(env, "%d,%d,%d", &queriesPerInvocation, &keysPerBlock, &localX) != 3 || queriesPerInvocation <= 0 ||
-        keysPerBlock <= 0 || localX <= 0)
-      throw Error("SPAR_ATTENTION_TILES must be QPI,KB,LX (positive integers)");
-    if (keysPerBlock % 4) throw Error("SPAR_ATTENTION_TILES: keys per block must be a multiple of 4");
+  if (const auto& t = engine.options().tuning.attentionTiles) {
+    queriesPerInvocation = (*t)[0];
+    keysPerBlock = (*t)[1];
+    localX = (*t)[2];
   }
   const Kernel& kernel = engine.kernel({out.tensor.dtype() == DType::F16 ? "attention_f16out" : "attention_f32",
                                         {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},

@@ -17,14 +17,8 @@ struct ConvPush {
 
 }  // namespace
 
-ConvTiles chooseConvTiles(const DeviceCaps& caps, int64_t kh, int64_t kw, int64_t cout) {
-  if (const char* env = std::getenv("SPAR_CONV_TILES")) {
-    ConvTiles t{};
-    if (std::sscanf(env, "%d,%d,%d,%d,%d", &t.channels, &t.rows, &t.cols, &t.localX, &t.localY) == 5 &&
-        t.channels > 0 && t.rows > 0 && t.cols > 0 && t.localX > 0 && t.localY > 0)
-      return t;
-    throw Error("SPAR_CONV_TILES must be RC,RY,RX,LX,LY (positive integers)");
-  }
+ConvTiles chooseConvTiles(const DeviceCaps& caps, const KernelTuning& tuning, int64_t kh, int64_t kw, int64_t cout) {
+  if (const auto& t = tuning.convTiles) return {(*t)[0], (*t)[1], (*t)[2], (*t)[3], (*t)[4]};
   // The unrolled loop body holds channels x 4 input channels x kh x kw x rows x cols
   // multiply-adds, and its compile time grows with it: on llvmpipe (Mesa 22.3, 8 lanes)
   // 16 x 2 x 8 outputs of 3x3 (9k multiply-adds) took 3-5 s per variant, 8 x 1 x 8 (2.3k)
@@ -88,7 +82,7 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   if (y.numel() == 0) return;
   if (Cin == 0) throw Error("conv2d: input has no channels");
 
-  const ConvTiles tiles = chooseConvTiles(caps, KH, KW, Cout);
+  const ConvTiles tiles = chooseConvTiles(caps, engine.options().tuning, KH, KW, Cout);
   // Weights and bias may sit at any offset: they are bound from an aligned start.
   const BoundRange wr = bindRange(caps, w, 0, w.numel(), true);
   const BoundRange br = bias.defined() ? bindRange(caps, bias, 0, Cout, true) : wr;

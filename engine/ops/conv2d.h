@@ -4,6 +4,7 @@
 
 #include "engine/ops/activation.h"
 #include "engine/recorder.h"
+#include "spar/engine_options.h"
 
 namespace spar {
 
@@ -14,9 +15,10 @@ struct ConvTiles {
 };
 // For a kh x kw kernel with cout output channels: CPU devices (llvmpipe) get big register
 // blocks (fewer channels for big kernels, to bound compile time; rows instead of channels
-// when cout is small), GPUs small ones. SPAR_CONV_TILES="RC,RY,RX,LX,LY" overrides (for
+// when cout is small), GPUs small ones. tuning.convTiles (SPAR_CONV_TILES="RC,RY,RX,LX,LY") overrides (for
 // tuning). localY == 1 selects the flat walk over output blocks (shaders/conv2d.comp, FLAT).
-ConvTiles chooseConvTiles(const DeviceCaps& caps, int64_t kh, int64_t kw, int64_t cout = INT64_MAX);
+ConvTiles chooseConvTiles(const DeviceCaps& caps, const KernelTuning& tuning, int64_t kh, int64_t kw,
+                          int64_t cout = INT64_MAX);
 
 struct Conv2dParams {
   int stride = 1;   // the same along y and x

@@ -20,15 +20,10 @@ struct Tiles {
   int channels, rows, cols, localX, localY;
 };
 
-Tiles chooseTiles(const DeviceCaps& caps, int k, double multiplyAdds) {
-  // SPAR_CONVT_TILES="RC,RY,RX,LX,LY" overrides (for tuning with spar-bench --only drp_).
-  if (const char* env = std::getenv("SPAR_CONVT_TILES")) {
-    Tiles t{};
-    if (std::sscanf(env, "%d,%d,%d,%d,%d", &t.channels, &t.rows, &t.cols, &t.localX, &t.localY) == 5 &&
-        t.channels > 0 && t.rows > 0 && t.cols > 0 && t.localX > 0 && t.localY > 0)
-      return t;
-    throw Error("SPAR_CONVT_TILES must be RC,RY,RX,LX,LY (positive integers)");
-  }
+Tiles chooseTiles(const DeviceCaps& caps, const KernelTuning& tuning, int k, double multiplyAdds) {
+  // EngineOptions::tuning.convTransposeTiles (SPAR_CONVT_TILES) overrides, for tuning with
+  // spar-bench --only drp_.
+  if (const auto& t = tuning.convTransposeTiles) return {(*t)[0], (*t)[1], (*t)[2], (*t)[3], (*t)[4]};
   // CPU (llvmpipe): 4 input columns = one RGBA texel. Mesa 22.3: about 256-512 outputs per
   // invocation for layers of 2^26 multiply-adds and more (spar-bench's drp_*_convt, 2^27: bigger
   // blocks compile for seconds and run no faster, 64 outputs compile in 0.4 s instead of 1.4 s
@@ -69,7 +64,7 @@ void convTranspose2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tens
   if (Cin == 0) throw Error("convTranspose2d: input has no channels");
 
   const int ks = static_cast<int>(k);
-  const Tiles tiles = chooseTiles(caps, ks, double(N) * double(Cin) * double(Cout) * double(H * W) * double(k * k));
+  const Tiles tiles = chooseTiles(caps, engine.options().tuning, ks, double(N) * double(Cin) * double(Cout) * double(H * W) * double(k * k));
   const BoundRange wr = bindRange(caps, w, 0, w.numel(), true);
   const BoundRange br = bias.defined() ? bindRange(caps, bias, 0, Cout, true) : wr;
   const bool rgbaW = (k * k) % 4 == 0 && wr.base % 4 == 0;

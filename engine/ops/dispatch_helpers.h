@@ -81,15 +81,11 @@ struct LineGroup {
 // cores busy (splitting costs barriers, which are coroutine switches there: LayerNorm of
 // 4096 x 1024 took ~10 ms unsplit, ~15 ms split). GPU: long contiguous lines are split so that
 // neighbouring invocations read neighbouring addresses.
-// SPAR_LINE_GROUP="SPLIT,LX,LY" (SPLIT 0 or 1) overrides the choice, for tuning and for
+// EngineOptions::tuning.lineGroup (SPAR_LINE_GROUP="SPLIT,LX,LY", SPLIT 0 or 1) overrides the choice, for tuning and for
 // testing the GPU shapes on a CPU device.
-inline LineGroup lineGroupFor(const DeviceCaps& caps, int64_t lineLength, bool contiguous, int64_t lines) {
-  if (const char* env = std::getenv("SPAR_LINE_GROUP")) {
-    int split = 0, x = 0, y = 0;
-    if (std::sscanf(env, "%d,%d,%d", &split, &x, &y) == 3 && (split == 0 || split == 1) && x > 0 && x % 8 == 0 && y > 0)
-      return {split == 1, x, y};
-    throw Error("SPAR_LINE_GROUP must be SPLIT,LX,LY (SPLIT 0 or 1, LX a positive multiple of 8, LY > 0)");
-  }
+inline LineGroup lineGroupFor(const DeviceCaps& caps, const KernelTuning& tuning, int64_t lineLength, bool contiguous,
+                              int64_t lines) {
+  if (const auto& t = tuning.lineGroup) return {(*t)[0] == 1, (*t)[1], (*t)[2]};
   const int simd = std::max(8, static_cast<int>((caps.subgroupSize + 7) / 8 * 8));
   if (caps.isCpu()) {
     const bool split = lineLength >= 32 && lines < 512;

@@ -18,15 +18,8 @@ struct GemmPush {
 
 }  // namespace
 
-GemmTiles chooseGemmTiles(const DeviceCaps& caps, double multiplyAdds) {
-  if (const char* env = std::getenv("SPAR_GEMM_TILES")) {
-    GemmTiles t{};
-    if (std::sscanf(env, "%d,%d,%d,%d,%d", &t.rowsPerInvocation, &t.colsPerInvocation, &t.localX, &t.localY,
-                    &t.kUnroll) == 5 &&
-        t.rowsPerInvocation > 0 && t.colsPerInvocation > 0 && t.localX > 0 && t.localY > 0 && t.kUnroll > 0)
-      return t;
-    throw Error("SPAR_GEMM_TILES must be RM,RN,LX,LY,KU (positive integers)");
-  }
+GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, double multiplyAdds) {
+  if (const auto& t = tuning.gemmTiles) return {(*t)[0], (*t)[1], (*t)[2], (*t)[3], (*t)[4]};
   if (caps.isCpu()) {
     const int lanes = ops::cpuLanes(caps);
     switch (ops::cpuTiles(caps)) {
@@ -73,7 +66,7 @@ void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
 
   const int texelK = K % 4 == 0 ? 4 : 1;
   const int64_t kTexels = K / texelK;
-  GemmTiles tiles = chooseGemmTiles(caps, double(B) * double(M) * double(N) * double(K));
+  GemmTiles tiles = chooseGemmTiles(caps, engine.options().tuning, double(B) * double(M) * double(N) * double(K));
   // Small outputs (heads with N = 1 or 9, a handful of rows) would mostly compute clamped
   // duplicates with big blocks: on GPUs the blocks are halved down to the problem. CPU blocks
   // are small already, and every other block is one more variant to compile (0.3-0.4 s each

@@ -2,6 +2,7 @@
 #pragma once
 #include "engine/ops/activation.h"
 #include "engine/recorder.h"
+#include "spar/engine_options.h"
 
 namespace spar {
 
@@ -13,8 +14,8 @@ struct GemmTiles {
 // CPU devices (llvmpipe): register blocks measured per driver generation (engine/ops/
 // cpu_tiles.h) and by the work of the product (multiply-adds M * N * K: a bigger block only
 // where the run time it saves outweighs its compile time); GPUs: small blocks, many invocations.
-// SPAR_GEMM_TILES="RM,RN,LX,LY,KU" overrides (for tuning with spar-bench).
-GemmTiles chooseGemmTiles(const DeviceCaps& caps, double multiplyAdds);
+// tuning.gemmTiles (SPAR_GEMM_TILES="RM,RN,LX,LY,KU") overrides (for tuning with spar-bench).
+GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, double multiplyAdds);
 
 // x: [rows..., K] with w: [N, K], or x: [B, M, K] with w: [B, N, K] (batched);
 // bias: [N] or undefined; y: [rows..., N] (f32 or f16). x, w, bias may be f32 or f16.

@@ -29,7 +29,7 @@ void normLines(Recorder& rec, Norm norm, const Tensor& x2, int64_t xCol0, const 
     throw Error(op + ": too many lines for 32-bit indexing");
 
   const bool vec4 = dh % 4 == 0 && cx % 4 == 0 && cy % 4 == 0 && xCol0 % 4 == 0 && yCol0 % 4 == 0;
-  const ops::LineGroup g = ops::lineGroupFor(engine.caps(), vec4 ? dh / 4 : dh, true, rows * heads);
+  const ops::LineGroup g = ops::lineGroupFor(engine.caps(), engine.options().tuning, vec4 ? dh / 4 : dh, true, rows * heads);
   const bool rms = norm == Norm::Rms;
   std::vector<Bind> bindings =
       inPlace ? std::vector<Bind>{Bind::ReadWrite} : std::vector<Bind>{Bind::Read, Bind::Write};

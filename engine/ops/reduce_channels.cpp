@@ -51,7 +51,7 @@ void reduceChannels(Recorder& rec, Reduce what, const Tensor& x, const Tensor& y
   if (lines > 0xffffffffull || x.numel() > 0x7fffffff) throw Error(op + ": too many values for 32-bit indexing");
 
   const bool vec4 = v.inner == 1 && v.C % 4 == 0;
-  const ops::LineGroup g = ops::lineGroupFor(engine.caps(), vec4 ? v.C / 4 : v.C, v.inner == 1, int64_t(lines));
+  const ops::LineGroup g = ops::lineGroupFor(engine.caps(), engine.options().tuning, vec4 ? v.C / 4 : v.C, v.inner == 1, int64_t(lines));
   const char* shader = what == Reduce::Softmax ? (inPlace ? "softmax_inplace" : "softmax")
                        : what == Reduce::L2    ? (inPlace ? "l2normalize_inplace" : "l2normalize")
                                                : "argmax";

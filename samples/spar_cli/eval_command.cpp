@@ -12,7 +12,7 @@
 #include <optional>
 
 #include "engine/engine.h"
-#include "model/cameras.h"
+#include "formats/cameras.h"
 #include "model/packed_model.h"
 #include "model/spar_config.h"
 #include "model/spar_pipeline.h"
@@ -151,8 +151,9 @@ void runEval(const EvalArgs& a) {
   try {
     progress.step("opening the Vulkan device");
     EngineOptions eo;
-    eo.device.select = a.device;
+    eo.device = a.device;
     eo.pipelineCacheFile = pipelineCachePath();
+    eo = EngineOptions::fromEnvironment(eo);
     Engine engine(eo);
     deviceName = engine.caps().name;
     SparPipelineOptions po;

@@ -9,7 +9,7 @@
 #include <map>
 
 #include "engine/error.h"
-#include "model/image_prep.h"
+#include "imaging/image_prep.h"
 
 namespace spar::cli::eval {
 namespace {

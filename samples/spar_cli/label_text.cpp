@@ -4,7 +4,7 @@
 
 #include "engine/error.h"
 #include "engine/recorder.h"
-#include "model/bpe_tokenizer.h"
+#include "text/bpe_tokenizer.h"
 #include "model/clip_text.h"
 #include "model/label_maps.h"
 #include "model/transformer_block.h"

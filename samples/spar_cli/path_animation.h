@@ -5,7 +5,7 @@
 #include <string>
 #include <vector>
 
-#include "model/image_prep.h"
+#include "imaging/image_prep.h"
 
 namespace spar::cli {
 

@@ -8,8 +8,8 @@
 
 #include "engine/engine.h"
 #include "engine/recorder.h"
-#include "model/cameras.h"
-#include "model/image_prep.h"
+#include "formats/cameras.h"
+#include "imaging/image_prep.h"
 #include "model/packed_model.h"
 #include "model/spar_config.h"
 #include "model/spar_pipeline.h"
@@ -152,8 +152,9 @@ void runRender(const RenderArgs& a) {
     progress.step("opening the Vulkan device");
     auto t = Clock::now();
     EngineOptions eo;
-    eo.device.select = a.device;
+    eo.device = a.device;
     eo.pipelineCacheFile = pipelineCachePath();
+    eo = EngineOptions::fromEnvironment(eo);
     Engine engine(eo);
     host.push_back({{"name", "device"}, {"wall_ms", msSince(t)}});
 

@@ -5,10 +5,10 @@
 #include <fstream>
 
 #include "engine/error.h"
-#include "model/image_prep.h"
+#include "imaging/image_prep.h"
 #include "model/label_maps.h"
-#include "model/label_outputs.h"
-#include "model/npy.h"
+#include "imaging/label_outputs.h"
+#include "formats/npy.h"
 #include "samples/spar_cli/path_animation.h"
 
 namespace spar::cli {

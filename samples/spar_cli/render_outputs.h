@@ -7,8 +7,8 @@
 #include <string>
 #include <vector>
 
-#include "model/cameras.h"
-#include "model/image_prep.h"
+#include "formats/cameras.h"
+#include "imaging/image_prep.h"
 
 namespace spar::cli {
 

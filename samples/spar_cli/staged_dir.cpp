@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "engine/error.h"
-#include "model/cameras.h"
+#include "formats/cameras.h"
 
 namespace spar::cli {
 

@@ -7,7 +7,7 @@
 #include <nlohmann/json.hpp>
 
 #include "engine/error.h"
-#include "model/npy.h"
+#include "formats/npy.h"
 
 namespace spar::modes {
 namespace {

@@ -74,11 +74,22 @@ def run(*args):
     subprocess.run([sys.executable, *args], check=True, env=dict(os.environ, PYTHONPATH=CONVERTER))
 
 
-def main_full(out, bpe=""):
+# CLIP's merges table: the repository's copy unless the command line names another.
+REPO_BPE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "text", "data", "clip",
+                        "bpe_simple_vocab_16e6.txt.gz")
+
+
+def require_bpe(bpe):
+    if not os.path.isfile(bpe):
+        raise SystemExit("make_spar_goldens: CLIP BPE merges table not found: %s" % bpe)
+    return bpe
+
+
+def main_full(out, bpe):
     """The full-size comparison (issues: one run of the official configuration with random
     weights, 2 input + 1 target view at 256x256, stage by stage; the semantic branch at full
     size): full() as spar.yaml has it (LSeg ViT-L/16, CLIP text), perturbed weights, float64
-    goldens of frames 0, 1, 2 with inputs 0, 2, with --labels when the BPE table is here."""
+    goldens of frames 0, 1, 2 with inputs 0, 2, with --labels."""
     os.makedirs(out, exist_ok=True)
     cfg = full()
     cfg_path = os.path.join(out, "full.json")
@@ -87,14 +98,14 @@ def main_full(out, bpe=""):
     f = frames(out, count=3, width=320, height=240)
     ck, packed = os.path.join(out, "full.pt"), os.path.join(out, "full.spar")
     ref = os.path.join(CONVERTER, "spar-reference")
-    has_bpe = bool(bpe) and os.path.isfile(bpe)
+    require_bpe(bpe)
     run(ref, "make-checkpoint", "--config", cfg_path, "--seed", "11", "--perturb", "--no-optimizer", "-o", ck)
     run(os.path.join(CONVERTER, "spar-convert"), "-q", ck, "--config", cfg_path,
-        *(["--bpe", bpe] if has_bpe else []), "-o", packed)
+        "--bpe", bpe, "-o", packed)
     d = os.path.join(out, "full_2in_1out")
     if os.path.exists(d):
         subprocess.run(["rm", "-rf", d], check=True)
-    labels = ["--labels", ",".join(LABELS[:4]), "--bpe", bpe] if has_bpe else []
+    labels = ["--labels", ",".join(LABELS[:4]), "--bpe", bpe]
     run(ref, "goldens", "--checkpoint", ck, "--config", cfg_path, "--frames", *f, "--inputs", "0,2",
         *labels, "--float64", "--out", d)
     os.unlink(ck)  # 3 GB: only the packed file is needed from here on
@@ -118,11 +129,9 @@ def main_semantic(out, bpe):
     ck, packed = os.path.join(out, "tiny_semantic.pt"), os.path.join(out, "tiny_semantic.spar")
     ref = os.path.join(CONVERTER, "spar-reference")
     run(ref, "make-checkpoint", "--config", cfg_path, "--seed", "7", "--perturb", "--no-optimizer", "-o", ck)
-    # Without the CLIP BPE table (it is data outside the repository: ../shared/data/clip) the
-    # model has no tokenizer and the goldens no label maps; the text-side tests then skip.
-    has_bpe = bool(bpe) and os.path.isfile(bpe)
+    require_bpe(bpe)
     run(os.path.join(CONVERTER, "spar-convert"), "-q", ck, "--config", cfg_path,
-        *(["--bpe", bpe] if has_bpe else []), "-o", packed)
+        "--bpe", bpe, "-o", packed)
     with open(os.path.join(out, "labels.json"), "w") as fh:
         json.dump(LABELS, fh, ensure_ascii=False)
     for name, args in {"semantic": ["--frames", *f, "--inputs", "0,2,4"],
@@ -130,16 +139,16 @@ def main_semantic(out, bpe):
         d = os.path.join(out, name)
         if os.path.exists(d):
             subprocess.run(["rm", "-rf", d], check=True)
-        labels = ["--labels", ",".join(LABELS), "--bpe", bpe] if has_bpe else []
+        labels = ["--labels", ",".join(LABELS), "--bpe", bpe]
         run(ref, "goldens", "--checkpoint", ck, "--config", cfg_path, *args, *labels, "--float64", "--out", d)
     return 0
 
 
 def main():
     if sys.argv[1:2] == ["--full"]:
-        return main_full(os.path.abspath(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "")
+        return main_full(os.path.abspath(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else REPO_BPE)
     if sys.argv[1:2] == ["--semantic"]:
-        return main_semantic(os.path.abspath(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else "")
+        return main_semantic(os.path.abspath(sys.argv[2]), sys.argv[3] if len(sys.argv) > 3 else REPO_BPE)
     out = os.path.abspath(sys.argv[1])
     os.makedirs(out, exist_ok=True)
     cfg = tiny()

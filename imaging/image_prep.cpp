@@ -1,4 +1,4 @@
-#include "model/image_prep.h"
+#include "imaging/image_prep.h"
 
 #include <OpenImageIO/imageio.h>
 #include <unistd.h>

@@ -1,4 +1,4 @@
-#include "model/npy.h"
+#include "formats/npy.h"
 
 #include <bit>
 #include <cctype>

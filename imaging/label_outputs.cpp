@@ -1,4 +1,4 @@
-#include "model/label_outputs.h"
+#include "imaging/label_outputs.h"
 
 #include <cmath>
 #include <cstdio>

@@ -1,7 +1,7 @@
 // Host-side camera math of the `spar` command; see cameras.h. The formulas and their order of
 // operations follow converter/spar_reference/cameras.py so that results agree with the
 // reference to rounding (the tests compare at 1e-12).
-#include "model/cameras.h"
+#include "formats/cameras.h"
 
 #include <glm/glm.hpp>
 #include <glm/gtc/quaternion.hpp>
@@ -17,7 +17,7 @@
 #include <sstream>
 
 #include "engine/error.h"
-#include "model/image_prep.h"
+#include "imaging/image_prep.h"
 
 namespace spar {
 namespace {

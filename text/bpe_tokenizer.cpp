@@ -1,4 +1,4 @@
-#include "model/bpe_tokenizer.h"
+#include "text/bpe_tokenizer.h"
 
 #include <unicode/locid.h>
 #include <unicode/normalizer2.h>
@@ -196,7 +196,7 @@ struct HtmlEntity {
 struct InvalidCharref {
   uint32_t number, replacement;
 };
-#include "model/html_entities.inc"
+#include "text/html_entities.inc"
 
 const HtmlEntity* findEntity(std::string_view name) {
   const auto it = std::lower_bound(std::begin(kHtml5Entities), std::end(kHtml5Entities), name,

@@ -15,7 +15,7 @@
 // case mapping with final sigma, as Python's str.lower) and NFC/NFKC come from ICU, pinned to
 // the reference Python's Unicode version (3.11: 14.0; ICU 72 has 15.0): code points assigned
 // later count as unassigned, as they do for bpe.py (see kUnicodeMajor in the .cpp). HTML
-// character references use the tables of Python's html module (model/html_entities.inc,
+// character references use the tables of Python's html module (text/html_entities.inc,
 // generated).
 // Input strings are UTF-8; an invalid byte sequence decodes as U+FFFD.
 #pragma once

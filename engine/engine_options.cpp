@@ -1,0 +1,87 @@
+// EngineOptions::fromEnvironment and KernelTuning::validate (include/spar/engine_options.h):
+// the one place the engine's settings are read from the environment.
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+
+#include "spar/engine_options.h"
+#include "spar/error.h"
+
+namespace spar {
+namespace {
+
+const char* env(const char* name) {
+  const char* v = std::getenv(name);
+  return v && *v ? v : nullptr;
+}
+
+bool flag(const char* name) {
+  const char* v = env(name);
+  return v && std::string(v) != "0";
+}
+
+// "a,b,c[,d,e]" -> N integers, nothing else on the line.
+template <size_t N>
+std::optional<std::array<int, N>> ints(const char* name, const char* form) {
+  const char* v = env(name);
+  if (!v) return std::nullopt;
+  std::array<int, N> out{};
+  const char* p = v;
+  for (size_t i = 0; i < N; ++i) {
+    char* end = nullptr;
+    const long x = std::strtol(p, &end, 10);
+    if (end == p || x < -(1L << 20) || x > (1L << 20)) throw Error(std::string(name) + " must be " + form + ", got '" + v + "'");
+    out[i] = int(x);
+    p = end;
+    if (i + 1 < N) {
+      if (*p != ',') throw Error(std::string(name) + " must be " + form + ", got '" + v + "'");
+      ++p;
+    }
+  }
+  if (*p) throw Error(std::string(name) + " must be " + form + ", got '" + v + "'");
+  return out;
+}
+
+template <size_t N>
+void positive(const std::optional<std::array<int, N>>& t, const char* what) {
+  if (!t) return;
+  for (int x : *t)
+    if (x <= 0) throw Error(std::string(what) + " must be " + std::to_string(N) + " positive integers");
+}
+
+}  // namespace
+
+void KernelTuning::validate() const {
+  positive(gemmTiles, "GEMM tiles (SPAR_GEMM_TILES: RM,RN,LX,LY,KU)");
+  positive(attentionTiles, "attention tiles (SPAR_ATTENTION_TILES: QPI,KB,LX)");
+  if (attentionTiles && (*attentionTiles)[1] % 4)
+    throw Error("attention tiles (SPAR_ATTENTION_TILES): keys per block must be a multiple of 4");
+  positive(convTiles, "conv2d tiles (SPAR_CONV_TILES: RC,RY,RX,LX,LY)");
+  positive(convTransposeTiles, "conv_transpose2d tiles (SPAR_CONVT_TILES: RC,RY,RX,LX,LY)");
+  if (lineGroup) {
+    const auto [split, x, y] = *lineGroup;
+    if ((split != 0 && split != 1) || x <= 0 || x % 8 || y <= 0)
+      throw Error("line group (SPAR_LINE_GROUP) must be SPLIT,LX,LY (SPLIT 0 or 1, LX a positive multiple of 8, LY > 0)");
+  }
+}
+
+EngineOptions EngineOptions::fromEnvironment(EngineOptions base) {
+  EngineOptions o = std::move(base);
+  if (o.device.empty())
+    if (const char* d = env("SPAR_DEVICE")) o.device = d;
+  o.validation = o.validation || flag("SPAR_VALIDATION");
+  o.logPipelines = o.logPipelines || flag("SPAR_LOG_PIPELINES");
+  o.profileDispatches = o.profileDispatches || flag("SPAR_PROFILE");
+  KernelTuning& t = o.tuning;
+  if (!t.gemmTiles) t.gemmTiles = ints<5>("SPAR_GEMM_TILES", "RM,RN,LX,LY,KU");
+  if (!t.attentionTiles) t.attentionTiles = ints<3>("SPAR_ATTENTION_TILES", "QPI,KB,LX");
+  if (!t.convTiles) t.convTiles = ints<5>("SPAR_CONV_TILES", "RC,RY,RX,LX,LY");
+  if (!t.convTransposeTiles) t.convTransposeTiles = ints<5>("SPAR_CONVT_TILES", "RC,RY,RX,LX,LY");
+  if (!t.lineGroup) t.lineGroup = ints<3>("SPAR_LINE_GROUP", "SPLIT,LX,LY");
+  t.validate();
+  return o;
+}
+
+EngineOptions EngineOptions::fromEnvironment() { return fromEnvironment(EngineOptions{}); }
+
+}  // namespace spar

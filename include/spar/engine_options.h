@@ -1,0 +1,47 @@
+// How the engine is set up: which Vulkan device, validation, caches, diagnostics, and tile
+// overrides for tuning. Every field has a working default; fromEnvironment() is one way to fill
+// the struct (what the command-line tools use), a program may set the fields itself.
+#pragma once
+#include <array>
+#include <optional>
+#include <string>
+
+#include "spar/export.h"
+
+namespace spar {
+
+// Overrides of the engine's per-device kernel choices, for tuning with spar-bench and for
+// running one device's kernels on another (tests). Unset: the engine chooses per device.
+struct SPAR_API KernelTuning {
+  std::optional<std::array<int, 5>> gemmTiles;           // RM, RN, LX, LY, KU
+  std::optional<std::array<int, 3>> attentionTiles;      // queries per invocation, keys per block, LX
+  std::optional<std::array<int, 5>> convTiles;           // RC, RY, RX, LX, LY
+  std::optional<std::array<int, 5>> convTransposeTiles;  // RC, RY, RX, LX, LY
+  std::optional<std::array<int, 3>> lineGroup;           // SPLIT (0|1), LX (multiple of 8), LY
+
+  // Throws Error (one line, naming the field) for a value no kernel can take.
+  void validate() const;
+};
+
+struct SPAR_API EngineOptions {
+  // Which device: an index ("0") or a case-insensitive part of its name ("llvmpipe"). Empty:
+  // the first discrete, integrated, virtual, then CPU device.
+  std::string device;
+  bool validation = false;   // VK_LAYER_KHRONOS_validation, its messages counted and printed
+  bool verbose = false;      // print the chosen device and features to stderr
+  // Where the driver's pipeline cache is kept across runs ("" keeps none).
+  std::string pipelineCacheFile;
+  bool logPipelines = false;  // every pipeline's creation and driver build on stderr
+  bool profileDispatches = false;  // every dispatch's GPU time on stderr (model stages)
+  KernelTuning tuning;
+
+  // `base` with what the environment sets: SPAR_DEVICE, SPAR_VALIDATION=1, SPAR_LOG_PIPELINES=1,
+  // SPAR_PROFILE=1, SPAR_GEMM_TILES=RM,RN,LX,LY,KU, SPAR_ATTENTION_TILES=QPI,KB,LX,
+  // SPAR_CONV_TILES / SPAR_CONVT_TILES=RC,RY,RX,LX,LY, SPAR_LINE_GROUP=SPLIT,LX,LY. A field
+  // already set in `base` (device non-empty) wins over the environment. Throws Error for a
+  // malformed value, naming the variable.
+  static EngineOptions fromEnvironment(EngineOptions base);
+  static EngineOptions fromEnvironment();
+};
+
+}  // namespace spar

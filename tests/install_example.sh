@@ -1,0 +1,40 @@
+#!/bin/sh
+# The installed package as a user meets it: `cmake --install` into an empty prefix, the example
+# (examples/render_one_view) configured with find_package(spar) against that prefix only, built,
+# and run on the shipped model and scene under the validation layer. Checks that the example
+# links libspar and nothing of the engine's private dependencies, and that the view it wrote
+# has the model's size and is not blank.
+#   install_example.sh BUILD_DIR SOURCE_DIR WORK_DIR
+set -eu
+build=$1 src=$2 work=$3
+rm -rf "$work"
+mkdir -p "$work"
+cmake --install "$build" --prefix "$work/prefix" > "$work/install.log"
+test -f "$work/prefix/include/spar/spar.h"
+test -f "$work/prefix/lib/pkgconfig/spar.pc"
+test -x "$work/prefix/bin/spar"
+if ls "$work/prefix/include/spar" | grep -qv '\.h$'; then echo "non-header in include/spar"; exit 1; fi
+if grep '#include' "$work/prefix/include/spar/"*.h | grep -v '"spar/\|<[a-z_]*>'; then
+  echo "a public header includes something other than spar/ and the standard library"; exit 1
+fi
+cmake -S "$src/examples/render_one_view" -B "$work/build" -DCMAKE_BUILD_TYPE=Release \
+      -DCMAKE_PREFIX_PATH="$work/prefix" > "$work/configure.log"
+cmake --build "$work/build" > "$work/build.log"
+needed=$(readelf -d "$work/build/render_one_view" | grep NEEDED)
+echo "$needed"
+echo "$needed" | grep -q 'libspar\.so'
+if echo "$needed" | grep -qi 'vulkan\|OpenImageIO\|icu\|libz'; then echo "the example links a private dependency"; exit 1; fi
+scene="$src/samples/data/scenes/scene_1000002"
+SPAR_VALIDATION=1 "$work/build/render_one_view" "$work/prefix/share/spar/spar_rooms.spar" "$work/view.png" \
+  "$scene/rgb_00.png" "$scene/rgb_04.png" "$scene/rgb_07.png" 2> "$work/stderr.txt"
+cat "$work/stderr.txt"
+if grep -qi 'validation' "$work/stderr.txt"; then echo "validation messages"; exit 1; fi
+/usr/bin/python3 - "$work/view.png" <<'PY'
+import sys
+from PIL import Image
+im = Image.open(sys.argv[1]).convert("RGB")
+assert im.size == (128, 128), im.size
+lo, hi = zip(*im.getextrema())
+assert max(h - l for l, h in zip(lo, hi)) > 20, "blank view: %s" % (im.getextrema(),)
+print("view.png", im.size, "extrema", im.getextrema())
+PY
