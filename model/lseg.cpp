@@ -21,10 +21,6 @@ namespace {
 const std::string kPrefix = "lseg.";
 const std::string kVit = kPrefix + "pretrained.model.";
 
-// The 4th hook's stride-2 conv halves H/16, and the fusion doubles it back three times: H/16
-// must be even, i.e. H a multiple of 32 (likewise W).
-constexpr int64_t kSizeMultiple = 32;
-
 // What follows the 1x1 conv of each hook (act_postprocess1..4 index 4) and the resolution it
 // leaves, relative to the token grid: ConvT k4 s4 (x4), ConvT k2 s2 (x2), nothing, Conv3x3 s2 p1.
 enum class Tail { ConvT, None, Conv };

@@ -56,6 +56,10 @@ struct LSegConfig {
 
 class LSegEncoder {
  public:
+  // Image sides must be multiples of this: the 4th hook's stride-2 conv halves H/16, and the
+  // fusion doubles it back three times, so H/16 must be even (likewise W).
+  static constexpr int64_t kSizeMultiple = 32;
+
   // Reads the sizes from config.raw["lseg"] and requires every weight.
   LSegEncoder(Engine& engine, WeightSet& weights, const SparConfig& config);
   LSegEncoder(Engine& engine, WeightSet& weights, const LSegConfig& config);

@@ -118,15 +118,23 @@ void SparPipeline::addStageTimes(const Recorder& rec, double wallMs) {
 }
 
 
+std::string imageSizeProblem(const SparConfig& config, int64_t height, int64_t width) {
+  const std::string size = std::to_string(height) + "x" + std::to_string(width) + " (HxW)";
+  if (height <= 0 || width <= 0 || height % config.patchSize || width % config.patchSize)
+    return "image size " + size + " is not a multiple of the model's patch size " + std::to_string(config.patchSize);
+  if (config.useLseg && (height % LSegEncoder::kSizeMultiple || width % LSegEncoder::kSizeMultiple))
+    return "image size " + size + " is not a multiple of " + std::to_string(LSegEncoder::kSizeMultiple) +
+           ", which this model's semantic branch (LSeg) needs";
+  return "";
+}
+
 const SparEncoded& SparPipeline::encode(const SparRequest& request) {
   Stages& st = *stages_;
   const SparConfig& c = config_;
   request.plan.validate();
   const int64_t h = request.height ? request.height : c.imageHeight;
   const int64_t w = request.width ? request.width : c.imageWidth;
-  if (h % c.patchSize || w % c.patchSize || h <= 0 || w <= 0)
-    throw Error("image size " + std::to_string(w) + "x" + std::to_string(h) + " is not a multiple of the patch size " +
-                std::to_string(c.patchSize));
+  if (const std::string problem = imageSizeProblem(c, h, w); !problem.empty()) throw Error(problem);
   const int64_t v = request.plan.views, k = int64_t(request.plan.inputs.size()), d = c.d;
   const int64_t gh = h / c.patchSize, gw = w / c.patchSize, n = gh * gw;
   if (int64_t(request.images.size()) != v * 3 * h * w)

@@ -37,6 +37,16 @@ namespace spar {
 using SparRequest = Request;
 using SparEncoded = Encoded;
 
+// "" when the engine runs this model at height x width pixels, else why not (one line, no
+// prefix). Any size works whose sides are positive multiples of the patch size: the sin-cos
+// codes and DINOv3's RoPE are computed for the grid in hand (non-square grids as the official
+// code builds them), LSeg's position embeddings are resized to it, and CV-DRP's decoder
+// upsamples any grid by 16. With the semantic branch the sides must be
+// multiples of 32 (LSeg's fusion). The configuration's image size is the training size, the
+// default; the model was not trained at other sizes, so its results there may be worse.
+std::string imageSizeProblem(const SparConfig& config, int64_t height, int64_t width);
+
+
 struct SparPipelineOptions {
   bool profile = true;            // per-dispatch timestamps -> stageTimes()
   // Keep every stage's output tensor under its golden name (converter/spar_reference/

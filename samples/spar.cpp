@@ -1,12 +1,13 @@
 // spar: the command-line tool of the engine.
 //   spar render --model M.spar (--images A B [--targets C D] | --frames f0 .. --inputs 0,3,4)
-//               [--cameras transforms.json | --path N] [--assume-static] [--device D] --out DIR
-//   spar eval --model M.spar --scenes DIR [--views 2,3,4] [--precision fp32|fp16]
+//               [--cameras transforms.json | --path N] [--assume-static] [--size HxW] [--device D] --out DIR
+//   spar eval --model M.spar --scenes DIR [--views 2,3,4] [--precision fp32|fp16] [--size HxW]
 //             [--no-gating | --assume-static] [--max-scenes N] [--device D] --out result.json
 // Exit codes: 0 done, 1 something found wrong on the way (files, model, device), 2 a command
 // line that cannot mean anything. Every error is one line "spar: error: <message>" on stderr.
 #include <CLI/CLI.hpp>
 
+#include <cstdint>
 #include <cstdio>
 #include <iostream>
 #include <string>
@@ -29,6 +30,23 @@ int fail(const std::string& message, int code) {
   std::fprintf(stderr, "spar: error: %s\n", oneLine(message).c_str());
   return code;
 }
+
+// --size "HxW" (height first, as the converter's --size) -> positive height and width; only the
+// syntax is judged here, what the model can run at once it is open (imageSizeProblem).
+bool parseSize(const std::string& text, int64_t& height, int64_t& width) {
+  const size_t x = text.find_first_of("xX");
+  if (x == std::string::npos) return false;
+  auto side = [](const std::string& t, int64_t& out) {
+    if (t.empty() || t.size() > 6 || t.find_first_not_of("0123456789") != std::string::npos) return false;
+    out = std::stoll(t);
+    return out > 0;
+  };
+  return side(text.substr(0, x), height) && side(text.substr(x + 1), width);
+}
+
+const char* kSizeHelp =
+    "image size HxW in pixels (height x width), multiples of the model's patch size (16; 32 with the "
+    "semantic branch); default: the model's own (its training size, from spar-convert)";
 
 }  // namespace
 
@@ -63,6 +81,8 @@ int main(int argc, char** argv) {
                      "fp32, or fp16: weight matrices held as fp16 on the device (half the memory; activations "
                      "and accumulation stay fp32)")
       ->check(CLI::IsMember({"fp32", "fp16"}));
+  std::string renderSize;
+  auto* renderSizeOpt = render->add_option("--size", renderSize, kSizeHelp)->type_name("HxW");
   render->add_flag("--assume-static", a.assumeStatic,
                    "the scene is static: skip DINOv3 and CV-DRP, gate no token, write no motion maps");
   render->add_option("--out", a.out, "output directory (must not exist; written as DIR.tmp-XXXXXX, then renamed)")
@@ -94,6 +114,9 @@ int main(int argc, char** argv) {
       ->type_name("\"2,3,4\"");
   evalCmd->add_option("--precision", e.precision, "fp32, or fp16 weight matrices on the device")
       ->check(CLI::IsMember({"fp32", "fp16"}));
+  std::string evalSize;
+  auto* evalSizeOpt = evalCmd->add_option("--size", evalSize, std::string(kSizeHelp) + "; the scenes must be this size")
+                          ->type_name("HxW");
   auto* noGating = evalCmd->add_flag("--no-gating", e.noGating,
                                      "ablation: CV-DRP runs (mask metrics reported) but no input token is gated");
   evalCmd->add_flag("--assume-static", e.assumeStatic, "ablation: no DINOv3 / CV-DRP, no gating, mask metrics null")
@@ -112,6 +135,9 @@ int main(int argc, char** argv) {
   if (evalCmd->parsed()) {
     if (maxScenes->count() > 0 && e.maxScenes < 1)
       return fail("--max-scenes must be at least 1 (see spar eval --help)", kExitUsage);
+    if (evalSizeOpt->count() > 0 && !parseSize(evalSize, e.height, e.width))
+      return fail("--size must be HxW in pixels, e.g. 128x128, got '" + evalSize + "' (see spar eval --help)",
+                  kExitUsage);
     try {
       runEval(e);
       return kExitOk;
@@ -125,6 +151,9 @@ int main(int argc, char** argv) {
   a.views.targetsGiven = targets->count() > 0;
   if (pathOpt->count() > 0) a.path = path;
   if (labels->count() > 0) a.labels = labelsText;
+  if (renderSizeOpt->count() > 0 && !parseSize(renderSize, a.height, a.width))
+    return fail("--size must be HxW in pixels, e.g. 128x128, got '" + renderSize + "' (see spar render --help)",
+                kExitUsage);
 
   try {
     runRender(a);

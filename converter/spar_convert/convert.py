@@ -26,7 +26,8 @@ import zlib
 
 import numpy as np
 
-from .model_config import SparConfig, backbone_config, resolve_config
+from .model_config import (SparConfig, backbone_config, read_config_file, resolve_config,
+                           stated_image_size)
 from .safetensors_file import SafetensorsError, TensorSpec, write_safetensors
 from .torch_checkpoint import CheckpointError, open_checkpoint, open_torchscript
 
@@ -385,35 +386,16 @@ def infer_config(inp, notes):
     notes.append("pose %s, input_with_pe %s, plucker normalization %s"
                  % (c.pose_representation, c.input_with_pe, c.plucker_norm_mode))
     notes.append("not in the tensors, official defaults: input_masking_mode %s, canonical %s, "
-                 "semantic_loss_weight %g; runtime sizes (engine takes them per request): "
-                 "image %dx%d, views %d (%d inputs)"
-                 % (c.input_masking_mode, c.canonical, c.semantic_loss_weight, c.image_height,
-                    c.image_width, c.num_views, c.num_input_views))
+                 "semantic_loss_weight %g; views %d (%d inputs)"
+                 % (c.input_masking_mode, c.canonical, c.semantic_loss_weight, c.num_views,
+                    c.num_input_views))
 
     # DINOv3
-    d = inp.dino
-    if not d:
-        raise ConvertError("no DINOv3 weights: the checkpoint has no _dino_v3.model.* tensors; "
-                           "give --dino DINO.pth")
-    e = _shape(d, "cls_token")[-1]
-    pe = _shape(d, "patch_embed.proj.weight", 4)
-    heads_q = _shape(d, "rope_embed.periods", 1)[0]
-    sizes = {"embed_dim": e, "depth": _count(d, "blocks"),
-             "patch_size": pe[-1], "in_chans": pe[1],
-             "n_storage_tokens": _shape(d, "storage_tokens", 3)[1] if "storage_tokens" in d else 0,
-             "num_heads": e // (4 * heads_q) if heads_q else 0,
-             "ffn_ratio": _shape(d, "blocks.0.mlp.fc1.weight", 2)[0] / e}
-    base, preset = _match_preset("dino", sizes)
+    sizes, flags, base, preset = dino_from_tensors(inp)
     c.dino = base if base is not None else dict(resolve_config("dino", {}), arch="custom", **sizes)
-    c.dino["qkv_bias"] = "blocks.0.attn.qkv.bias" in d
-    c.dino["mask_k_bias"] = "blocks.0.attn.qkv.bias_mask" in d
-    c.dino["proj_bias"] = "blocks.0.attn.proj.bias" in d
-    c.dino["ffn_bias"] = "blocks.0.mlp.fc1.bias" in d
-    notes.append("DINOv3 (%s): width %d, depth %d, heads %d (from rope_embed.periods), patch %d, "
-                 "%d register tokens%s" % (inp.source_of["dino"], e, sizes["depth"],
-                                           sizes["num_heads"], sizes["patch_size"],
-                                           sizes["n_storage_tokens"],
-                                           ", preset %s" % preset if preset else ""))
+    c.dino.update(flags)
+    notes.append("DINOv3 (%s): %s%s" % (inp.source_of["dino"], _dino_text(sizes),
+                                        ", preset %s" % preset if preset else ""))
 
     # LSeg
     if c.use_lseg:
@@ -473,9 +455,77 @@ def infer_config(inp, notes):
     return c
 
 
+def dino_from_tensors(inp):
+    """DINOv3's sizes as its tensors show them: (sizes, bias flags, matching preset dictionary
+    or None, preset name or None). Heads come from RoPE: rope_embed.periods holds head_dim / 4
+    values, so heads = width / (4 * len(periods))."""
+    d = inp.dino
+    if not d:
+        raise ConvertError("no DINOv3 weights: the checkpoint has no _dino_v3.model.* tensors; "
+                           "give --dino DINO.pth")
+    e = _shape(d, "cls_token")[-1]
+    pe = _shape(d, "patch_embed.proj.weight", 4)
+    heads_q = _shape(d, "rope_embed.periods", 1)[0]
+    if not heads_q or e % (4 * heads_q):
+        raise ConvertError("DINOv3 (%s): width %d is not a multiple of 4 x its %d RoPE periods "
+                           "(rope_embed.periods): no whole number of heads"
+                           % (inp.source_of["dino"], e, heads_q))
+    sizes = {"embed_dim": e, "depth": _count(d, "blocks"),
+             "patch_size": pe[-1], "in_chans": pe[1],
+             "n_storage_tokens": _shape(d, "storage_tokens", 3)[1] if "storage_tokens" in d else 0,
+             "num_heads": e // (4 * heads_q),
+             "ffn_ratio": _shape(d, "blocks.0.mlp.fc1.weight", 2)[0] / e}
+    flags = {"qkv_bias": "blocks.0.attn.qkv.bias" in d,
+             "mask_k_bias": "blocks.0.attn.qkv.bias_mask" in d,
+             "proj_bias": "blocks.0.attn.proj.bias" in d,
+             "ffn_bias": "blocks.0.mlp.fc1.bias" in d}
+    base, preset = _match_preset("dino", sizes)
+    return sizes, flags, base, preset
+
+
+def _dino_text(sizes):
+    return ("width %d, depth %d, heads %d (from rope_embed.periods), patch %d, %d register tokens"
+            % (sizes["embed_dim"], sizes["depth"], sizes["num_heads"], sizes["patch_size"],
+               sizes["n_storage_tokens"]))
+
+
+def dino_sizes_from_tensors(cfg, inp):
+    """With --config: DINOv3's architecture is that of the DINOv3 file, not what the YAML names
+    (spar.yaml only says arch vitb16 / embed_dim, and its defaults are ViT-B's 12 heads and 12
+    blocks). The tensors win; the note (None when the configuration agrees) says what changed.
+    A DINOv3 width other than D stays as the configuration says, so that the plan names the first
+    tensor that does not fit (the SPAR checkpoint's own, when the configuration's D is wrong)."""
+    sizes, flags, base, _ = dino_from_tensors(inp)
+    if sizes["embed_dim"] != cfg.d:
+        del sizes["embed_dim"]
+        base = None
+    changed = ["%s %s -> %s" % (k, cfg.dino.get(k), v) for k, v in sizes.items()
+               if cfg.dino.get(k) != v]
+    cfg.dino.update(sizes)
+    cfg.dino.update(flags)
+    if changed:
+        cfg.dino["arch"] = base["arch"] if base is not None else "custom"
+        return ("DINOv3 sizes from the tensors of %s, not the configuration's: %s"
+                % (inp.source_of["dino"], ", ".join(changed)))
+    return None
+
+
+def parse_size(text):
+    """--size HxW -> (height, width); argparse reports ArgumentTypeError as a usage error.
+    Whether the patch size divides it is judged with the configuration (SparConfig.validate)."""
+    parts = text.lower().split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() and int(p) > 0 for p in parts):
+        raise argparse.ArgumentTypeError("expected HEIGHTxWIDTH in pixels (e.g. 128x128), got %r"
+                                         % text)
+    return int(parts[0]), int(parts[1])
+
+
 def load_config(path):
+    """(SparConfig, (height, width) the file names or None)."""
     try:
-        cfg = SparConfig.from_file(path)
+        data = read_config_file(path)
+        size = stated_image_size(data)
+        cfg = SparConfig.from_dict(data)
     except OSError as e:
         raise ConvertError("cannot read --config %s: %s" % (path, e.strerror or e)) from None
     except ImportError:
@@ -487,7 +537,7 @@ def load_config(path):
         raise ConvertError("--config %s: %s" % (path, _one_line(e))) from None
     for name in ("dino", "lseg", "clip"):
         setattr(cfg, name, resolve_config(name, getattr(cfg, name)))
-    return cfg
+    return cfg, size
 
 
 def _one_line(e):
@@ -910,6 +960,11 @@ def build_parser():
     ap.add_argument("-o", "--output", required=True, help="output file (e.g. model.spar)")
     ap.add_argument("--config", help="configuration: the official YAML (configs/spar/spar.yaml) "
                                      "or a SparConfig JSON/YAML; default: inferred from the tensors")
+    ap.add_argument("--size", type=parse_size, metavar="HxW",
+                    help="image size the checkpoint was trained at (height x width in pixels, "
+                         "e.g. 128x128), the size spar render and spar eval default to; "
+                         "default: the --config's (model.target_image), else 256x256 with a "
+                         "warning (no tensor holds it)")
     ap.add_argument("--fp16", action="store_true",
                     help="store weight matrices and conv kernels as F16 (norms, biases, "
                          "embeddings and small vectors stay F32)")
@@ -931,13 +986,34 @@ def convert(args, out=sys.stdout):
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=out))
     inp = read_inputs(args)
     try:
-        notes = []
+        notes, stderr_notes = [], []
+        stated = None
         if args.config:
-            cfg = load_config(args.config)
+            cfg, stated = load_config(args.config)
             how = "from %s" % args.config
+            note = dino_sizes_from_tensors(cfg, inp)
+            if note:
+                stderr_notes.append(note)
         else:
             cfg = infer_config(inp, notes)
             how = "inferred from the tensors"
+        # The image size is in no tensor (the codes are sin-cos, DINOv3 uses RoPE): --size,
+        # else the configuration's, else the official 256x256, said out loud because a
+        # checkpoint trained at another size would otherwise render at 256x256 unnoticed.
+        if args.size:
+            size_from = "--size"
+            if stated and tuple(stated) != tuple(args.size):
+                stderr_notes.append("--size %dx%d replaces the %dx%d of %s"
+                                    % (args.size + stated + (args.config,)))
+            cfg.image_height, cfg.image_width = args.size
+        elif stated:
+            size_from = "config"
+        else:
+            size_from = "default"
+        size_text = "%dx%d" % (cfg.image_height, cfg.image_width)
+        notes.append("image size %s (HxW) from %s" % (size_text, {
+            "--size": "--size", "config": args.config,
+            "default": "nowhere: the official default"}[size_from]))
         if inp.dino_norm:
             for key in ("mean", "std"):
                 if key in inp.dino_norm:
@@ -976,6 +1052,7 @@ def convert(args, out=sys.stdout):
             "sources": {k: v for k, v in inp.source_of.items()},
             "files": [{"role": r, "path": os.path.basename(p), "bytes": n} for r, p, n in inp.files],
             "config_from": "file" if args.config else "inferred",
+            "image_size_from": size_from,
             "kept": {e.name: e.sources[0] for e in entries if e.kind == "kept"},
             "folded": {e.name: e.sources for e in entries if e.kind in ("folded", "created")},
             "created": [e.name for e in entries if e.kind == "created"],
@@ -1034,6 +1111,14 @@ def convert(args, out=sys.stdout):
             PROG, args.output, len(entries), _fmt_mb(size_in),
             " + ".join("%s %s" % (r, _fmt_mb(n)) for r, _, n in inp.files), _fmt_mb(size_out),
             " (fp16 matrices)" if args.fp16 else ""), file=out)
+        # After the file is complete, so that a refusal stays the one line it is.
+        for n in stderr_notes:
+            print("%s: note: %s" % (PROG, n), file=sys.stderr)
+        if size_from == "default":
+            print("%s: warning: the image size is not known (no tensor holds it%s): stored the "
+                  "default %s (HxW); give --size HxW if the checkpoint was trained at another "
+                  "size" % (PROG, "; %s names none" % args.config if args.config else
+                            "; no --config", size_text), file=sys.stderr)
         return 0
     finally:
         inp.close()

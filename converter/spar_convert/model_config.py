@@ -37,7 +37,7 @@ import dataclasses
 import json
 import os
 from dataclasses import dataclass, field
-from typing import Any, Dict, Optional
+from typing import Any, Dict, Optional, Tuple
 
 # --------------------------------------------------------------------------------------------
 # configurations
@@ -264,11 +264,17 @@ class SparConfig:
         assert self.d % self.d_head == 0, "d must be a multiple of d_head"
         assert self.d % self.cv_drp_n_heads == 0, "d must be a multiple of cv_drp_n_heads"
         assert self.d % 8 == 0, "the sin-cos codes split D into quarters of even size"
-        assert self.image_height % self.patch_size == 0 and self.image_width % self.patch_size == 0
+        assert self.image_height > 0 and self.image_width > 0 and \
+            self.image_height % self.patch_size == 0 and self.image_width % self.patch_size == 0, \
+            "image size %dx%d is not a multiple of the patch size %d" % (
+                self.image_height, self.image_width, self.patch_size)
         # CV-DRP decoder upsamples by exactly 16 (4 stride-2 transposed convolutions).
         assert self.patch_size == 16, "CV-DRP's decoder assumes patch size 16"
         # CV-DRP concatenates DINO, image and ray tokens raw: DINO width must be D.
         assert self.dino_width == self.d, "DINO width must equal D (CV-DRP concatenates raw)"
+        # ... token by token: one DINOv3 patch per SPAR patch.
+        assert int(self.dino.get("patch_size", self.patch_size)) == self.patch_size, \
+            "DINO patch size must equal patch_size (CV-DRP pairs their tokens one to one)"
         assert self.canonical in ("first", "middle")
         assert self.pose_representation in ("6d", "quat")
         assert self.input_masking_mode in ("soft_with_pe", "zero_out", "learnable_indicator", "none")
@@ -277,8 +283,12 @@ class SparConfig:
         if "feature_dim" in self.lseg and int(self.lseg["feature_dim"]) != self.semantic_dim:
             raise ValueError("semantic_dim must equal lseg.feature_dim")
         if self.use_lseg:
-            # LSeg features at H/2 are pooled by 8: one semantic token per 16x16 pixels.
-            assert self.image_height % 16 == 0 and self.image_width % 16 == 0
+            # LSeg's 4th hook halves its H/16 grid (stride-2 conv) and the fusion doubles it
+            # back: H and W multiples of 32 (which also pools H/2 by 8 into one semantic token
+            # per 16x16 pixels).
+            assert self.image_height % 32 == 0 and self.image_width % 32 == 0, \
+                "image size %dx%d is not a multiple of 32 (LSeg, semantic branch)" % (
+                    self.image_height, self.image_width)
         return self
 
     # ------------------------------------------------------------------ (de)serialisation
@@ -326,8 +336,7 @@ class SparConfig:
         c.patch_size = int(ti.get("patch_size", it.get("patch_size", c.patch_size)))
         if int(it.get("patch_size", c.patch_size)) != c.patch_size:
             raise ValueError("image_tokenizer.patch_size and target_image.patch_size differ")
-        c.image_height = int(ti.get("height", it.get("image_size", c.image_height)))
-        c.image_width = int(ti.get("width", it.get("image_size", c.image_width)))
+        c.image_height, c.image_width = official_image_size(y) or (c.image_height, c.image_width)
         c.image_channels = int(it.get("in_channels", 3))
         c.ray_channels = int(ti.get("in_channels", 6))
         c.input_with_pe = bool(m.get("input_with_pe", True))
@@ -351,18 +360,54 @@ class SparConfig:
 
     @classmethod
     def from_file(cls, path: str) -> "SparConfig":
-        with open(path, "r", encoding="utf-8") as f:
-            text = f.read()
-        if os.path.splitext(path)[1].lower() == ".json":
-            data = json.loads(text)
-        else:
-            import yaml
-            data = yaml.safe_load(text)
-        return cls.from_dict(data)
+        return cls.from_dict(read_config_file(path))
 
     def save(self, path: str) -> None:
         with open(path, "w", encoding="utf-8") as f:
             json.dump(self.to_dict(), f, indent=2, sort_keys=True)
+
+
+def read_config_file(path: str) -> Dict[str, Any]:
+    """The parsed YAML or JSON of a configuration file (``SparConfig.from_dict`` reads it)."""
+    with open(path, "r", encoding="utf-8") as f:
+        text = f.read()
+    if os.path.splitext(path)[1].lower() == ".json":
+        return json.loads(text)
+    import yaml
+    return yaml.safe_load(text)
+
+
+def official_image_size(y: Dict[str, Any]) -> Optional[Tuple[int, int]]:
+    """(height, width) the official YAML trains at, or None when it names no size.
+
+    spar.yaml states it twice: ``model.target_image.height`` / ``width`` (the rendered views)
+    and ``model.image_tokenizer.image_size`` (square inputs); a side that target_image leaves
+    out is image_size. Both given and different is a configuration the official code could
+    not run (the ray and image tokens of a view would not line up), so it is refused."""
+    m = y.get("model", {}) or {}
+    it = m.get("image_tokenizer", {}) or {}
+    ti = m.get("target_image", {}) or {}
+    square = it.get("image_size")
+    h, w = ti.get("height", square), ti.get("width", square)
+    if h is None or w is None:
+        return None
+    if square is not None and (int(h), int(w)) != (int(square), int(square)):
+        raise ValueError("image_tokenizer.image_size %s and target_image %sx%s differ"
+                         % (square, h, w))
+    return int(h), int(w)
+
+
+def stated_image_size(data: Dict[str, Any]) -> Optional[Tuple[int, int]]:
+    """(height, width) a configuration file's dictionary names, None when it names none (then
+    ``SparConfig`` holds the official default 256x256, which may not be what the checkpoint
+    was trained at). Official YAML structure or the flat ``SparConfig.to_dict()`` fields."""
+    if not isinstance(data, dict):
+        return None
+    if "model" in data:
+        return official_image_size(data)
+    if "image_height" in data and "image_width" in data:
+        return int(data["image_height"]), int(data["image_width"])
+    return None
 
 
 def full() -> SparConfig:

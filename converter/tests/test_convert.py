@@ -371,6 +371,120 @@ def test_official_yaml_config(work):
     assert_refused(rc, se, str(out), "missing tensor", "transformer_decoder.2.")
 
 
+# ----------------------------------------------------------------------------- image size
+# tests/python/make_size_model.py: the checkpoint "trained" at 128x128 and its official YAML.
+sys.path.insert(0, os.path.join(HERE, "..", "..", "tests", "python"))
+import make_size_model  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def sized(tmp_path_factory):
+    """A photometric tiny SPAR at 128x128 whose DINOv3 is the tiny one (width 64, 2 heads, 2
+    blocks: not ViT-B), and the official-format YAML saying 128x128 with dino_v3 arch vitb16."""
+    pytest.importorskip("yaml")
+    d = tmp_path_factory.mktemp("size")
+    cfg = make_size_model.photometric_config()
+    make_size_model.write_yaml(str(d / "spar.yaml"), cfg)
+    torch.save(make_checkpoint(cfg, 9, perturb=True, optimizer_state=False), d / "size128.pt")
+    return {"dir": d, "cfg": cfg, "ckpt": d / "size128.pt", "yaml": d / "spar.yaml"}
+
+
+def _yaml_variant(sized, name, change):
+    import yaml
+    y = make_size_model.official_yaml(sized["cfg"])
+    change(y)
+    path = sized["dir"] / name
+    with open(path, "w") as fh:
+        yaml.safe_dump(y, fh)
+    return path
+
+
+def test_official_yaml_gives_size_and_dino_tensors_give_heads_depth(sized):
+    out = sized["dir"] / "yaml.spar"
+    rc, so, se = run(sized["ckpt"], "-o", out, "--config", sized["yaml"])
+    assert rc == 0, se
+    f, meta, cfg, rec = read(out)
+    assert (cfg["image_height"], cfg["image_width"]) == (128, 128)
+    assert rec["image_size_from"] == "config"
+    # DINOv3 as its tensors are: heads = width / (4 * RoPE periods), depth = blocks; not the
+    # 12 heads and 12 blocks of the vitb16 the YAML names
+    sd = torch.load(sized["ckpt"])["model"]
+    width = sd["_dino_v3.model.cls_token"].shape[-1]
+    heads = width // (4 * sd["_dino_v3.model.rope_embed.periods"].numel())
+    depth = 1 + max(int(k.split(".")[3]) for k in sd if k.startswith("_dino_v3.model.blocks."))
+    assert (width, heads, depth) == (64, 2, 2)
+    assert (cfg["dino"]["embed_dim"], cfg["dino"]["num_heads"], cfg["dino"]["depth"]) == \
+        (width, heads, depth)
+    assert cfg["dino"] == sized["cfg"].dino  # the tiny preset, which these tensors are
+    # the rest as the YAML says (it has no lseg section: semantic branch off)
+    skip = {"dino", "lseg", "clip", "semantic_dim"}
+    assert without(cfg, skip) == without(sized["cfg"].to_dict(), skip)
+    lines = se.strip().splitlines()
+    assert len(lines) == 1, se
+    assert lines[0].startswith("spar-convert: note: DINOv3 sizes from the tensors of ")
+    assert "depth 12 -> 2" in lines[0] and "num_heads 12 -> 2" in lines[0]
+    assert "image size 128x128 (HxW) from" in so
+
+
+def test_unknown_image_size_warns_and_size_flag_sets_it(sized):
+    d, ck = sized["dir"], sized["ckpt"]
+    # no --config: the default, said on stderr (even with -q), recorded as such
+    out = d / "nosize.spar"
+    rc, so, se = run(ck, "-o", out, "-q")
+    assert rc == 0, se
+    lines = se.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("spar-convert: warning: the image size is not "
+                                                   "known"), se
+    assert "stored the default 256x256" in lines[0] and "--size HxW" in lines[0]
+    cfg, rec = read(out)[2:]
+    assert (cfg["image_height"], cfg["image_width"]) == (256, 256)
+    assert rec["image_size_from"] == "default"
+    # an official YAML without the size: the same warning, naming the file
+    nosize = _yaml_variant(sized, "nosize.yaml", lambda y: (
+        y["model"]["target_image"].pop("height"), y["model"]["target_image"].pop("width"),
+        y["model"]["image_tokenizer"].pop("image_size")))
+    rc, so, se = run(ck, "-o", d / "nosize2.spar", "-q", "--config", nosize)
+    assert rc == 0 and "nosize.yaml names none" in se and "256x256" in se, se
+    # --size: no warning, non-square allowed, height first
+    out = d / "flag.spar"
+    rc, so, se = run(ck, "-o", out, "-q", "--size", "64x96")
+    assert rc == 0 and se == "", se
+    cfg, rec = read(out)[2:]
+    assert (cfg["image_height"], cfg["image_width"]) == (64, 96)
+    assert rec["image_size_from"] == "--size"
+    # --size over the YAML's, with a note
+    out = d / "flagyaml.spar"
+    rc, so, se = run(ck, "-o", out, "-q", "--config", sized["yaml"], "--size", "64x64")
+    assert rc == 0 and "--size 64x64 replaces the 128x128 of" in se, se
+    assert read(out)[2]["image_height"] == 64
+
+
+def test_refuses_unusable_image_sizes(sized):
+    d, ck = sized["dir"], sized["ckpt"]
+    out = d / "bad.spar"
+    rc, so, se = run(ck, "-o", out, "--size", "100x128")
+    assert_refused(rc, se, str(out), "image size 100x128 is not a multiple of the patch size 16")
+    rc, so, se = run(ck, "-o", out, "--size", "128")  # not HxW: argparse's usage error
+    assert rc == 2 and "--size" in se and not out.exists()
+    both = _yaml_variant(sized, "both.yaml", lambda y: y["model"]["target_image"].update(height=96))
+    rc, so, se = run(ck, "-o", out, "--config", both)
+    assert_refused(rc, se, str(out), "image_tokenizer.image_size 128 and target_image 96x128 differ")
+
+
+def test_dino_tensors_that_do_not_fit_are_refused(sized):
+    """Tensors win over the YAML for DINOv3's own sizes, not over SPAR's: a DINOv3 wider than
+    D, or with another patch size, cannot feed CV-DRP."""
+    d, ck = sized["dir"], sized["ckpt"]
+    for name, change, words in [
+            ("wide", dict(embed_dim=128), ("cls_token", "[1, 1, 128]", "[1, 1, 64]")),
+            ("patch8", dict(patch_size=8), ("DINO patch size must equal patch_size",))]:
+        other = DinoV3Backbone(dict(sized["cfg"].dino, **change), seed=3)
+        torch.save(other.state_dict(), d / ("%s.pth" % name))
+        out = d / ("%s.spar" % name)
+        rc, so, se = run(ck, "-o", out, "--config", sized["yaml"], "--dino", d / ("%s.pth" % name))
+        assert_refused(rc, se, str(out), *words)
+
+
 # ----------------------------------------------------------------------------- refusals
 def assert_refused(rc, se, out, *words):
     assert rc == 1

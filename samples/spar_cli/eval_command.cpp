@@ -123,18 +123,23 @@ void runEval(const EvalArgs& a) {
 
   const PackedModel model = PackedModel::open(a.model);
   const SparConfig cfg = SparConfig::fromJson(model.config(), model.path());
+  // --size: a size this model cannot run at is a command line without meaning for it (exit 2).
+  if (a.height) {
+    if (const std::string problem = imageSizeProblem(cfg, a.height, a.width); !problem.empty())
+      throw UsageError("--size: " + problem);
+  }
+  const int h = int(a.height ? a.height : cfg.imageHeight), w = int(a.width ? a.width : cfg.imageWidth);
+  const std::string sizeText = std::to_string(h) + "x" + std::to_string(w) + " (HxW)";
   for (const auto& s : scenes)
-    if (s.width != cfg.imageWidth || s.height != cfg.imageHeight)
-      throw Error(s.name + " is " + std::to_string(s.width) + "x" + std::to_string(s.height) + ", the model's size is " +
-                  std::to_string(cfg.imageWidth) + "x" + std::to_string(cfg.imageHeight) +
-                  " (evaluation does not resize)");
+    if (s.width != w || s.height != h)
+      throw Error(s.name + " is " + std::to_string(s.height) + "x" + std::to_string(s.width) + " (HxW), the size " +
+                  (a.height ? "--size gives" : "of the model") + " is " + sizeText + " (evaluation does not resize)");
   // Semantic metrics only for models that decode semantics; those need the CLIP tokenizer.
   const bool semantic = cfg.semanticDecoding();
   const std::vector<std::string>& classNames = scenes.front().classNames;
   std::vector<int32_t> promptIds;
   if (semantic) promptIds = tokenizePrompts(model, classNames);
 
-  const int h = int(cfg.imageHeight), w = int(cfg.imageWidth);
   const size_t plane = size_t(h) * size_t(w);
   std::vector<KResult> results(ks.size());
   for (size_t i = 0; i < ks.size(); ++i) {
@@ -247,8 +252,8 @@ void runEval(const EvalArgs& a) {
   writeJson(outPath.string(), doc);
 
   // The table on stdout.
-  std::printf("spar eval: %zu scenes of %d frames, %s, %s, %s on %s\n", scenes.size(), frames, mode.c_str(),
-              a.precision.c_str(), a.model.c_str(), deviceName.c_str());
+  std::printf("spar eval: %zu scenes of %d frames at %s, %s, %s, %s on %s\n", scenes.size(), frames,
+              sizeText.c_str(), mode.c_str(), a.precision.c_str(), a.model.c_str(), deviceName.c_str());
   std::printf("%3s %7s %8s %7s %9s %8s %7s %8s %7s %8s %9s\n", "K", "targets", "PSNR", "SSIM", "mask mIoU", "IoU dyn",
               "recall", "sem mIoU", "sem acc", "seconds", "ms/scene");
   for (const KResult& r : results) {

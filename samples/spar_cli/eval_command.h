@@ -6,6 +6,7 @@
 // (semantic models; the scene's class names as prompts). Writes result.json (written whole:
 // temporary name, then rename) and prints a table on stdout; progress on stderr.
 #pragma once
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -16,6 +17,7 @@ struct EvalArgs {
   std::string scenes;              // directory of scene_* folders
   std::string views = "2,3,4";     // K values, comma-separated
   std::string precision = "fp32";  // fp32 | fp16
+  int64_t height = 0, width = 0;   // --size HxW; 0: the model's image size (its training size)
   bool noGating = false;           // CV-DRP runs, no token is gated
   bool assumeStatic = false;       // no DINOv3 / CV-DRP, no gating, no mask metrics
   int maxScenes = 0;               // 0: all

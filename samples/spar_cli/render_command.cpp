@@ -36,6 +36,7 @@ struct Validated {
   std::string outDir;
   std::unique_ptr<PackedModel> model;
   SparConfig config;
+  int height = 0, width = 0;  // the size rendered: --size, else the model's
   std::vector<float> images;  // [V, 3, H, W]
   std::vector<CameraD> cameras;  // --cameras
   std::vector<std::string> labels;  // --labels, parsed
@@ -89,6 +90,14 @@ Validated validate(const RenderArgs& a) {
   v.model = std::make_unique<PackedModel>(PackedModel::open(a.model));
   v.config = SparConfig::fromJson(v.model->config(), v.model->path());
   v.loadModelMs = msSince(t);
+  // A --size this model cannot run at is a command line that cannot mean anything for it
+  // (exit 2); known only now that the model is open, still before any image is read.
+  if (a.height) {
+    if (const std::string problem = imageSizeProblem(v.config, a.height, a.width); !problem.empty())
+      throw UsageError("--size: " + problem);
+  }
+  v.height = int(a.height ? a.height : v.config.imageHeight);
+  v.width = int(a.width ? a.width : v.config.imageWidth);
   if (a.labels || a.features) {
     if (!v.config.semanticDecoding())
       throw Error("this model has no semantic branch (use_lseg / semantic loss weight): --labels / --features are "
@@ -99,7 +108,7 @@ Validated validate(const RenderArgs& a) {
   }
 
   t = Clock::now();
-  const int h = int(v.config.imageHeight), w = int(v.config.imageWidth);
+  const int h = v.height, w = v.width;
   for (const auto& f : v.views.files) {
     const std::vector<float> img = loadPreparedImage(f, h, w);
     v.images.insert(v.images.end(), img.begin(), img.end());
@@ -141,7 +150,7 @@ void runRender(const RenderArgs& a) {
   const auto start = Clock::now();
   Validated v = validate(a);
   const SparConfig& cfg = v.config;
-  const int h = int(cfg.imageHeight), w = int(cfg.imageWidth);
+  const int h = v.height, w = v.width;
   const std::string mode = !a.cameras.empty() ? "cameras" : (a.path ? "path" : "targets");
 
   Progress progress;
@@ -173,7 +182,7 @@ void runRender(const RenderArgs& a) {
     req.semanticFeatures = a.labels.has_value() || a.features;
     req.plan.validate();
 
-    progress.step("encoding " + viewsText(v.views) + " at " + std::to_string(w) + "x" + std::to_string(h) + " on " +
+    progress.step("encoding " + viewsText(v.views) + " at " + std::to_string(h) + "x" + std::to_string(w) + " (HxW) on " +
                   engine.caps().name + (a.assumeStatic ? " (assume static)" : ""));
     const SparEncoded& enc = pipeline.encode(req);
 
@@ -284,6 +293,8 @@ void runRender(const RenderArgs& a) {
           {"targets", v.views.targets.size()},
           {"rendered", count}}},
         {"render", mode},
+        // the size the views were prepared and rendered at, and whether --size chose it
+        {"image_size", {{"height", h}, {"width", w}, {"from", a.height ? "--size" : "model"}}},
         {"assume_static", a.assumeStatic},
         // from the start of the command to here: everything but writing this file
         {"total_seconds", msSince(start) / 1000.0},

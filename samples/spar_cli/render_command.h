@@ -9,6 +9,7 @@
 // Everything the command line names is checked before any work; the directory appears only
 // when complete (StagedDir).
 #pragma once
+#include <cstdint>
 #include <optional>
 #include <string>
 
@@ -23,6 +24,7 @@ struct RenderArgs {
   std::optional<int> path;         // --path N
   bool assumeStatic = false;
   std::string precision = "fp32";  // fp32 | fp16 (weight matrices stored as fp16 on the device)
+  int64_t height = 0, width = 0;   // --size HxW; 0: the model's image size (its training size)
   std::string out;
   std::string device;              // index or part of the name; "" = SPAR_DEVICE / default
   std::optional<std::string> labels;
