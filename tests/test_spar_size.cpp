@@ -24,7 +24,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "model/image_prep.h"
+#include "imaging/image_prep.h"
 #include "model/spar_pipeline.h"
 #include "tests/test_support.h"
 
