@@ -1,6 +1,7 @@
 // spar: the command-line tool of the engine.
 //   spar render --model M.spar (--images A B [--targets C D] | --frames f0 .. --inputs 0,3,4)
 //               [--cameras transforms.json | --path N] [--assume-static] [--size HxW] [--device D] --out DIR
+//   spar render --model M.spar --jobs JOBS.jsonl [--shard I/N] [common options]
 //   spar eval --model M.spar --scenes DIR [--views 2,3,4] [--precision fp32|fp16] [--size HxW]
 //             [--no-gating | --assume-static] [--max-scenes N] [--device D] --out result.json
 // Exit codes: 0 done, 1 something found wrong on the way (files, model, device), 2 a command
@@ -11,10 +12,12 @@
 #include <cstdio>
 #include <iostream>
 #include <string>
+#include <tuple>
 
 #include "samples/spar_cli/errors.h"
 #include "samples/spar_cli/eval_command.h"
 #include "samples/spar_cli/render_command.h"
+#include "samples/spar_cli/render_jobs.h"
 
 namespace {
 
@@ -85,8 +88,16 @@ int main(int argc, char** argv) {
   auto* renderSizeOpt = render->add_option("--size", renderSize, kSizeHelp)->type_name("HxW");
   render->add_flag("--assume-static", a.assumeStatic,
                    "the scene is static: skip DINOv3 and CV-DRP, gate no token, write no motion maps");
-  render->add_option("--out", a.out, "output directory (must not exist; written as DIR.tmp-XXXXXX, then renamed)")
-      ->required();
+  auto* outOpt = render->add_option("--out", a.out,
+                                    "output directory (must not exist; written as DIR.tmp-XXXXXX, then renamed)");
+  std::string jobsFile, shardText = "0/1";
+  auto* jobsOpt = render->add_option("--jobs", jobsFile,
+                                     "many renders in one process (one device, kernels compiled once): a JSON Lines "
+                                     "file, one job a line with its \"out\" and views (README: many scenes)");
+  jobsOpt->excludes(images)->excludes(frames)->excludes(targets)->excludes(outOpt);
+  render->add_option("--shard", shardText, "with --jobs: run the jobs whose position is I modulo N")
+      ->type_name("I/N")
+      ->needs(jobsOpt);
   render->add_option("--device", a.device, "Vulkan device index or part of its name (default: SPAR_DEVICE, else "
                                            "the first GPU)");
   std::string labelsText;
@@ -124,6 +135,11 @@ int main(int argc, char** argv) {
   auto* maxScenes =
       evalCmd->add_option("--max-scenes", e.maxScenes, "evaluate only the first N scenes (in folder-name order)");
   evalCmd->add_option("--device", e.device, "Vulkan device index or part of its name");
+  std::string evalShard;
+  auto* evalShardOpt = evalCmd->add_option("--shard", evalShard,
+                                           "evaluate the scenes whose position is I modulo N (one process per "
+                                           "shard under a batch system)")
+                           ->type_name("I/N");
   evalCmd->add_option("--out", e.out, "result JSON file (written whole: temporary name, then rename)")->required();
 
   try {
@@ -139,6 +155,7 @@ int main(int argc, char** argv) {
       return fail("--size must be HxW in pixels, e.g. 128x128, got '" + evalSize + "' (see spar eval --help)",
                   kExitUsage);
     try {
+      if (evalShardOpt->count() > 0) std::tie(e.shard, e.shards) = parseShard(evalShard);
       runEval(e);
       return kExitOk;
     } catch (const UsageError& err) {
@@ -156,6 +173,10 @@ int main(int argc, char** argv) {
                 kExitUsage);
 
   try {
+    if (jobsOpt->count() > 0) {
+      const auto [shard, shards] = parseShard(shardText);
+      return runRenderJobs(readRenderJobs(jobsFile, a), shard, shards) ? kExitRuntime : kExitOk;
+    }
     runRender(a);
     return kExitOk;
   } catch (const UsageError& e) {

@@ -106,7 +106,17 @@ void runEval(const EvalArgs& a) {
   if (!fs::is_directory(outPath.parent_path(), ec))
     throw Error("the parent directory of --out does not exist: " + outPath.parent_path().string());
   if (fs::is_directory(outPath, ec)) throw Error("--out is a directory: " + a.out);
-  const std::vector<SceneInfo> scenes = discoverScenes(a.scenes, a.maxScenes);
+  // --shard I/N: the scenes whose position (after --max-scenes) is I modulo N, so N processes
+  // (a batch system's job array) together evaluate every scene once.
+  const std::vector<SceneInfo> scenes = [&] {
+    std::vector<SceneInfo> all = discoverScenes(a.scenes, a.maxScenes), mine;
+    for (size_t k = 0; k < all.size(); ++k)
+      if (int(k % size_t(a.shards)) == a.shard) mine.push_back(std::move(all[k]));
+    if (mine.empty())
+      throw Error("shard " + std::to_string(a.shard) + "/" + std::to_string(a.shards) + " has no scenes (" +
+                  std::to_string(all.size()) + " in " + a.scenes + ")");
+    return mine;
+  }();
   const int frames = scenes.front().frames;
   for (const auto& s : scenes) {
     if (s.frames != frames)
@@ -240,7 +250,7 @@ void runEval(const EvalArgs& a) {
         {"ms_per_scene", orNull(median(r.sceneMs))},
     };
   }
-  const ojson doc = {{"format", "spar-eval"},
+  ojson doc = {{"format", "spar-eval"},
                      {"version", 1},
                      {"model", absolutePath(a.model)},
                      {"runner", "engine"},
@@ -249,6 +259,12 @@ void runEval(const EvalArgs& a) {
                      {"scenes", scenes.size()},
                      {"frames", frames},
                      {"results", byK}};
+  if (a.shards > 1) {
+    // Which part of the test set this is, and its scenes, for combining shards (README).
+    doc["shard"] = {{"index", a.shard}, {"count", a.shards}};
+    doc["scene_names"] = ojson::array();
+    for (const auto& s : scenes) doc["scene_names"].push_back(s.name);
+  }
   writeJson(outPath.string(), doc);
 
   // The table on stdout.

@@ -21,6 +21,7 @@ struct EvalArgs {
   bool noGating = false;           // CV-DRP runs, no token is gated
   bool assumeStatic = false;       // no DINOv3 / CV-DRP, no gating, no mask metrics
   int maxScenes = 0;               // 0: all
+  int shard = 0, shards = 1;       // --shard I/N: every N-th scene from the I-th
   std::string device;
   std::string out;                 // result.json
 };

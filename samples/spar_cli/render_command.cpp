@@ -34,7 +34,7 @@ double msSince(Clock::time_point t) { return std::chrono::duration<double, std::
 struct Validated {
   PlannedViews views;
   std::string outDir;
-  std::unique_ptr<PackedModel> model;
+  std::shared_ptr<const PackedModel> model;
   SparConfig config;
   int height = 0, width = 0;  // the size rendered: --size, else the model's
   std::vector<float> images;  // [V, 3, H, W]
@@ -44,7 +44,7 @@ struct Validated {
   double loadModelMs = 0, prepareMs = 0;
 };
 
-Validated validate(const RenderArgs& a) {
+Validated validate(const RenderArgs& a, RenderContext* shared) {
   Validated v;
   // 1. The command line alone (exit 2).
   if (a.model.empty()) throw UsageError("--model is required");
@@ -87,7 +87,12 @@ Validated validate(const RenderArgs& a) {
   v.outDir = checkOutDir(a.out);
 
   auto t = Clock::now();
-  v.model = std::make_unique<PackedModel>(PackedModel::open(a.model));
+  if (shared && shared->model && shared->model->path() == a.model) {
+    v.model = shared->model;
+  } else {
+    v.model = std::make_shared<const PackedModel>(PackedModel::open(a.model));
+    if (shared) shared->model = v.model;
+  }
   v.config = SparConfig::fromJson(v.model->config(), v.model->path());
   v.loadModelMs = msSince(t);
   // A --size this model cannot run at is a command line that cannot mean anything for it
@@ -146,9 +151,12 @@ std::string viewsText(const PlannedViews& p) {
 
 }  // namespace
 
-void runRender(const RenderArgs& a) {
+RenderContext::RenderContext() = default;
+RenderContext::~RenderContext() = default;
+
+void runRender(const RenderArgs& a, RenderContext* shared) {
   const auto start = Clock::now();
-  Validated v = validate(a);
+  Validated v = validate(a, shared);
   const SparConfig& cfg = v.config;
   const int h = v.height, w = v.width;
   const std::string mode = !a.cameras.empty() ? "cameras" : (a.path ? "path" : "targets");
@@ -158,13 +166,16 @@ void runRender(const RenderArgs& a) {
   host.push_back({{"name", "load_model"}, {"wall_ms", v.loadModelMs}});
   host.push_back({{"name", "prepare_images"}, {"wall_ms", v.prepareMs}});
   try {
-    progress.step("opening the Vulkan device");
     auto t = Clock::now();
-    EngineOptions eo;
-    eo.device = a.device;
-    eo.pipelineCacheFile = pipelineCachePath();
-    eo = EngineOptions::fromEnvironment(eo);
-    Engine engine(eo);
+    std::unique_ptr<Engine> ownEngine;
+    if (!shared || !shared->engine) {
+      progress.step("opening the Vulkan device");
+      EngineOptions eo;
+      eo.device = a.device;
+      eo.pipelineCacheFile = pipelineCachePath();
+      ownEngine = std::make_unique<Engine>(EngineOptions::fromEnvironment(eo));
+    }
+    Engine& engine = shared ? *(shared->engine ? shared->engine : (shared->engine = std::move(ownEngine))) : *ownEngine;
     host.push_back({{"name", "device"}, {"wall_ms", msSince(t)}});
 
     SparPipelineOptions po;

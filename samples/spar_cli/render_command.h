@@ -10,10 +10,16 @@
 // when complete (StagedDir).
 #pragma once
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <string>
 
 #include "samples/spar_cli/view_plan.h"
+
+namespace spar {
+class Engine;
+class PackedModel;
+}  // namespace spar
 
 namespace spar::cli {
 
@@ -32,7 +38,17 @@ struct RenderArgs {
   bool scores = false;  // with --labels: per-label score maps (scores_XX.npy)
 };
 
-// Throws UsageError (exit 2) or spar::Error (exit 1); prints progress on stderr.
-void runRender(const RenderArgs& args);
+// What consecutive renders of one process share (spar render --jobs): the device with its
+// compiled kernels, opened by the first render, and the last model opened.
+struct RenderContext {
+  RenderContext();
+  ~RenderContext();
+  std::unique_ptr<Engine> engine;
+  std::shared_ptr<const PackedModel> model;
+};
+
+// Throws UsageError (exit 2) or spar::Error (exit 1); prints progress on stderr. With `shared`,
+// the device and model are taken from it (and left in it for the next render).
+void runRender(const RenderArgs& args, RenderContext* shared = nullptr);
 
 }  // namespace spar::cli
