@@ -265,7 +265,34 @@ std::span<const uint8_t> PackedModel::data(const std::string& name) const {
   return {map_ + dataStart_ + i.begin, static_cast<size_t>(i.bytes())};
 }
 
+// A weight that is NaN or infinite makes every output it touches NaN (a black view, null
+// cameras): refuse it when it is read, naming the tensor, as spar-convert refuses to pack one.
+// Checked on the bits (exponent all ones), which costs a pass over the bytes and no conversion.
+void PackedModel::checkFinite(const std::string& name) const {
+  const auto& i = info(name);
+  const auto bytes = data(name);
+  const size_t n = static_cast<size_t>(i.numel());
+  auto bad = [&](size_t k, bool nan) {
+    fail(path_, "tensor " + quoted(name) + " element " + std::to_string(k) + " is " + (nan ? "NaN" : "infinite") +
+                    " (the file is damaged, or the model diverged in training)");
+  };
+  if (i.dtype == FileDType::F32) {
+    for (size_t k = 0; k < n; ++k) {
+      uint32_t b;
+      std::memcpy(&b, bytes.data() + 4 * k, 4);
+      if ((b & 0x7f800000u) == 0x7f800000u) bad(k, b & 0x007fffffu);
+    }
+  } else if (i.dtype == FileDType::F16) {
+    for (size_t k = 0; k < n; ++k) {
+      uint16_t b;
+      std::memcpy(&b, bytes.data() + 2 * k, 2);
+      if ((b & 0x7c00u) == 0x7c00u) bad(k, b & 0x03ffu);
+    }
+  }
+}
+
 std::vector<float> PackedModel::floats(const std::string& name) const {
+  checkFinite(name);
   const auto& i = info(name);
   const auto bytes = data(name);
   const size_t n = static_cast<size_t>(i.numel());
@@ -298,6 +325,7 @@ DType PackedModel::naturalDType(const std::string& name) const {
 }
 
 Tensor PackedModel::upload(Engine& engine, const std::string& name, DType want) const {
+  checkFinite(name);
   const auto& i = info(name);
   const auto bytes = data(name);
   const size_t n = static_cast<size_t>(i.numel());

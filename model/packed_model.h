@@ -69,8 +69,11 @@ class PackedModel {
   // `__metadata__.components` parsed, or an empty object when the file has none.
   const nlohmann::json& components() const { return components_; }
 
-  // The tensor's values as floats on the host (F32/F16 only).
+  // The tensor's values as floats on the host (F32/F16 only). Like upload(), throws for a NaN or
+  // infinite value, naming the tensor and element.
   std::vector<float> floats(const std::string& name) const;
+  // Throws spar::Error naming the first NaN or infinite element of a F32/F16 tensor.
+  void checkFinite(const std::string& name) const;
 
   // A new device tensor holding `name`, converted to `want`:
   //   F32 -> F32 / F16 (fp16 saturates at +-65504, like Engine::upload), F16 -> F16 / F32,

@@ -1,6 +1,8 @@
 // SPAR's photometric pipeline (model/spar_pipeline.h): the stages in order, each recorded and
 // run as one submission so that its GPU time (timestamps) and wall time are known.
 #include "model/spar_pipeline.h"
+#include "model/camera_checks.h"
+#include "model/nonfinite_watch.h"
 
 #include <algorithm>
 #include <chrono>
@@ -64,7 +66,8 @@ SparPipeline::SparPipeline(Engine& engine, const PackedModel& model, const SparP
       options_(options),
       config_(SparConfig::fromJson(model.config(), model.path())),
       weights_(engine, model, options.weightType),
-      stages_(std::make_unique<Stages>()) {
+      stages_(std::make_unique<Stages>()),
+      watch_(std::make_unique<NonFiniteWatch>(engine)) {
 }
 
 SparPipeline::~SparPipeline() = default;
@@ -166,6 +169,8 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
   rec.setStage("image_tokens");
   st.tokenizer->imageTokens(rec, images, raw, imgTokens, code);
   st.tokenizer->cameraTokens(rec, v, cam);
+  watch_->reset();
+  watch_->watch(rec, "image_tokens", imgTokens);
   rec.run();
   finish(t0);
   keep("images", images);
@@ -182,6 +187,8 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
   t0 = Clock::now();
   rec.setStage("pose_estimator");
   st.pose->forward(rec, cam, imgTokens, enc, st.c2w, st.fxfycxcy, st.ws);
+  watch_->watch(rec, "pose_estimator", st.c2w);
+  watch_->watch(rec, "pose_estimator", st.fxfycxcy);
   rec.run();
   finish(t0);
   keep("pose_encoder_out", enc);
@@ -195,6 +202,7 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
   rec.setStage("rays");
   pluckerRays(rec, st.c2w, st.fxfycxcy, rays);
   st.tokenizer->rayTokens(rec, "target_pose_tokenizer", rays, rayTokens);
+  watch_->watch(rec, "rays", rayTokens);
   rec.run();
   finish(t0);
   keep("plucker", rays);
@@ -208,6 +216,7 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
     t0 = Clock::now();
     rec.setStage("dino_v3");
     st.dino->forward(rec, images, dino, st.ws);
+    watch_->watch(rec, "dino_v3", dino);
     rec.run();
     finish(t0);
     keep("dino", dino);
@@ -230,6 +239,8 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
       keep("cv_drp_target.logits", logitsTarget);
       keep("cv_drp_target.prob", probTarget);
     }
+    watch_->watch(rec, "cv_drp", probInput);
+    watch_->watch(rec, "cv_drp", probTarget);
     rec.run();
     finish(t0);
   }
@@ -248,6 +259,7 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
     st.gating->gate(rec, fused, probInput, dynPatch, gated);
     keep("dynamic_patch", dynPatch);
   }
+  watch_->watch(rec, "gating", gated);
   rec.run();
   finish(t0);
   keep("fused_tokens", fused);
@@ -271,6 +283,7 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
         copy2d(rec, images.view(request.plan.inputs[j] * 3 * h * w, {1, 3 * h * w}), 3 * h * w, 0,
                inputImages.view(j * 3 * h * w, {1, 3 * h * w}), 3 * h * w, 0, 1, 3 * h * w);
       st.lseg->forward(rec, inputImages, features, st.ws);
+      watch_->watch(rec, "lseg", features);
       rec.run();
       finish(t0);
     }
@@ -289,6 +302,7 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
       st.gating->gate(rec, semTokens, probInput, dynSem, gatedSem);
       keep("dynamic_patch_sem", dynSem);
     }
+    watch_->watch(rec, "semantic_tokens", gatedSem);
     rec.run();
     finish(t0);
     keep("semantic_in", pooled);
@@ -306,12 +320,16 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
   std::vector<Tensor> parts{gated};
   if (gatedSem.defined()) parts.push_back(gatedSem);
   st.scene->forward(rec, parts, st.sceneSeq, st.ws, sceneIn);
+  watch_->watch(rec, "scene_encoder", st.sceneSeq);
   rec.run();
   finish(t0);
   st.sceneTokens = st.sceneSeq.view(0, {c.sceneTokens, d});
   keep("scene_encoder_in", sceneIn);
   keep("scene_encoder_out", st.sceneSeq);
   keep("scene_tokens", st.sceneTokens);
+
+  // A NaN or infinity anywhere above is an error naming where it started, not null cameras.
+  watch_->check("encoding the views");
 
   // ---- host copies
   encoded_.c2w = engine_.download(st.c2w);
@@ -332,6 +350,8 @@ std::vector<float> SparPipeline::renderRays(const Tensor& c2w, const Tensor& fxf
   auto t0 = Clock::now();
   rec.setStage("render_rays");
   pluckerRays(rec, c2w, fxfycxcy, rays);
+  watch_->reset();
+  watch_->watch(rec, "render_rays", rays);
   rec.run();
   addStageTimes(rec, msSince(t0));
   t0 = Clock::now();
@@ -340,8 +360,11 @@ std::vector<float> SparPipeline::renderRays(const Tensor& c2w, const Tensor& fxf
   features_ = request_.semanticFeatures ? engine_.tensor({count, config_.semanticDim, h / 2, w / 2}) : Tensor();
   st.renderer->forward(rec, rays, st.sceneTokens, rgb, st.ws, features_,
                        options_.keepIntermediates ? &trace : nullptr);
+  watch_->watch(rec, "renderer", rgb);
+  watch_->watch(rec, "renderer", features_);
   rec.run();
   addStageTimes(rec, msSince(t0));
+  watch_->check("rendering");
   keep("render_c2w", c2w);
   keep("render_fxfycxcy", fxfycxcy);
   keep("render_plucker", rays);
@@ -382,6 +405,9 @@ std::vector<float> SparPipeline::render(const RenderCameras& cameras) {
   const int64_t r = int64_t(cameras.size());
   if (r == 0) return {};
   if (cameras.fxfycxcy.size() != cameras.c2w.size()) throw Error("render cameras: as many intrinsics as poses needed");
+  for (int64_t j = 0; j < r; ++j)
+    if (const std::string p = renderCameraProblem(cameras.c2w[j], cameras.fxfycxcy[j]); !p.empty())
+      throw Error("render camera " + std::to_string(j) + ": " + p);
   std::vector<float> c2w, k;
   for (int64_t j = 0; j < r; ++j) {
     c2w.insert(c2w.end(), cameras.c2w[j].begin(), cameras.c2w[j].end());

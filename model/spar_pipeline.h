@@ -33,6 +33,8 @@
 
 namespace spar {
 
+class NonFiniteWatch;  // model/nonfinite_watch.h
+
 // The request types are public (include/spar/request.h); the pipeline's own names for them:
 using SparRequest = Request;
 using SparEncoded = Encoded;
@@ -99,6 +101,7 @@ class SparPipeline {
   SparConfig config_;
   WeightSet weights_;
   std::unique_ptr<Stages> stages_;
+  std::unique_ptr<NonFiniteWatch> watch_;  // where a NaN / infinity first appeared
   SparEncoded encoded_;
   SparRequest request_;
   std::map<std::string, Tensor> kept_;

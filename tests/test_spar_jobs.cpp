@@ -82,7 +82,9 @@ TEST(spar_jobs, JobsShareOneDeviceAndMatchSingleRuns) {
   EXPECT_NE(opened, std::string::npos);
   EXPECT_EQ(r.err.find("opening the Vulkan device", opened + 1), std::string::npos) << r.err;
   for (const json& stage : readJson(dir / "b" / "report.json")["host_stages"]) {
-    if (stage["name"] == "device") EXPECT_LT(stage["wall_ms"].get<double>(), 1.0) << stage.dump();
+    if (stage["name"] == "device") {
+      EXPECT_LT(stage["wall_ms"].get<double>(), 1.0) << stage.dump();
+    }
   }
   EXPECT_TRUE(fs::exists(dir / "b" / "path.gif"));
 

@@ -10,6 +10,7 @@
 #include "engine/recorder.h"
 #include "formats/cameras.h"
 #include "imaging/image_prep.h"
+#include "model/camera_checks.h"
 #include "model/packed_model.h"
 #include "model/spar_config.h"
 #include "model/spar_pipeline.h"
@@ -118,7 +119,14 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
     const std::vector<float> img = loadPreparedImage(f, h, w);
     v.images.insert(v.images.end(), img.begin(), img.end());
   }
-  if (!a.cameras.empty()) v.cameras = readTransforms(a.cameras, w, h);
+  if (!a.cameras.empty()) {
+    v.cameras = readTransforms(a.cameras, w, h);
+    // Refused here, before any device work, with the frame named (the engine checks again).
+    const RenderCameras rc = toRenderCameras(v.cameras);
+    for (size_t i = 0; i < rc.size(); ++i)
+      if (const std::string p = renderCameraProblem(rc.c2w[i], rc.fxfycxcy[i]); !p.empty())
+        throw Error(a.cameras + ": frames[" + std::to_string(i) + "]: " + p);
+  }
   v.prepareMs = msSince(t);
   return v;
 }
