@@ -9,6 +9,7 @@
 #include <system_error>
 
 #include "engine/error.h"
+#include "imaging/stderr_capture.h"
 
 namespace spar {
 namespace {
@@ -98,14 +99,26 @@ RgbImage loadImageRGB(const std::string& path) {
   if (!fs::exists(path, ec)) throw Error("image not found: " + path);
   if (fs::is_directory(path, ec)) throw Error("cannot read image " + path + ": it is a directory");
 
+  // libpng and other codecs print their own complaints on stderr: they become part of the
+  // one-line error (or are dropped when the read succeeds).
+  StderrCapture captured;
+  auto fail = [&](const std::string& what) -> Error {
+    std::string printed = captured.take();
+    return Error("cannot read image " + path + ": " + what + (printed.empty() ? "" : " (" + printed + ")"));
+  };
   OIIO::ImageSpec config;
   config.attribute("oiio:UnassociatedAlpha", 1);  // PNG/TIFF alpha as stored (PIL drops it as is)
   auto in = OIIO::ImageInput::open(path, &config);
-  if (!in) throw Error("cannot read image " + path + ": " + oneLine(OIIO::geterror()));
+  if (!in) throw fail(oneLine(OIIO::geterror()));
   const OIIO::ImageSpec& spec = in->spec();
   const int w = spec.width, h = spec.height, nch = spec.nchannels;
   if (w < 1 || h < 1 || spec.depth > 1) throw Error("empty image: " + path);
-  if (nch < 1) throw Error("cannot read image " + path + ": no channels");
+  if (nch < 1) throw fail("no channels");
+  // From the header, before any pixel is decoded: a header may claim any size.
+  if (w > kMaxImageSide || h > kMaxImageSide || int64_t(w) * h > kMaxImagePixels || nch > 64)
+    throw fail(std::to_string(w) + "x" + std::to_string(h) + " pixels, " + std::to_string(nch) +
+               " channels: larger than this tool reads (" + std::to_string(kMaxImageSide) + " per side, " +
+               std::to_string(kMaxImagePixels / 1000000) + " M pixels)");
   const size_t n = size_t(w) * h;
 
   // Source channels of R, G, B: grey (+ alpha) replicates channel 0; RGB(A...) takes 0, 1, 2.
@@ -117,14 +130,12 @@ RgbImage loadImageRGB(const std::string& path) {
   const bool sixteen = spec.format == OIIO::TypeDesc::UINT16 || spec.format == OIIO::TypeDesc::INT16;
   if (sixteen) {
     std::vector<uint16_t> buf(n * nch);
-    if (!in->read_image(0, 0, 0, nch, OIIO::TypeDesc::UINT16, buf.data()))
-      throw Error("cannot read image " + path + ": " + oneLine(in->geterror()));
+    if (!in->read_image(0, 0, 0, nch, OIIO::TypeDesc::UINT16, buf.data())) throw fail(oneLine(in->geterror()));
     for (size_t i = 0; i < n; ++i)
       for (int c = 0; c < 3; ++c) out.pixels[i * 3 + c] = static_cast<uint8_t>(buf[i * nch + src[c]] >> 8);
   } else {
     std::vector<uint8_t> buf(n * nch);
-    if (!in->read_image(0, 0, 0, nch, OIIO::TypeDesc::UINT8, buf.data()))
-      throw Error("cannot read image " + path + ": " + oneLine(in->geterror()));
+    if (!in->read_image(0, 0, 0, nch, OIIO::TypeDesc::UINT8, buf.data())) throw fail(oneLine(in->geterror()));
     for (size_t i = 0; i < n; ++i)
       for (int c = 0; c < 3; ++c) out.pixels[i * 3 + c] = buf[i * nch + src[c]];
   }

@@ -16,6 +16,12 @@ struct RgbImage {
   std::vector<uint8_t> pixels;
 };
 
+// Largest image loadImageRGB reads, judged from the file's header before decoding (a damaged
+// or hostile header may claim 2^31 rows): a side of 32768 pixels and 2^27 pixels (512 MB of
+// 16-bit RGBA while decoding).
+constexpr int kMaxImageSide = 32768;
+constexpr int64_t kMaxImagePixels = int64_t(1) << 27;
+
 // Loads an image (PNG, JPEG, TIFF, BMP, ... whatever OpenImageIO reads) as 8-bit RGB the way
 // PIL's Image.open(path).convert("RGB") gives it for 8-bit files: grey is replicated, alpha is
 // dropped (not composited; PNG alpha is read unassociated), EXIF orientation is not applied.

@@ -17,6 +17,7 @@
 #include "model/spar_config.h"
 #include "model/spar_pipeline.h"
 #include "samples/spar_cli/errors.h"
+#include "samples/spar_cli/staged_dir.h"
 #include "samples/spar_cli/eval_metrics.h"
 #include "samples/spar_cli/eval_scenes.h"
 #include "samples/spar_cli/label_text.h"
@@ -106,6 +107,7 @@ void runEval(const EvalArgs& a) {
   if (!fs::is_directory(outPath.parent_path(), ec))
     throw Error("the parent directory of --out does not exist: " + outPath.parent_path().string());
   if (fs::is_directory(outPath, ec)) throw Error("--out is a directory: " + a.out);
+  checkWritable(outPath.parent_path().string(), outPath.string());
   // --shard I/N: the scenes whose position (after --max-scenes) is I modulo N, so N processes
   // (a batch system's job array) together evaluate every scene once.
   const std::vector<SceneInfo> scenes = [&] {

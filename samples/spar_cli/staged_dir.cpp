@@ -5,6 +5,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <fcntl.h>
+#include <unistd.h>
 #include <filesystem>
 #include <system_error>
 #include <vector>
@@ -16,12 +17,31 @@ namespace spar::cli {
 
 namespace fs = std::filesystem;
 
+void checkWritable(const std::string& dir, const std::string& forWhat) {
+  // Only trying tells (permissions, read-only mounts, /proc): make and remove an empty
+  // directory where the output's temporary will go.
+  std::string probe = (fs::path(dir) / ".spar-probe-XXXXXX").string();
+  std::vector<char> buf(probe.begin(), probe.end());
+  buf.push_back('\0');
+  if (!::mkdtemp(buf.data())) throw Error("cannot write in " + dir + " (for " + forWhat + "): " + std::strerror(errno));
+  ::rmdir(buf.data());
+}
+
 std::string checkOutDir(const std::string& path) {
   const std::string abs = absolutePath(path);
   std::error_code ec;
   if (fs::exists(fs::symlink_status(abs, ec))) throw Error("output directory already exists: " + abs);
   const fs::path parent = fs::path(abs).parent_path();
-  if (!fs::is_directory(parent, ec)) throw Error("parent directory does not exist: " + parent.string());
+  if (!fs::is_directory(parent, ec)) {
+    // Say which part of the path is wrong: a file where a directory should be, or nothing.
+    for (fs::path p = parent; !p.empty() && p != p.parent_path(); p = p.parent_path())
+      if (fs::exists(p, ec)) {
+        if (!fs::is_directory(p, ec)) throw Error("cannot create " + abs + ": " + p.string() + " is a file, not a directory");
+        break;
+      }
+    throw Error("parent directory does not exist: " + parent.string());
+  }
+  checkWritable(parent.string(), abs);
   return abs;
 }
 

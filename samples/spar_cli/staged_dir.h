@@ -7,6 +7,10 @@
 namespace spar::cli {
 
 // Absolute, normalized output path; throws spar::Error if it exists or its parent does not.
+// Throws spar::Error unless a directory can be made in `dir` (tried, then removed): before any
+// work, so an unwritable output location costs nothing.
+void checkWritable(const std::string& dir, const std::string& forWhat);
+
 std::string checkOutDir(const std::string& path);
 
 class StagedDir {

@@ -1,0 +1,106 @@
+// Hostile or broken input to the built `spar`, each a one-line error with no other line on
+// stderr (libpng's own messages folded into it), exit 1, and no output directory: truncated PNGs,
+// headers claiming 2^31-1 rows or 100000 x 100000 pixels (refused from the header, before any
+// decoding), and output locations that cannot be written (refused before any work).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include "tests/golden_support.h"
+#include "tests/test_support.h"
+
+#ifndef SPAR_CLI
+#error "SPAR_CLI (path of the built spar binary) is defined by samples/CMakeLists.txt"
+#endif
+
+namespace spar::test {
+namespace {
+
+namespace fs = std::filesystem;
+
+const fs::path& scratch() { return scratchDir("spar_hostile"); }
+
+std::string bytesOf(const fs::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), {}};
+}
+
+fs::path writeFile(const std::string& name, const std::string& bytes) {
+  const fs::path p = scratch() / name;
+  std::ofstream(p, std::ios::binary) << bytes;
+  return p;
+}
+
+uint32_t crc32(const std::string& s, size_t begin, size_t end) {
+  uint32_t c = 0xffffffffu;
+  for (size_t i = begin; i < end; ++i) {
+    c ^= uint8_t(s[i]);
+    for (int k = 0; k < 8; ++k) c = (c >> 1) ^ (0xedb88320u & (0u - (c & 1u)));
+  }
+  return ~c;
+}
+
+// The PNG with its IHDR width and height replaced (CRC fixed, so only the size is wrong).
+std::string withSize(std::string png, uint32_t width, uint32_t height) {
+  auto put = [&](size_t at, uint32_t v) {
+    for (int i = 0; i < 4; ++i) png[at + i] = char((v >> (24 - 8 * i)) & 0xff);
+  };
+  put(16, width);
+  put(20, height);
+  put(29, crc32(png, 12, 29));  // over "IHDR" and its 13 bytes
+  return png;
+}
+
+CommandResult render(const std::vector<std::string>& frames, const fs::path& out) {
+  std::vector<std::string> argv = {SPAR_CLI, "render", "--model", goldenPath("tiny.spar"), "--frames"};
+  argv.insert(argv.end(), frames.begin(), frames.end());
+  for (const char* a : {"--inputs", "0,2"}) argv.push_back(a);
+  argv.push_back("--out");
+  argv.push_back(out.string());
+  return runCommand(argv, scratch(), "VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation");
+}
+
+void expectOneErrorLine(const CommandResult& r, const std::string& expected) {
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_EQ(std::count(r.err.begin(), r.err.end(), '\n'), 1) << r.err;
+  EXPECT_EQ(r.err.rfind("spar: error: ", 0), 0u) << r.err;
+  EXPECT_NE(r.err.find(expected), std::string::npos) << "expected '" << expected << "' in: " << r.err;
+}
+
+TEST(spar_hostile, BrokenImagesAreOneLine) {
+  const std::string png = bytesOf(goldenPath("frame_0.png"));
+  const std::string f1 = goldenPath("frame_1.png"), f2 = goldenPath("frame_2.png");
+  const fs::path out = scratch() / "out";
+  const struct {
+    std::string name, bytes, expected;
+  } cases[] = {
+      {"truncated.png", png.substr(0, png.size() / 2), "truncated.png"},
+      {"tall.png", withSize(png, 160, 0x7fffffffu), "tall.png: PNG read error: Invalid IHDR data (libpng error"},
+      {"huge.png", withSize(png, 100000, 100000), "100000x100000 pixels"},
+      {"garbage.png", std::string(200, 'x'), "garbage.png"},
+  };
+  for (const auto& c : cases) {
+    fs::remove_all(out);
+    const fs::path p = writeFile(c.name, c.bytes);
+    const CommandResult r = render({p.string(), f1, f2}, out);
+    expectOneErrorLine(r, c.expected);
+    EXPECT_FALSE(fs::exists(out)) << c.name;
+  }
+}
+
+TEST(spar_hostile, UnwritableOutputIsRefusedBeforeWork) {
+  const std::vector<std::string> frames = {goldenPath("frame_0.png"), goldenPath("frame_1.png"),
+                                           goldenPath("frame_2.png")};
+  const fs::path file = writeFile("a_file", "x");
+  // One line and nothing else: no progress line, so refused before the device was opened.
+  expectOneErrorLine(render(frames, "/proc/spar_out"), "cannot write in /proc");
+  expectOneErrorLine(render(frames, file / "out"), "a_file is a file, not a directory");
+  expectOneErrorLine(render(frames, file / "deeper" / "out"), "a_file is a file, not a directory");
+}
+
+}  // namespace
+}  // namespace spar::test
