@@ -1,5 +1,7 @@
 #include "imaging/label_outputs.h"
 
+#include <algorithm>
+
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -78,7 +80,25 @@ void drawLegendNames(RgbImage& img, const std::vector<std::string>& names, int o
 
 std::array<uint8_t, 3> paletteColour(int64_t k) {
   const int64_t n = static_cast<int64_t>(kPalette.size());
-  return kPalette[size_t(((k % n) + n) % n)];
+  if (k >= 0 && k < n) return kPalette[size_t(k)];
+  // Beyond the reference's 20 (which repeats them), every label still gets a colour of its own:
+  // j -> j * M mod 2^24 (M odd) is a bijection of 24-bit colours, so colours of different j
+  // differ; the j whose colour is black (the legend's background) or a palette colour are
+  // skipped, which keeps k -> colour a function of k alone and O(palette) to compute.
+  constexpr uint32_t M = 0x9E3779u | 1u, mask = 0xFFFFFFu;
+  uint32_t inv = M;  // M^-1 mod 2^24 by Newton's iteration (each step doubles the correct bits)
+  for (int i = 0; i < 5; ++i) inv *= 2u - M * inv;
+  inv &= mask;
+  std::vector<uint32_t> skipped;  // the j of the colours not to use, increasing
+  auto rgb = [](std::array<uint8_t, 3> c) { return uint32_t(c[0]) << 16 | uint32_t(c[1]) << 8 | c[2]; };
+  skipped.push_back(0);  // black: j = 0
+  for (const auto& c : kPalette) skipped.push_back((rgb(c) * inv) & mask);
+  std::sort(skipped.begin(), skipped.end());
+  uint64_t j = uint64_t(k < 0 ? -k : k - n);  // negative k (never a label) also get colours
+  for (uint32_t s : skipped)
+    if (s <= j) ++j;
+  const uint32_t c = uint32_t(j * M) & mask;
+  return {uint8_t(c >> 16), uint8_t(c >> 8), uint8_t(c)};
 }
 
 RgbImage labelImage(const std::vector<int32_t>& map, int h, int w, const std::vector<std::string>& names, int outH,

@@ -28,7 +28,8 @@ const std::string& legendFont();
 // Draws each name right of its swatch (legend rows below the map, which is outH tall).
 void drawLegendNames(RgbImage& img, const std::vector<std::string>& names, int outH);
 
-// Label k's colour: the reference's fixed palette of 20, repeated.
+// Label k's colour: the reference's fixed palette of 20, then (where the reference repeats
+// them) a colour of its own for every further label, none black or a palette colour.
 std::array<uint8_t, 3> paletteColour(int64_t k);
 
 // The labels_XX.png image: map [h, w] (values in [0, names.size())) scaled to outH x outW.

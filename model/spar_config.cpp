@@ -1,9 +1,13 @@
 #include "model/spar_config.h"
 
+#include <cmath>
+
 #include "engine/error.h"
 
 namespace spar {
 namespace {
+
+constexpr int64_t kMaxConfigInteger = int64_t(1) << 20;
 
 // Field readers: a missing field keeps the default only where the converter may omit it;
 // a present field of the wrong type is an error.
@@ -25,7 +29,11 @@ struct Reader {
     }
     if (!v->is_number_integer()) fail(std::string("field '") + key + "' is not an integer");
     int64_t x = v->get<int64_t>();
-    if (x < min) fail(std::string("field '") + key + "' = " + std::to_string(x) + " is out of range");
+    // No size of a SPAR (widths, depths, heads, tokens, pixels) comes near 2^20: a larger
+    // value is a damaged or hostile file, refused here rather than as a failed allocation.
+    if (x < min || x > kMaxConfigInteger)
+      fail(std::string("field '") + key + "' = " + std::to_string(x) + " is out of range (" + std::to_string(min) +
+           " to " + std::to_string(kMaxConfigInteger) + ")");
     return x;
   }
   double number(const char* key, double def, bool required = true) const {
@@ -35,7 +43,9 @@ struct Reader {
       return def;
     }
     if (!v->is_number()) fail(std::string("field '") + key + "' is not a number");
-    return v->get<double>();
+    const double x = v->get<double>();
+    if (!std::isfinite(x) || std::abs(x) > 1e30) fail(std::string("field '") + key + "' is not a finite number of sane size");
+    return x;
   }
   bool boolean(const char* key, bool def, bool required = true) const {
     const nlohmann::json* v = find(key);

@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <cstdio>
 #include <iostream>
+#include <new>
 #include <string>
 #include <tuple>
 
@@ -160,6 +161,8 @@ int main(int argc, char** argv) {
       return kExitOk;
     } catch (const UsageError& err) {
       return fail(std::string(err.what()) + " (see spar eval --help)", kExitUsage);
+    } catch (const std::bad_alloc&) {
+      return fail("out of host memory: the request needs more than this machine has", kExitRuntime);
     } catch (const std::exception& err) {
       return fail(err.what(), kExitRuntime);
     }
@@ -181,6 +184,8 @@ int main(int argc, char** argv) {
     return kExitOk;
   } catch (const UsageError& e) {
     return fail(std::string(e.what()) + " (see spar render --help)", kExitUsage);
+  } catch (const std::bad_alloc&) {
+    return fail("out of host memory: the request needs more than this machine has", kExitRuntime);
   } catch (const std::exception& e) {
     return fail(e.what(), kExitRuntime);
   }

@@ -4,6 +4,7 @@
 // against a float64 CPU reference; and model/label_outputs (labels_XX.png / .json) against the
 // files spar-reference render --labels writes for the fixture. Skips without the BPE table
 // (then the fixture has no labels).
+#include <set>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -278,7 +279,13 @@ TEST(LabelOutputs, LegendNamesAreDrawnBesideSwatches) {
 TEST(LabelOutputs, PaletteAndChecks) {
   EXPECT_EQ(paletteColour(0), (std::array<uint8_t, 3>{230, 25, 75}));
   EXPECT_EQ(paletteColour(19), (std::array<uint8_t, 3>{128, 128, 128}));
-  EXPECT_EQ(paletteColour(21), paletteColour(1));
+  // More labels than the palette: each its own colour, none black (the legend's background).
+  std::set<std::array<uint8_t, 3>> seen;
+  for (int64_t k = 0; k < 5000; ++k) {
+    const auto c = paletteColour(k);
+    EXPECT_TRUE(seen.insert(c).second) << "label " << k << " repeats a colour";
+    EXPECT_NE(c, (std::array<uint8_t, 3>{0, 0, 0})) << k;
+  }
   EXPECT_THROW(labelImage({0, 2}, 1, 2, {"a", "b"}, 2, 4), Error);  // label 2 of 2
   EXPECT_THROW(labelJson({0}, 1, 2, {"a"}, 0, 1.0), Error);       // 1 value for 1 x 2
 }

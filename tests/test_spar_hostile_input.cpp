@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "imaging/image_prep.h"
 #include "tests/golden_support.h"
 #include "tests/test_support.h"
 
@@ -100,6 +101,62 @@ TEST(spar_hostile, UnwritableOutputIsRefusedBeforeWork) {
   expectOneErrorLine(render(frames, "/proc/spar_out"), "cannot write in /proc");
   expectOneErrorLine(render(frames, file / "out"), "a_file is a file, not a directory");
   expectOneErrorLine(render(frames, file / "deeper" / "out"), "a_file is a file, not a directory");
+}
+
+}  // namespace
+}  // namespace spar::test
+
+namespace spar::test {
+namespace {
+
+// Legal but likely a mistake: the run goes on (exit 0) and says so, once, on one line.
+size_t countOf(const std::string& text, const std::string& what) {
+  size_t n = 0;
+  for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
+  return n;
+}
+
+TEST(spar_hostile, LikelyMistakesAreOneLineWarnings) {
+  // A 1x1 image among the inputs.
+  const fs::path tiny = scratch() / "one_pixel.png";
+  const std::vector<float> pixel = {0.5f, 0.5f, 0.5f};
+  writePng(tiny.string(), pixel, 3, 1, 1);
+  fs::path out = scratch() / "warn_tiny";
+  fs::remove_all(out);
+  CommandResult r = render({tiny.string(), goldenPath("frame_1.png"), goldenPath("frame_2.png")}, out);
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(countOf(r.err, "spar: warning: "), 1u) << r.err;
+  EXPECT_NE(r.err.find("one_pixel.png is 1x1 pixels, far smaller than the 128x128 the model runs at"), std::string::npos)
+      << r.err;
+
+  // 17 views of a model trained with 5 a scene (the fixture's num_views).
+  std::vector<std::string> frames;
+  for (int i = 0; i < 17; ++i) frames.push_back(goldenPath("frame_" + std::to_string(i % 5) + ".png"));
+  out = scratch() / "warn_views";
+  fs::remove_all(out);
+  r = render(frames, out);
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(countOf(r.err, "spar: warning: "), 1u) << r.err;
+  EXPECT_NE(r.err.find("17 views (2 inputs): the model was trained with"), std::string::npos) << r.err;
+
+  // Prompts: one over 77 tokens, and 25 labels.
+  std::string labels = "a";
+  for (int i = 0; i < 90; ++i) labels += " very";
+  labels += " long chair";
+  for (int i = 0; i < 24; ++i) labels += ",label" + std::to_string(i);
+  out = scratch() / "warn_labels";
+  fs::remove_all(out);
+  std::vector<std::string> argv = {SPAR_CLI, "render", "--model", semanticGoldenPath("tiny_semantic.spar"), "--frames"};
+  for (int i = 0; i < 5; ++i) argv.push_back(goldenPath("frame_" + std::to_string(i) + ".png"));
+  for (const char* a : {"--inputs", "0,2,4", "--labels"}) argv.push_back(a);
+  argv.push_back(labels);
+  argv.push_back("--out");
+  argv.push_back(out.string());
+  r = runCommand(argv, scratch(), "VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation");
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(countOf(r.err, "spar: warning: "), 2u) << r.err;
+  EXPECT_NE(r.err.find("tokens: CLIP reads the first 77"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("25 labels: the palette has 20"), std::string::npos) << r.err;
 }
 
 }  // namespace

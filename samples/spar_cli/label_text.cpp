@@ -8,13 +8,16 @@
 #include "model/clip_text.h"
 #include "model/label_maps.h"
 #include "model/transformer_block.h"
+#include "samples/spar_cli/warnings.h"
 
 namespace spar::cli {
 
 std::vector<int32_t> tokenizePrompts(const PackedModel& model, const std::vector<std::string>& prompts) {
   if (!model.has(BpeTokenizer::kPackedName))
     throw Error(model.path() + ": no CLIP text encoder tokenizer (pack the model with spar-convert --bpe)");
-  return BpeTokenizer::fromModel(model).tokenize(prompts);
+  const BpeTokenizer tokenizer = BpeTokenizer::fromModel(model);
+  warnAboutPrompts(tokenizer, prompts);
+  return tokenizer.tokenize(prompts);
 }
 
 PromptEmbeddings encodePrompts(Engine& engine, const PackedModel& model, const SparConfig& config, DType weightType,

@@ -20,6 +20,7 @@
 #include "samples/spar_cli/progress.h"
 #include "samples/spar_cli/render_outputs.h"
 #include "samples/spar_cli/staged_dir.h"
+#include "samples/spar_cli/warnings.h"
 
 namespace spar::cli {
 namespace {
@@ -115,8 +116,11 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
 
   t = Clock::now();
   const int h = v.height, w = v.width;
+  warnIfManyViews(v.config, v.views.files.size(), v.views.inputs.size());
   for (const auto& f : v.views.files) {
-    const std::vector<float> img = loadPreparedImage(f, h, w);
+    const RgbImage rgb = loadImageRGB(f);
+    warnIfTiny(f, rgb.width, rgb.height, w, h);
+    const std::vector<float> img = prepareImage(rgb, h, w);
     v.images.insert(v.images.end(), img.begin(), img.end());
   }
   if (!a.cameras.empty()) {

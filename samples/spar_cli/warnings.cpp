@@ -1,0 +1,44 @@
+#include "samples/spar_cli/warnings.h"
+
+#include <cstdio>
+
+#include "model/spar_config.h"
+#include "text/bpe_tokenizer.h"
+
+namespace spar::cli {
+
+void warn(const std::string& message) {
+  std::string line = message;
+  for (char& c : line)
+    if (c == '\n' || c == '\r') c = ' ';
+  std::fprintf(stderr, "spar: warning: %s\n", line.c_str());
+}
+
+void warnIfTiny(const std::string& file, int width, int height, int modelWidth, int modelHeight) {
+  if (width * 4 < modelWidth || height * 4 < modelHeight)
+    warn(file + " is " + std::to_string(width) + "x" + std::to_string(height) + " pixels, far smaller than the " +
+         std::to_string(modelWidth) + "x" + std::to_string(modelHeight) + " the model runs at: it is upscaled");
+}
+
+void warnIfManyViews(const SparConfig& config, size_t views, size_t inputs) {
+  const auto it = config.raw.find("num_views");
+  if (it == config.raw.end() || !it->is_number_integer()) return;
+  const int64_t trained = it->get<int64_t>();
+  if (int64_t(views) > trained)
+    warn(std::to_string(views) + " views (" + std::to_string(inputs) + " inputs): the model was trained with " +
+         std::to_string(trained) + " views a scene; results far outside that are untested");
+}
+
+void warnAboutPrompts(const BpeTokenizer& tokenizer, const std::vector<std::string>& prompts) {
+  for (const std::string& p : prompts) {
+    const size_t tokens = tokenizer.encode(p).size() + 2;  // with start and end
+    if (tokens > size_t(BpeTokenizer::kContextLength))
+      warn("prompt '" + (p.size() > 40 ? p.substr(0, 40) + "..." : p) + "' is " + std::to_string(tokens) +
+           " tokens: CLIP reads the first " + std::to_string(BpeTokenizer::kContextLength));
+  }
+  if (prompts.size() > 20)
+    warn(std::to_string(prompts.size()) + " labels: the palette has 20 well-separated colours; labels 21 and on "
+         "get colours of their own, which may look alike");
+}
+
+}  // namespace spar::cli

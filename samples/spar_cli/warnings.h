@@ -1,0 +1,25 @@
+// Warnings of the `spar` command: input that is legal but likely a mistake. One line each on
+// stderr ("spar: warning: ..."); the run goes on.
+#pragma once
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace spar {
+class BpeTokenizer;
+struct SparConfig;
+}  // namespace spar
+
+namespace spar::cli {
+
+void warn(const std::string& message);
+
+// An image much smaller than what the model runs at (under a quarter of a side): upscaled.
+void warnIfTiny(const std::string& file, int width, int height, int modelWidth, int modelHeight);
+// More views than the checkpoint's configuration was trained with (num_views), when it says.
+void warnIfManyViews(const SparConfig& config, size_t views, size_t inputs);
+// Prompts longer than CLIP's 77 tokens (cut there), and more labels than the palette's 20
+// well-separated colours.
+void warnAboutPrompts(const BpeTokenizer& tokenizer, const std::vector<std::string>& prompts);
+
+}  // namespace spar::cli
