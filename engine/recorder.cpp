@@ -248,6 +248,13 @@ void Recorder::emit(const Pending& d, const Pipeline& pipeline) {
     // is its build time and the real dispatch after it is compute only.
     vkCmdDispatch(cmd_, 0, 0, 0);
     writeTimestamp();
+    // It touches nothing, but a validator sees its bindings' declared access: order it
+    // before the real dispatch like any other (synchronization validation stays silent).
+    VkMemoryBarrier barrier{VK_STRUCTURE_TYPE_MEMORY_BARRIER};
+    barrier.srcAccessMask = VK_ACCESS_SHADER_WRITE_BIT | VK_ACCESS_SHADER_READ_BIT;
+    barrier.dstAccessMask = VK_ACCESS_SHADER_READ_BIT | VK_ACCESS_SHADER_WRITE_BIT;
+    vkCmdPipelineBarrier(cmd_, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, VK_PIPELINE_STAGE_COMPUTE_SHADER_BIT, 0, 1,
+                         &barrier, 0, nullptr, 0, nullptr);
   }
   vkCmdDispatch(cmd_, d.groups[0], d.groups[1], d.groups[2]);
   if (profile_) writeTimestamp();

@@ -2,6 +2,7 @@
 // validation plumbing, fp16 conversion.
 #include <cstring>
 
+#include "engine/engine.h"
 #include "engine/half.h"
 #include "engine/ops/linear.h"
 #include "tests/test_support.h"
@@ -34,6 +35,35 @@ TEST(Runtime, DeviceChosenByIndexAndByName) {
   byName.select = a.caps().name.substr(0, 4);
   Device b(byName);
   EXPECT_EQ(a.caps().name.substr(0, 4), b.caps().name.substr(0, 4));
+}
+
+// Synchronization validation is on with validation: two transfer writes to one buffer with
+// no barrier between them are a write-after-write hazard, and the layer reports it.
+TEST(Runtime, SynchronizationHazardsAreReported) {
+  EngineOptions options;
+  options.validation = true;
+  Engine engine(options);
+  Tensor t = engine.tensor({64});
+  VkDevice dev = engine.device().handle();
+  VkCommandPoolCreateInfo poolInfo{VK_STRUCTURE_TYPE_COMMAND_POOL_CREATE_INFO};
+  poolInfo.queueFamilyIndex = engine.device().queueFamily();
+  VkCommandPool pool = VK_NULL_HANDLE;
+  ASSERT_EQ(vkCreateCommandPool(dev, &poolInfo, nullptr, &pool), VK_SUCCESS);
+  VkCommandBufferAllocateInfo alloc{VK_STRUCTURE_TYPE_COMMAND_BUFFER_ALLOCATE_INFO};
+  alloc.commandPool = pool;
+  alloc.level = VK_COMMAND_BUFFER_LEVEL_PRIMARY;
+  alloc.commandBufferCount = 1;
+  VkCommandBuffer cmd = VK_NULL_HANDLE;
+  ASSERT_EQ(vkAllocateCommandBuffers(dev, &alloc, &cmd), VK_SUCCESS);
+  VkCommandBufferBeginInfo begin{VK_STRUCTURE_TYPE_COMMAND_BUFFER_BEGIN_INFO};
+  ASSERT_EQ(vkBeginCommandBuffer(cmd, &begin), VK_SUCCESS);
+  const size_t before = engine.device().validationMessageCount();
+  std::fprintf(stderr, "(the next validation message, a SYNC-HAZARD-WRITE-AFTER-WRITE, is expected)\n");
+  vkCmdFillBuffer(cmd, t.buffer().handle(), 0, 256, 1u);
+  vkCmdFillBuffer(cmd, t.buffer().handle(), 0, 256, 2u);
+  EXPECT_GT(engine.device().validationMessageCount(), before);
+  vkEndCommandBuffer(cmd);
+  vkDestroyCommandPool(dev, pool, nullptr);
 }
 
 // The messenger counts what the layer reports: a buffer of size 0 is invalid usage.
