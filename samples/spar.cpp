@@ -110,6 +110,10 @@ int main(int argc, char** argv) {
                    "also write the semantic features of the rendered views (features_XX.npy, C x H/2 x "
                    "W/2 float32; models with the semantic branch)");
 
+  render->add_option("--format", a.format,
+                     "file format of the rendered views: png (8-bit), exr (float32 OpenEXR), exr16 (half "
+                     "OpenEXR), npy (float32 3 x H x W): the float formats hold the RGB as computed")
+      ->check(CLI::IsMember({"png", "exr", "exr16", "npy"}));
   render->add_flag("--scores", a.scores,
                    "with --labels: also write each view's per-label score maps (scores_XX.npy, P x H/2 x W/2 "
                    "float32: the scaled cosine similarities the labels are the argmax of)");

@@ -210,6 +210,7 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
     const SparEncoded& enc = pipeline.encode(req);
 
     RenderResult r;
+    r.viewFormat = a.format;
     r.width = w;
     r.height = h;
     // --labels: the prompts through CLIP's text encoder on the device, once; its weights are

@@ -35,7 +35,8 @@ struct RenderArgs {
   std::string device;              // index or part of the name; "" = SPAR_DEVICE / default
   std::optional<std::string> labels;
   bool features = false;
-  bool scores = false;  // with --labels: per-label score maps (scores_XX.npy)
+  bool scores = false;
+  std::string format = "png";  // --format png | exr | exr16 | npy (view_XX files)  // with --labels: per-label score maps (scores_XX.npy)
 };
 
 // What consecutive renders of one process share (spar render --jobs): the device with its

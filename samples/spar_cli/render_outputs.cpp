@@ -5,6 +5,7 @@
 #include <fstream>
 
 #include "engine/error.h"
+#include "imaging/float_image.h"
 #include "imaging/image_prep.h"
 #include "model/label_maps.h"
 #include "imaging/label_outputs.h"
@@ -42,8 +43,18 @@ int writeRenderOutputs(const std::string& dir, const RenderResult& r) {
   int files = 0;
   if (r.rgb.size() != size_t(r.rendered) * 3 * plane) throw Error("render result: wrong number of RGB values");
   if (r.motion.size() != size_t(r.motionViews) * plane) throw Error("render result: wrong number of motion values");
-  for (int64_t j = 0; j < r.rendered; ++j, ++files)
-    writePng(numbered(dir, "view", j), r.rgb.data() + size_t(j) * 3 * plane, 3, r.height, r.width);
+  for (int64_t j = 0; j < r.rendered; ++j, ++files) {
+    const float* view = r.rgb.data() + size_t(j) * 3 * plane;
+    if (r.viewFormat == "png") {
+      writePng(numbered(dir, "view", j), view, 3, r.height, r.width);
+    } else if (r.viewFormat == "exr" || r.viewFormat == "exr16") {
+      writeExr(numbered(dir, "view", j, "exr"), view, 3, r.height, r.width, r.viewFormat == "exr16");
+    } else if (r.viewFormat == "npy") {
+      writeNpy(numbered(dir, "view", j, "npy"), {3, r.height, r.width}, view);
+    } else {
+      throw Error("unknown view format '" + r.viewFormat + "' (png, exr, exr16, npy)");
+    }
+  }
   std::vector<float> mask(plane);
   for (int64_t j = 0; j < r.motionViews; ++j) {
     const float* p = r.motion.data() + size_t(j) * plane;

@@ -15,6 +15,9 @@ namespace spar::cli {
 struct RenderResult {
   int width = 0, height = 0;
   std::vector<float> rgb;      // [R, 3, H, W] rendered views
+  // view_XX files: "png" (8-bit, the reference's rounding), "exr" (float32), "exr16" (half),
+  // "npy" (float32 [3, H, W]): the float formats hold the engine's RGB as computed.
+  std::string viewFormat = "png";
   int64_t rendered = 0;
   std::vector<float> motion;   // [K, H, W] P(dynamic) of the inputs (empty: --assume-static)
   int64_t motionViews = 0;
