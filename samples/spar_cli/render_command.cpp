@@ -9,6 +9,7 @@
 #include "engine/engine.h"
 #include "engine/recorder.h"
 #include "formats/cameras.h"
+#include "formats/colmap.h"
 #include "imaging/image_prep.h"
 #include "model/packed_model.h"
 #include "model/spar_config.h"
@@ -113,7 +114,16 @@ Validated validate(const RenderArgs& a) {
     const std::vector<float> img = loadPreparedImage(f, h, w);
     v.images.insert(v.images.end(), img.begin(), img.end());
   }
-  if (!a.cameras.empty()) v.cameras = readTransforms(a.cameras, w, h);
+  if (!a.cameras.empty()) {
+    // A COLMAP text model (a directory or its images.txt), else a nerfstudio transforms.json.
+    if (isColmapPath(a.cameras)) {
+      ColmapCameras m = readColmap(a.cameras, w, h);
+      if (!m.warning.empty()) std::fprintf(stderr, "spar: warning: %s\n", m.warning.c_str());
+      v.cameras = std::move(m.cameras);
+    } else {
+      v.cameras = readTransforms(a.cameras, w, h);
+    }
+  }
   v.prepareMs = msSince(t);
   return v;
 }
