@@ -130,15 +130,20 @@ std::vector<CameraD> readTransforms(const std::string& path, int outWidth, int o
     const double rw = std::nearbyint(w), rh = std::nearbyint(h);
     if (rw < 1 || rh < 1 || rw > 1e6 || rh > 1e6)
       throw Error(where + ": w, h must be image sizes in pixels (1 to 1000000)");
-    const CropGeometry g = cropGeometry(int(rw), int(rh), outWidth, outHeight);
-    const double sx = g.resizedWidth / w, sy = g.resizedHeight / h;
     CameraD cam;
-    cam.k = {*fx * sx / outWidth, fy * sy / outHeight, (cx * sx - g.left) / outWidth,
-             (cy * sy - g.top) / outHeight};
+    cam.k = normalizedIntrinsics(*fx, fy, cx, cy, w, h, outWidth, outHeight);
     cam.c2w = flipGlCv(*m);
     cams.push_back(cam);
   }
   return cams;
+}
+
+std::array<double, 4> normalizedIntrinsics(double fx, double fy, double cx, double cy, double w, double h,
+                                           int outWidth, int outHeight) {
+  // Python's int(round(w)): half to even.
+  const CropGeometry g = cropGeometry(int(std::nearbyint(w)), int(std::nearbyint(h)), outWidth, outHeight);
+  const double sx = g.resizedWidth / w, sy = g.resizedHeight / h;
+  return {fx * sx / outWidth, fy * sy / outHeight, (cx * sx - g.left) / outWidth, (cy * sy - g.top) / outHeight};
 }
 
 RenderCameras toRenderCameras(const std::vector<CameraD>& cameras) {

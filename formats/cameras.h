@@ -41,6 +41,13 @@ Mat4d flipGlCv(const Mat4d& m);
 // "P: no frames", "P: frames[2]: no fl_x", ...).
 std::vector<CameraD> readTransforms(const std::string& path, int outWidth, int outHeight);
 
+// Pixel intrinsics of a w x h image mapped through the image preparation (cropGeometry of
+// round(w) x round(h) to outWidth x outHeight) and normalized by the model size: what every
+// camera file reader (transforms.json, COLMAP) does with the intrinsics it reads. The caller
+// checks that the values are positive and finite and w, h image sizes.
+std::array<double, 4> normalizedIntrinsics(double fx, double fy, double cx, double cy, double w, double h,
+                                           int outWidth, int outHeight);
+
 // The cameras in the pipeline's single-precision layout.
 RenderCameras toRenderCameras(const std::vector<CameraD>& cameras);
 // And back (exact: float -> double), so cameras.json holds what was rendered.

@@ -1,6 +1,6 @@
 // spar: the command-line tool of the engine.
 //   spar render --model M.spar (--images A B [--targets C D] | --frames f0 .. --inputs 0,3,4)
-//               [--cameras transforms.json | --path N] [--assume-static] [--size HxW] [--device D] --out DIR
+//               [--cameras transforms.json|COLMAP_DIR | --path N] [--assume-static] [--size HxW] [--device D] --out DIR
 //   spar render --model M.spar --jobs JOBS.jsonl [--shard I/N] [common options]
 //   spar eval --model M.spar --scenes DIR [--views 2,3,4] [--precision fp32|fp16] [--size HxW]
 //             [--no-gating | --assume-static] [--max-scenes N] [--device D] --out result.json
@@ -76,7 +76,8 @@ int main(int argc, char** argv) {
   render->add_option("--inputs", inputs, "with --frames: positions of the input views, e.g. 0,3,4");
   auto* cameras = render->add_option("--cameras", a.cameras,
                                      "render these cameras instead of the targets (nerfstudio transforms.json, "
-                                     "OpenGL camera-to-world in the canonical view's frame)");
+                                     "OpenGL camera-to-world in the canonical view's frame; or a COLMAP "
+                                     "text model: its directory or images.txt)");
   auto* pathOpt = render->add_option("--path", path,
                                      "render N cameras along the estimated input cameras (slerp rotations, "
                                      "lerp positions) instead of the targets");

@@ -115,7 +115,7 @@ TEST(spar_nonfinite, BadRenderCamerasAreRefusedBeforeWork) {
   const json fine = {{1, 0, 0, 0.1}, {0, 1, 0, 0}, {0, 0, 1, 0}, {0, 0, 0, 1}};
   const fs::path out = scratch() / "cam_out";
   const fs::path model = goldenPath("tiny.spar");
-  expectRefused(render(model, out, {"--cameras", transforms("far", far).string()}), out, "frames[0]: position 1e+38");
+  expectRefused(render(model, out, {"--cameras", transforms("far", far).string()}), out, "camera 0: position 1e+38");
   expectRefused(render(model, out, {"--cameras", transforms("zero", zero).string()}), out, "not orthonormal");
   expectRefused(render(model, out, {"--cameras", transforms("skew", skew).string()}), out, "not orthonormal");
   expectRefused(render(model, out, {"--cameras", transforms("mirror", mirror).string()}), out, "det -1");

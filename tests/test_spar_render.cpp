@@ -7,7 +7,8 @@
 //    1/255, masks identical except where the reference's P(dynamic) is within 1e-4 of 0.5,
 //    cameras.json with the same keys in the same order, the same strings and order / inputs /
 //    targets, numbers within 1e-5 (pixel intrinsics within 1e-5 of the image size, i.e. 1e-5 on
-//    the normalized ones); report.json lists only stages that ran.
+//    the normalized ones); report.json lists only stages that ran; colmap/ (and colmap_render/),
+//    which only ours writes, render as cameras.json does.
 // The suite is named "spar_render" so that `ctest -R spar_render` selects it.
 #include <gtest/gtest.h>
 
@@ -28,6 +29,7 @@
 #include <nlohmann/json.hpp>
 
 #include "imaging/image_prep.h"
+#include "formats/colmap.h"
 #include "formats/npy.h"
 #include "tests/golden_support.h"
 #include "tests/test_support.h"
@@ -121,6 +123,11 @@ TEST(spar_render, WrongInputIsOneLineAndNoOutput) {
   std::ofstream(badCams) << R"({"frames": [{"transform_matrix": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}]})";
   const std::string notJson = (d / "broken.json").string();
   std::ofstream(notJson) << "{\"frames\": [\n";
+  // a COLMAP model whose second image line is short
+  const fs::path badColmap = d / "colmap_short";
+  fs::create_directories(badColmap);
+  std::ofstream(badColmap / "cameras.txt") << "1 PINHOLE 128 128 100 100 64 64\n";
+  std::ofstream(badColmap / "images.txt") << "# images\n1 1 0 0 0 0 0 0 1 a.png\n\n2 1 0 0 0 0 0 1 b.png\n\n";
 
   const auto f = frames();
   const std::vector<std::string> m = {"--model", model};
@@ -147,6 +154,8 @@ TEST(spar_render, WrongInputIsOneLineAndNoOutput) {
        "cameras file not found"},
       {"cameras_no_fl_x", cat(m, {"--images", f[0], f[1], "--cameras", badCams}), 1, "frames[0]: no fl_x"},
       {"cameras_not_json", cat(m, {"--images", f[0], f[1], "--cameras", notJson}), 1, "cannot read cameras file"},
+      {"colmap_short_line", cat(m, {"--images", f[0], f[1], "--cameras", badColmap.string()}), 1,
+       "colmap_short/images.txt:4: expected 10 fields"},
       {"labels_photometric", cat(m, {"--images", f[0], f[1], "--targets", f[2], "--labels", "sofa,wall"}), 1,
        "this model has no semantic branch"},
       {"features_photometric", cat(m, {"--images", f[0], f[1], "--targets", f[2], "--features"}), 1,
@@ -274,8 +283,11 @@ std::vector<double> fixtureProb(const std::string& goldenCase) {
 
 void compareOutputs(const std::string& name, const Outputs& o, bool assumeStatic, const std::vector<double>& prob,
                     int64_t rendered, const std::string& mode) {
-  // the same files (report.json contents differ by design: tool, device, timing)
-  const auto names = entries(o.ours);
+  // the same files (report.json contents differ by design: tool, device, timing), and ours
+  // has the COLMAP models the reference does not write
+  auto names = entries(o.ours);
+  EXPECT_EQ(names.erase("colmap"), 1u) << name;
+  EXPECT_EQ(names.erase("colmap_render"), mode == "targets" ? 0u : 1u) << name;
   EXPECT_EQ(names, entries(o.ref)) << name;
   int views = 0, motions = 0, masks = 0;
   for (const auto& n : names) {
@@ -394,6 +406,68 @@ TEST(spar_render, CamerasFileStaticMatchesReference) {
                                          "--assume-static"});
   ASSERT_TRUE(o);
   compareOutputs("static_cams", *o, true, {}, 4, "cameras");
+}
+
+// The COLMAP model a run writes (colmap/) renders what its cameras.json renders, to float
+// rounding, and reads back to cameras.json's cameras; the rendered ones go to colmap_render/.
+TEST(spar_render, ColmapCamerasRenderLikeTransforms) {
+  const std::vector<std::string> inputs = {"--model", tinyModelPath(), "--images", frame(0), frame(2), frame(4)};
+  auto ours = [&](const std::string& name, const std::vector<std::string>& more) {
+    const fs::path out = scratch() / ("colmap_" + name);
+    fs::remove_all(out);
+    const RunResult r = spar(cat(inputs, cat(more, {"--assume-static", "--out", out.string()})));
+    EXPECT_EQ(r.code, 0) << r.err;
+    EXPECT_EQ(r.err.find("warning"), std::string::npos) << r.err;  // PINHOLE: nothing dropped
+    return out;
+  };
+  const fs::path src = ours("src", {"--targets", frame(1)});
+  for (const char* f : {"cameras.txt", "images.txt", "points3D.txt"})
+    EXPECT_TRUE(fs::exists(src / "colmap" / f)) << f;
+  EXPECT_FALSE(fs::exists(src / "colmap_render"));  // targets: their cameras are in colmap/
+
+  // colmap/ holds cameras.json's frames, named by file, in its order
+  const ojson doc = readJson(src / "cameras.json");
+  const int w = doc["w"].get<int>(), h = doc["h"].get<int>();
+  const ColmapCameras model = readColmap((src / "colmap").string(), w, h);
+  ASSERT_EQ(model.cameras.size(), doc["frames"].size());
+  for (size_t i = 0; i < model.cameras.size(); ++i) {
+    const ojson& fr = doc["frames"][i];
+    EXPECT_EQ(model.names[i], fs::path(fr["file_path"].get<std::string>()).filename().string());
+    for (int k = 0; k < 16; ++k)
+      EXPECT_NEAR(model.cameras[i].c2w[k], fr["c2w_opencv"][k / 4][k % 4].get<double>(), 1e-6) << i << " " << k;
+    const char* keys[] = {"fx", "fy", "cx", "cy"};
+    for (int k = 0; k < 4; ++k)
+      EXPECT_NEAR(model.cameras[i].k[k], fr["intrinsics_normalized"][keys[k]].get<double>(), 1e-6) << i;
+  }
+
+  const fs::path viaJson = ours("via_json", {"--cameras", (src / "cameras.json").string()});
+  const fs::path viaColmap = ours("via_colmap", {"--cameras", (src / "colmap").string()});
+  const fs::path viaImagesTxt = ours("via_images_txt", {"--cameras", (src / "colmap" / "images.txt").string()});
+  for (const fs::path& out : {viaColmap, viaImagesTxt}) {
+    for (int j = 0; j < 4; ++j) {
+      char f[32];
+      std::snprintf(f, sizeof(f), "view_%02d.png", j);
+      const PngStats s = comparePng(out / f, viaJson / f);
+      EXPECT_LE(s.maxDiff, 1) << out << " " << f;
+      EXPECT_LE(s.shareDiffering, 1e-3) << out << " " << f;
+      std::printf("  %-14s %s: max diff %d/255, differing share %.2e\n", out.filename().c_str(), f, s.maxDiff,
+                  s.shareDiffering);
+    }
+    EXPECT_FALSE(fs::exists(out / "view_04.png"));
+    // the rendered cameras, as cameras.json lists them, and as colmap_render/
+    const ojson a = readJson(out / "cameras.json"), b = readJson(viaJson / "cameras.json");
+    ASSERT_EQ(a["render_frames"].size(), 4u);
+    const ColmapCameras rendered = readColmap((out / "colmap_render").string(), w, h);
+    ASSERT_EQ(rendered.cameras.size(), 4u);
+    for (size_t j = 0; j < 4; ++j) {
+      EXPECT_EQ(rendered.names[j], "view_0" + std::to_string(j) + ".png");
+      for (int k = 0; k < 16; ++k) {
+        const double want = b["render_frames"][j]["c2w_opencv"][k / 4][k % 4].get<double>();
+        EXPECT_NEAR(a["render_frames"][j]["c2w_opencv"][k / 4][k % 4].get<double>(), want, 1e-6) << j << " " << k;
+        EXPECT_NEAR(rendered.cameras[j].c2w[k], want, 1e-6) << j << " " << k;
+      }
+    }
+  }
 }
 
 // Inputs only and nothing to render: cameras.json (and motion maps) only, no decoder run.

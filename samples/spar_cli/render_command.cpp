@@ -9,6 +9,7 @@
 #include "engine/engine.h"
 #include "engine/recorder.h"
 #include "formats/cameras.h"
+#include "formats/colmap.h"
 #include "imaging/image_prep.h"
 #include "model/camera_checks.h"
 #include "model/packed_model.h"
@@ -124,12 +125,19 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
     v.images.insert(v.images.end(), img.begin(), img.end());
   }
   if (!a.cameras.empty()) {
-    v.cameras = readTransforms(a.cameras, w, h);
+    // A COLMAP text model (a directory or its images.txt), else a nerfstudio transforms.json.
+    if (isColmapPath(a.cameras)) {
+      ColmapCameras m = readColmap(a.cameras, w, h);
+      if (!m.warning.empty()) std::fprintf(stderr, "spar: warning: %s\n", m.warning.c_str());
+      v.cameras = std::move(m.cameras);
+    } else {
+      v.cameras = readTransforms(a.cameras, w, h);
+    }
     // Refused here, before any device work, with the frame named (the engine checks again).
     const RenderCameras rc = toRenderCameras(v.cameras);
     for (size_t i = 0; i < rc.size(); ++i)
       if (const std::string p = renderCameraProblem(rc.c2w[i], rc.fxfycxcy[i]); !p.empty())
-        throw Error(a.cameras + ": frames[" + std::to_string(i) + "]: " + p);
+        throw Error(a.cameras + ": camera " + std::to_string(i) + ": " + p);
   }
   v.prepareMs = msSince(t);
   return v;

@@ -5,6 +5,8 @@
 //   mask_XX.png    P(dynamic) > mask threshold as 0 / 255       (not with --assume-static)
 //   path.gif       with --path: the views (beside their label maps) as a looping animation
 //   cameras.json   every view's estimated camera (nerfstudio convention), order, render cameras
+//   colmap/        the same estimated cameras as a COLMAP text model (formats/colmap.h)
+//   colmap_render/ with --path / --cameras: the rendered cameras as a COLMAP text model
 //   report.json    device, precision, views, total time, the stages that ran with GPU times
 // Everything the command line names is checked before any work; the directory appears only
 // when complete (StagedDir).
@@ -26,7 +28,7 @@ namespace spar::cli {
 struct RenderArgs {
   std::string model;
   ViewArgs views;
-  std::string cameras;             // --cameras transforms.json
+  std::string cameras;             // --cameras transforms.json | COLMAP model dir | images.txt
   std::optional<int> path;         // --path N
   bool assumeStatic = false;
   std::string precision = "fp32";  // fp32 | fp16 (weight matrices stored as fp16 on the device)

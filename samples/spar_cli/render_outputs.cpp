@@ -1,10 +1,12 @@
 #include "samples/spar_cli/render_outputs.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 
 #include "engine/error.h"
+#include "formats/colmap.h"
 #include "imaging/float_image.h"
 #include "imaging/image_prep.h"
 #include "model/label_maps.h"
@@ -20,6 +22,33 @@ std::string numbered(const std::string& dir, const char* stem, int64_t j, const 
   char name[64];
   std::snprintf(name, sizeof(name), "%s_%02lld.%s", stem, static_cast<long long>(j), ext);
   return (std::filesystem::path(dir) / name).string();
+}
+
+// COLMAP's NAME is relative to an image folder: the file names, unless two inputs share one
+// (then the absolute paths, which cannot be confused).
+std::vector<std::string> colmapNames(const std::vector<std::string>& files) {
+  std::vector<std::string> names;
+  for (const auto& f : files) names.push_back(std::filesystem::path(f).filename().string());
+  std::vector<std::string> sorted = names;
+  std::sort(sorted.begin(), sorted.end());
+  if (std::adjacent_find(sorted.begin(), sorted.end()) == sorted.end()) return names;
+  names.clear();
+  for (const auto& f : files) names.push_back(absolutePath(f));
+  return names;
+}
+
+// colmap/: every view's estimated camera, named by its file; with --path / --cameras also
+// colmap_render/: the rendered cameras, named by their view_XX.png. Two models, not one,
+// because each then matches one folder of images (the inputs', or this directory's views).
+int writeColmapModels(const std::string& dir, const CamerasDocument& doc) {
+  namespace fs = std::filesystem;
+  writeColmap((fs::path(dir) / "colmap").string(), doc.cameras, colmapNames(doc.files), doc.width, doc.height);
+  if (doc.renderCameras.empty()) return 3;
+  std::vector<std::string> views;
+  for (size_t j = 0; j < doc.renderCameras.size(); ++j)
+    views.push_back(numbered("", "view", int64_t(j)));  // "" / name: the bare file name
+  writeColmap((fs::path(dir) / "colmap_render").string(), doc.renderCameras, views, doc.width, doc.height);
+  return 6;
 }
 
 }  // namespace
@@ -66,6 +95,7 @@ int writeRenderOutputs(const std::string& dir, const RenderResult& r) {
   }
   writeJson((std::filesystem::path(dir) / "cameras.json").string(), camerasJson(r.cameras));
   ++files;
+  files += writeColmapModels(dir, r.cameras);
   for (size_t j = 0; j < r.labelMaps.size(); ++j) {
     writeLabelPng(numbered(dir, "labels", int64_t(j)), r.labelMaps[j], r.labelHeight, r.labelWidth, r.labels, r.height,
                   r.width);
