@@ -115,6 +115,10 @@ int main(int argc, char** argv) {
                      "file format of the rendered views: png (8-bit), exr (float32 OpenEXR), exr16 (half "
                      "OpenEXR), npy (float32 3 x H x W): the float formats hold the RGB as computed")
       ->check(CLI::IsMember({"png", "exr", "exr16", "npy"}));
+  render->add_option("--video", a.video,
+                     "the --path animation: mp4 (H.264 through ffmpeg, which must be installed), gif, or auto "
+                     "(mp4 when ffmpeg is found, else gif; SPAR_FFMPEG names another ffmpeg)")
+      ->check(CLI::IsMember({"auto", "mp4", "gif"}));
   render->add_flag("--scores", a.scores,
                    "with --labels: also write each view's per-label score maps (scores_XX.npy, P x H/2 x W/2 "
                    "float32: the scaled cosine similarities the labels are the argmax of)");

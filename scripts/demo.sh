@@ -2,9 +2,9 @@
 # The main job of run.sh: `spar render` with the shipped trained model on a shipped held-out
 # scene: 8 frames of a room where a person and a pet move; frames 0, 4 and 7 are the inputs.
 # Renders a smooth 24-view camera path through the input cameras with open-vocabulary label
-# maps for the scene's class names, motion masks of the inputs, and path.gif (views beside their
-# label maps). The model (samples/data/spar_rooms.spar) is a small SPAR trained on synthetic
-# rooms by converter/spar-train (see converter/spar_train/README.md), not the paper's weights.
+# maps for the scene's class names, motion masks of the inputs, and path.mp4 (views beside their
+# label maps; path.gif where ffmpeg is not installed). The model (samples/data/spar_rooms.spar)
+# is a small SPAR trained on synthetic rooms by converter/spar-train (see converter/spar_train/README.md), not the paper's weights.
 #
 #   bash scripts/demo.sh [extra spar render options, e.g. --device 0 or --assume-static]
 set -euo pipefail
@@ -17,6 +17,6 @@ mkdir -p out
 ${SPAR_BUILD:-build}/samples/spar render --model samples/data/spar_rooms.spar --frames "$scene"/rgb_0{0..7}.png \
   --inputs 0,4,7 --path 24 --labels "$labels" --out "$out" "$@"
 echo "demo: 24 views along a camera path through the input cameras: $out/view_*.png, as an animation"
-echo "      beside their label maps: $out/path.gif; label maps: $out/labels_*.png / .json;"
+echo "      beside their label maps: $(ls "$out"/path.mp4 "$out"/path.gif 2>/dev/null); label maps: $out/labels_*.png / .json;"
 echo "      motion probability and masks of the inputs (frames 0, 4, 7): $out/motion_*.png, $out/mask_*.png;"
 echo "      cameras: $out/cameras.json; stage times: $out/report.json"

@@ -1,7 +1,7 @@
 // The shipped trained model (samples/data/spar_rooms.spar, converter/spar_train/README.md) on
 // the shipped held-out scenes (samples/data/scenes: test seeds, never trained on), through the
 // built `spar` as a user runs it:
-//  - the README's demo (scripts/demo.sh) on a short path: views, path.gif, label maps that see
+//  - the README's demo (scripts/demo.sh) on a short path: views, path.mp4, label maps that see
 //    the room's classes, input masks;
 //  - its quality with `spar eval`: above the measured values less a margin (a regression of the
 //    engine or of the shipped file shows), and clearly above a model that learned nothing
@@ -17,7 +17,6 @@
 #include <string>
 #include <vector>
 
-#include <OpenImageIO/imageio.h>
 #include <nlohmann/json.hpp>
 
 #include "imaging/image_prep.h"
@@ -42,7 +41,7 @@ const fs::path& scratch() { return scratchDir("shipped_model"); }
 int runSpar(const std::vector<std::string>& args, const fs::path& log) {
   std::vector<std::string> argv = {SPAR_CLI};
   argv.insert(argv.end(), args.begin(), args.end());
-  const CommandResult r = runCommand(argv, scratch(), "VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation");
+  const CommandResult r = runValidated(argv, scratch());
   std::ofstream(log) << r.out << r.err;
   return r.code;
 }
@@ -81,11 +80,10 @@ TEST(shipped_model, DemoRender) {
     EXPECT_GE(wallFloor, 0.3) << labels.dump();
   }
   for (int j = 0; j < 3; ++j) EXPECT_TRUE(fs::exists(out / ("mask_0" + std::to_string(j) + ".png"))) << j;
-  std::unique_ptr<OIIO::ImageInput> gif = OIIO::ImageInput::open((out / "path.gif").string());
-  ASSERT_TRUE(gif) << OIIO::geterror();
-  int frames = 0;
-  while (gif->seek_subimage(frames, 0)) ++frames;
-  EXPECT_EQ(frames, 4);
+  // the animation: path.mp4 (ffmpeg is installed by scripts/install-deps.sh), one frame a view
+  const VideoInfo video = probeVideo(out / "path.mp4", scratch());
+  EXPECT_EQ(video.codec, "h264");
+  EXPECT_EQ(video.frames, 4);
 
   // What was compiled: stage times are compute with builds apart, and every pipeline showed
   // the driver one texel binding state (one compiled variant each on llvmpipe).

@@ -7,8 +7,8 @@
 //    the default and --no-gating runs share CV-DRP (identical mask metrics).
 //  - A photometric model: semantic metrics null, not an error.
 //  - Wrong input: exit code != 0, one line "spar: error: ...", no output file.
-// Every run has the Khronos validation layer enabled through VK_INSTANCE_LAYERS; the layer logs
-// to stdout / stderr, which must hold no validation message.
+// Runs asked to validate have the Khronos validation layer with synchronization validation on
+// (runValidated), which fails the test on any validation message.
 #include <gtest/gtest.h>
 
 #include <sys/wait.h>
@@ -41,7 +41,7 @@ const fs::path& scratch() { return scratchDir("spar_eval"); }
 using RunResult = CommandResult;
 
 RunResult run(const std::vector<std::string>& argv, bool validation = false) {
-  return runCommand(argv, scratch(), validation ? "VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation" : "");
+  return validation ? runValidated(argv, scratch()) : runCommand(argv, scratch());
 }
 
 RunResult sparEval(std::vector<std::string> args, bool validation = false) {

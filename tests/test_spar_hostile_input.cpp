@@ -62,7 +62,7 @@ CommandResult render(const std::vector<std::string>& frames, const fs::path& out
   for (const char* a : {"--inputs", "0,2"}) argv.push_back(a);
   argv.push_back("--out");
   argv.push_back(out.string());
-  return runCommand(argv, scratch(), "VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation");
+  return runValidated(argv, scratch());
 }
 
 void expectOneErrorLine(const CommandResult& r, const std::string& expected) {
@@ -152,7 +152,7 @@ TEST(spar_hostile, LikelyMistakesAreOneLineWarnings) {
   argv.push_back(labels);
   argv.push_back("--out");
   argv.push_back(out.string());
-  r = runCommand(argv, scratch(), "VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation");
+  r = runValidated(argv, scratch());
   EXPECT_EQ(r.code, 0) << r.err;
   EXPECT_EQ(countOf(r.err, "spar: warning: "), 2u) << r.err;
   EXPECT_NE(r.err.find("tokens: CLIP reads the first 77"), std::string::npos) << r.err;

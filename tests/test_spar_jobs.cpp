@@ -33,7 +33,7 @@ const fs::path& scratch() { return scratchDir("spar_jobs"); }
 CommandResult spar(const std::vector<std::string>& args) {
   std::vector<std::string> argv = {SPAR_CLI};
   argv.insert(argv.end(), args.begin(), args.end());
-  return runCommand(argv, scratch(), "VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation");
+  return runValidated(argv, scratch());
 }
 
 std::string frame(const std::string& scene, int i) {
@@ -86,7 +86,7 @@ TEST(spar_jobs, JobsShareOneDeviceAndMatchSingleRuns) {
       EXPECT_LT(stage["wall_ms"].get<double>(), 1.0) << stage.dump();
     }
   }
-  EXPECT_TRUE(fs::exists(dir / "b" / "path.gif"));
+  EXPECT_TRUE(fs::exists(dir / "b" / "path.mp4"));  // ffmpeg is installed (scripts/install-deps.sh)
 
   // Each job writes what one `spar render` with its arguments writes.
   for (const auto& [name, scene, extra] : {std::tuple{"a", "scene_1000000", std::vector<std::string>{}},

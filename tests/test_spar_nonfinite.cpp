@@ -52,7 +52,7 @@ CommandResult render(const fs::path& model, const fs::path& out, const std::vect
   argv.insert(argv.end(), extra.begin(), extra.end());
   argv.push_back("--out");
   argv.push_back(out.string());
-  return runCommand(argv, scratch(), "VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation");
+  return runValidated(argv, scratch());
 }
 
 void expectRefused(const CommandResult& r, const fs::path& out, const std::string& expected) {

@@ -50,9 +50,10 @@ const fs::path& scratch() { return scratchDir("spar_render"); }
 
 RunResult run(const std::vector<std::string>& argv) { return runCommand(argv, scratch()); }
 
+// Every run of `spar` with validation and synchronization validation on (runValidated).
 RunResult spar(std::vector<std::string> args) {
   args.insert(args.begin(), {SPAR_CLI, "render"});
-  return run(args);
+  return runValidated(args, scratch());
 }
 
 // The reference's `render` (or `goldens`) with a checkpoint and the fixture's config.
@@ -267,7 +268,8 @@ std::optional<Outputs> runBoth(const std::string& name, const std::vector<std::s
   Outputs o{scratch() / ("ours_" + name), scratch() / ("ref_" + name)};
   fs::remove_all(o.ours);
   fs::remove_all(o.ref);
-  const RunResult ours = spar(cat({"--model", model}, cat(viewArgs, {"--out", o.ours.string()})));
+  // --video gif: the reference writes path.gif (path.mp4 is tests/test_spar_render_outputs.cpp's)
+  const RunResult ours = spar(cat({"--model", model, "--video", "gif"}, cat(viewArgs, {"--out", o.ours.string()})));
   EXPECT_EQ(ours.code, 0) << ours.err;
   const RunResult ref = reference(cat(viewArgs, {"--out", o.ref.string()}), checkpoint, "render", config);
   EXPECT_EQ(ref.code, 0) << ref.err;

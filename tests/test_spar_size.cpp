@@ -11,8 +11,8 @@
 //  - spar eval --size evaluates scenes of that size;
 //  - imageSizeProblem (model/spar_pipeline.h), the rule both commands apply: multiples of the
 //    patch size, and of 32 with the semantic branch.
-// Every run of `spar` has the Khronos validation layer on (VK_INSTANCE_LAYERS) and must print no
-// validation message. The suite is named "spar_size" (`ctest -R spar_size`).
+// Every run of `spar` has the Khronos validation layer with synchronization validation on
+// (runValidated) and must print no validation message. The suite is named "spar_size" (`ctest -R spar_size`).
 #include <gtest/gtest.h>
 
 #include <cstdlib>
@@ -49,12 +49,7 @@ CommandResult python(const std::vector<std::string>& args) {
 // The `spar` binary with the validation layer; its messages would be in stdout or stderr.
 CommandResult spar(const std::string& command, std::vector<std::string> args) {
   args.insert(args.begin(), {SPAR_CLI, command});
-  const CommandResult r = runCommand(args, scratch(), "VK_INSTANCE_LAYERS=VK_LAYER_KHRONOS_validation");
-  for (const std::string* s : {&r.out, &r.err}) {
-    EXPECT_EQ(s->find("VUID"), std::string::npos) << *s;
-    EXPECT_EQ(s->find("Validation"), std::string::npos) << *s;
-  }
-  return r;
+  return runValidated(args, scratch());
 }
 
 // The fixture, made once per test process: spar.yaml, size128.pt, size128.spar, frame_0..2.png.

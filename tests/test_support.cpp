@@ -191,4 +191,34 @@ CommandResult runCommand(const std::vector<std::string>& argv, const std::filesy
   return r;
 }
 
+CommandResult runValidated(const std::vector<std::string>& argv, const std::filesystem::path& dir,
+                           const std::string& env) {
+  const CommandResult r = runCommand(argv, dir, "SPAR_VALIDATION=1" + (env.empty() ? "" : " " + env));
+  // The engine's messenger prefixes "[vulkan validation]"; the layer's own log says VUID / Validation.
+  for (const std::string* s : {&r.out, &r.err})
+    for (const char* mark : {"[vulkan validation]", "VUID", "Validation"})
+      EXPECT_EQ(s->find(mark), std::string::npos) << "validation message from " << argv[0] << ":\n" << *s;
+  return r;
+}
+
+VideoInfo probeVideo(const std::filesystem::path& video, const std::filesystem::path& dir) {
+  const CommandResult r = runCommand({"ffprobe", "-v", "error", "-select_streams", "v:0", "-count_frames",
+                                      "-show_entries", "stream=codec_name,width,height,nb_read_frames", "-of",
+                                      "default=noprint_wrappers=1", video.string()},
+                                     dir);
+  VideoInfo v;
+  EXPECT_EQ(r.code, 0) << "ffprobe " << video << ": " << r.err;
+  std::stringstream ss(r.out);
+  for (std::string line; std::getline(ss, line);) {
+    const size_t eq = line.find('=');
+    if (eq == std::string::npos) continue;
+    const std::string key = line.substr(0, eq), value = line.substr(eq + 1);
+    if (key == "codec_name") v.codec = value;
+    if (key == "width") v.width = std::atoi(value.c_str());
+    if (key == "height") v.height = std::atoi(value.c_str());
+    if (key == "nb_read_frames") v.frames = std::atoi(value.c_str());
+  }
+  return v;
+}
+
 }  // namespace spar::test

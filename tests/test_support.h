@@ -35,6 +35,17 @@ struct CommandResult {
 // stderr go through files in `dir`.
 CommandResult runCommand(const std::vector<std::string>& argv, const std::filesystem::path& dir,
                          const std::string& env = "");
+// A program of ours that opens the engine (the built `spar`, argv[0]) run as runCommand does, with
+// the Khronos validation layer and its synchronization validation on (SPAR_VALIDATION=1);
+// fails the current test if a validation message was printed.
+CommandResult runValidated(const std::vector<std::string>& argv, const std::filesystem::path& dir,
+                           const std::string& env = "");
+// What ffprobe (Debian's ffmpeg) says of a video's first stream; frames -1 when it could not.
+struct VideoInfo {
+  std::string codec;
+  int width = 0, height = 0, frames = -1;
+};
+VideoInfo probeVideo(const std::filesystem::path& video, const std::filesystem::path& dir);
 // A whole text file ("" when it cannot be read).
 std::string readText(const std::filesystem::path& path);
 

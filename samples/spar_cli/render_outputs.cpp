@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cstdio>
 #include <filesystem>
+#include <cstring>
 #include <fstream>
 
 #include "engine/error.h"
@@ -12,7 +13,6 @@
 #include "model/label_maps.h"
 #include "imaging/label_outputs.h"
 #include "formats/npy.h"
-#include "samples/spar_cli/path_animation.h"
 
 namespace spar::cli {
 
@@ -53,6 +53,23 @@ int writeColmapModels(const std::string& dir, const CamerasDocument& doc) {
 
 }  // namespace
 
+RgbImage besideEachOther(const std::vector<const RgbImage*>& parts) {
+  RgbImage out;
+  for (const RgbImage* p : parts) {
+    out.width += p->width;
+    out.height = std::max(out.height, p->height);
+  }
+  out.pixels.assign(size_t(out.width) * out.height * 3, 0);
+  int x0 = 0;
+  for (const RgbImage* p : parts) {
+    for (int y = 0; y < p->height; ++y)
+      std::memcpy(&out.pixels[(size_t(y) * out.width + x0) * 3], &p->pixels[size_t(y) * p->width * 3],
+                  size_t(p->width) * 3);
+    x0 += p->width;
+  }
+  return out;
+}
+
 void writeJson(const std::string& path, const nlohmann::ordered_json& doc) {
   const std::string tmp = path + ".tmp";
   {
@@ -67,78 +84,89 @@ void writeJson(const std::string& path, const nlohmann::ordered_json& doc) {
   if (ec) throw Error("cannot rename " + tmp + " to " + path + ": " + ec.message());
 }
 
-int writeRenderOutputs(const std::string& dir, const RenderResult& r) {
-  const size_t plane = size_t(r.width) * r.height;
-  int files = 0;
-  if (r.rgb.size() != size_t(r.rendered) * 3 * plane) throw Error("render result: wrong number of RGB values");
-  if (r.motion.size() != size_t(r.motionViews) * plane) throw Error("render result: wrong number of motion values");
-  for (int64_t j = 0; j < r.rendered; ++j, ++files) {
-    const float* view = r.rgb.data() + size_t(j) * 3 * plane;
-    if (r.viewFormat == "png") {
-      writePng(numbered(dir, "view", j), view, 3, r.height, r.width);
-    } else if (r.viewFormat == "exr" || r.viewFormat == "exr16") {
-      writeExr(numbered(dir, "view", j, "exr"), view, 3, r.height, r.width, r.viewFormat == "exr16");
-    } else if (r.viewFormat == "npy") {
-      writeNpy(numbered(dir, "view", j, "npy"), {3, r.height, r.width}, view);
-    } else {
-      throw Error("unknown view format '" + r.viewFormat + "' (png, exr, exr16, npy)");
-    }
-  }
-  std::vector<float> mask(plane);
-  for (int64_t j = 0; j < r.motionViews; ++j) {
-    const float* p = r.motion.data() + size_t(j) * plane;
-    writePng(numbered(dir, "motion", j), p, 1, r.height, r.width);
-    // The reference's binary mask: prob > threshold, written as 0 / 255.
-    for (size_t i = 0; i < plane; ++i) mask[i] = p[i] > r.maskThreshold ? 1.0f : 0.0f;
-    writePng(numbered(dir, "mask", j), mask.data(), 1, r.height, r.width);
-    files += 2;
-  }
-  writeJson((std::filesystem::path(dir) / "cameras.json").string(), camerasJson(r.cameras));
-  ++files;
-  files += writeColmapModels(dir, r.cameras);
-  for (size_t j = 0; j < r.labelMaps.size(); ++j) {
-    writeLabelPng(numbered(dir, "labels", int64_t(j)), r.labelMaps[j], r.labelHeight, r.labelWidth, r.labels, r.height,
-                  r.width);
-    writeLabelJson(numbered(dir, "labels", int64_t(j), "json"),
-                   labelJson(r.labelMaps[j], r.labelHeight, r.labelWidth, r.labels, int64_t(j), kLsegLogitScale));
-    files += 2;
-  }
-  if (!r.scores.empty()) {
-    const int64_t p = int64_t(r.labels.size()), per = p * r.labelHeight * r.labelWidth;
-    if (r.scores.size() != size_t(r.rendered * per)) throw Error("render result: wrong number of score values");
-    for (int64_t j = 0; j < r.rendered; ++j, ++files)
-      writeNpy(numbered(dir, "scores", j, "npy"), {p, r.labelHeight, r.labelWidth}, r.scores.data() + j * per);
-  }
-  if (!r.features.empty()) {
-    const int64_t h = r.height / 2, w = r.width / 2, per = r.featureChannels * h * w;
-    if (r.features.size() != size_t(r.rendered * per)) throw Error("render result: wrong number of feature values");
-    for (int64_t j = 0; j < r.rendered; ++j, ++files)
-      writeNpy(numbered(dir, "features", j, "npy"), {r.featureChannels, h, w}, r.features.data() + j * per);
-  }
-  if (r.animationFps > 0) {
-    writeAnimatedGif((std::filesystem::path(dir) / "path.gif").string(), animationFrames(r), r.animationFps);
-    ++files;
-  }
-  return files;
+RenderWriter::RenderWriter(std::string dir, RenderLayout layout) : dir_(std::move(dir)), layout_(std::move(layout)) {
+  if (layout_.animationFps > 0) animation_ = openAnimation(layout_.animation, dir_, layout_.animationFps);
 }
 
-std::vector<RgbImage> animationFrames(const RenderResult& r) {
-  const size_t plane = size_t(r.width) * r.height;
-  std::vector<RgbImage> frames;
-  for (int64_t j = 0; j < r.rendered; ++j) {
-    RgbImage view{r.width, r.height, std::vector<uint8_t>(plane * 3)};
-    const float* p = r.rgb.data() + size_t(j) * 3 * plane;
-    for (size_t i = 0; i < plane; ++i)
-      for (int c = 0; c < 3; ++c) view.pixels[i * 3 + c] = toUint8(p[c * plane + i]);
-    if (size_t(j) < r.labelMaps.size()) {
-      const RgbImage labels = labelImage(r.labelMaps[size_t(j)], r.labelHeight, r.labelWidth, r.labels, r.height,
-                                         r.width);
-      frames.push_back(besideEachOther({&view, &labels}));
+RenderWriter::~RenderWriter() = default;
+
+std::string RenderWriter::animationFile() const { return animation_ ? animation_->fileName() : ""; }
+std::string RenderWriter::animationDescription() const { return animation_ ? animation_->description() : ""; }
+
+RgbImage RenderWriter::frame(const float* p, const std::vector<int32_t>* labelMap) const {
+  const size_t plane = size_t(layout_.width) * layout_.height;
+  RgbImage view{layout_.width, layout_.height, std::vector<uint8_t>(plane * 3)};
+  for (size_t i = 0; i < plane; ++i)
+    for (int c = 0; c < 3; ++c) view.pixels[i * 3 + c] = toUint8(p[c * plane + i]);
+  if (!labelMap) return view;
+  const RgbImage labels = labelImage(*labelMap, layout_.height / 2, layout_.width / 2, layout_.labels, layout_.height,
+                                     layout_.width);
+  return besideEachOther({&view, &labels});
+}
+
+void RenderWriter::addViews(const RenderedViews& v) {
+  const int H = layout_.height, W = layout_.width, h = H / 2, w = W / 2;
+  const size_t plane = size_t(W) * H;
+  const int64_t n = v.count;
+  if (v.labelMaps && v.labelMaps->size() != size_t(n)) throw Error("render result: wrong number of label maps");
+  const int64_t p = int64_t(layout_.labels.size());
+  if (v.scores && v.scores->size() != size_t(n * p * h * w)) throw Error("render result: wrong number of score values");
+  const int64_t c = layout_.featureChannels;
+  if (v.features && v.features->size() != size_t(n * c * h * w))
+    throw Error("render result: wrong number of feature values");
+  for (int64_t i = 0; i < n; ++i) {
+    const int64_t j = next_ + i;
+    const float* view = v.rgb + size_t(i) * 3 * plane;
+    const std::string& f = layout_.viewFormat;
+    if (f == "png") {
+      writePng(numbered(dir_, "view", j), view, 3, H, W);
+    } else if (f == "exr" || f == "exr16") {
+      writeExr(numbered(dir_, "view", j, "exr"), view, 3, H, W, f == "exr16");
+    } else if (f == "npy") {
+      writeNpy(numbered(dir_, "view", j, "npy"), {3, H, W}, view);
     } else {
-      frames.push_back(std::move(view));
+      throw Error("unknown view format '" + f + "' (png, exr, exr16, npy)");
     }
+    ++files_;
+    const std::vector<int32_t>* map = v.labelMaps ? &(*v.labelMaps)[size_t(i)] : nullptr;
+    if (map) {
+      writeLabelPng(numbered(dir_, "labels", j), *map, h, w, layout_.labels, H, W);
+      writeLabelJson(numbered(dir_, "labels", j, "json"), labelJson(*map, h, w, layout_.labels, j, kLsegLogitScale));
+      files_ += 2;
+    }
+    if (v.scores) {
+      writeNpy(numbered(dir_, "scores", j, "npy"), {p, h, w}, v.scores->data() + i * p * h * w);
+      ++files_;
+    }
+    if (v.features) {
+      writeNpy(numbered(dir_, "features", j, "npy"), {c, h, w}, v.features->data() + i * c * h * w);
+      ++files_;
+    }
+    if (animation_) animation_->add(frame(view, map));
   }
-  return frames;
+  next_ += n;
+}
+
+void RenderWriter::finish(const std::vector<float>& motion, int64_t motionViews, float maskThreshold,
+                          const CamerasDocument& cams) {
+  const size_t plane = size_t(layout_.width) * layout_.height;
+  if (motion.size() != size_t(motionViews) * plane) throw Error("render result: wrong number of motion values");
+  std::vector<float> mask(plane);
+  for (int64_t j = 0; j < motionViews; ++j) {
+    const float* p = motion.data() + size_t(j) * plane;
+    writePng(numbered(dir_, "motion", j), p, 1, layout_.height, layout_.width);
+    // The reference's binary mask: prob > threshold, written as 0 / 255.
+    for (size_t i = 0; i < plane; ++i) mask[i] = p[i] > maskThreshold ? 1.0f : 0.0f;
+    writePng(numbered(dir_, "mask", j), mask.data(), 1, layout_.height, layout_.width);
+    files_ += 2;
+  }
+  writeJson((std::filesystem::path(dir_) / "cameras.json").string(), camerasJson(cams));
+  ++files_;
+  files_ += writeColmapModels(dir_, cams);
+  if (animation_) {
+    animation_->finish();
+    ++files_;
+  }
 }
 
 }  // namespace spar::cli

@@ -1,47 +1,76 @@
-// Writing a finished `spar render` run into a directory (the staged temporary one): the file
-// names, formats and JSON documents of the reference's Run.write_render / cameras_json / report.
+// Writing a `spar render` run into a directory (the staged temporary one): the file names,
+// formats and JSON documents of the reference's Run.write_render / cameras_json / report.
+// Views are written as each render chunk arrives (RenderWriter::addViews), so a long --path
+// holds one chunk of views on the host, not the whole path.
 #pragma once
 #include <nlohmann/json.hpp>
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "formats/cameras.h"
 #include "imaging/image_prep.h"
+#include "samples/spar_cli/animation.h"
 
 namespace spar::cli {
 
-struct RenderResult {
+struct RenderLayout {
   int width = 0, height = 0;
-  std::vector<float> rgb;      // [R, 3, H, W] rendered views
   // view_XX files: "png" (8-bit, the reference's rounding), "exr" (float32), "exr16" (half),
   // "npy" (float32 [3, H, W]): the float formats hold the engine's RGB as computed.
   std::string viewFormat = "png";
-  int64_t rendered = 0;
-  std::vector<float> motion;   // [K, H, W] P(dynamic) of the inputs (empty: --assume-static)
-  int64_t motionViews = 0;
-  float maskThreshold = 0.5f;
-  CamerasDocument cameras;     // cameras.json
-  // --labels: the prompts and one label map [h, w] per rendered view (h = H/2)
+  // --labels: the prompts; label maps are [H/2, W/2] per view
   std::vector<std::string> labels;
-  std::vector<std::vector<int32_t>> labelMaps;
-  int labelHeight = 0, labelWidth = 0;
-  std::vector<float> scores;  // --scores: [R, P, h, w] per-label score maps
-  // --features: [R, C, h, w] semantic features
-  std::vector<float> features;
-  int64_t featureChannels = 0;
-  // > 0: also path.gif, the rendered views (beside their label maps) at this many frames a
-  // second (a --path render: the views are a smooth camera path)
+  int64_t featureChannels = 0;  // C of features_XX.npy (--features)
+  // > 0: also an animation (path.mp4 or path.gif, as `animation` says) of the views beside
+  // their label maps at this many frames a second (a --path render: a smooth camera path)
   int animationFps = 0;
+  AnimationChoice animation;
 };
 
-// Writes the images and cameras.json into `dir` (report.json is the caller's, written last
-// so that it can count the time spent here); returns the number of files written.
-int writeRenderOutputs(const std::string& dir, const RenderResult& result);
+// One chunk of rendered views and what was asked for besides them.
+struct RenderedViews {
+  int64_t count = 0;
+  const float* rgb = nullptr;                          // [n, 3, H, W]
+  const std::vector<std::vector<int32_t>>* labelMaps = nullptr;  // n maps [H/2 * W/2], or null
+  const std::vector<float>* scores = nullptr;          // --scores: [n, P, H/2, W/2], or null
+  const std::vector<float>* features = nullptr;        // --features: [n, C, H/2, W/2], or null
+};
 
-// The frames of path.gif: each rendered view, beside its label map (with legend) if any.
-std::vector<RgbImage> animationFrames(const RenderResult& result);
+class RenderWriter {
+ public:
+  RenderWriter(std::string dir, RenderLayout layout);
+  ~RenderWriter();
+  RenderWriter(const RenderWriter&) = delete;
+  RenderWriter& operator=(const RenderWriter&) = delete;
+
+  // Writes views next .. next + n - 1 (and their label maps, scores, features, animation frames).
+  void addViews(const RenderedViews& views);
+  // The inputs' motion maps [K, H, W] and binary masks, cameras.json and the COLMAP models;
+  // completes the animation. report.json is the caller's, written last so that it can count
+  // the time spent here.
+  void finish(const std::vector<float>& motion, int64_t motionViews, float maskThreshold, const CamerasDocument& cams);
+
+  int files() const { return files_; }
+  int64_t views() const { return next_; }
+  // The animation written ("" if none) and how, e.g. "path.mp4" / "H.264 MP4 through /usr/bin/ffmpeg".
+  std::string animationFile() const;
+  std::string animationDescription() const;
+
+ private:
+  RgbImage frame(const float* rgb, const std::vector<int32_t>* labelMap) const;
+
+  std::string dir_;
+  RenderLayout layout_;
+  std::unique_ptr<Animation> animation_;
+  int64_t next_ = 0;
+  int files_ = 0;
+};
+
+// Frames side by side on black: every part top-aligned, left to right.
+RgbImage besideEachOther(const std::vector<const RgbImage*>& parts);
 
 // A JSON document, written whole (temporary name + rename) with a trailing newline.
 void writeJson(const std::string& path, const nlohmann::ordered_json& doc);
