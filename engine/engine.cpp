@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 
 #include "engine/error.h"
@@ -22,7 +23,27 @@ Engine::Engine(const EngineOptions& options)
     : options_(options),
       device_(std::make_unique<Device>(deviceOptions(options))),
       memory_(std::make_unique<MemoryAllocator>(*device_)),
-      pipelines_(std::make_unique<PipelineCache>(*device_, options.pipelineCacheFile, options.logPipelines)) {}
+      pipelines_(std::make_unique<PipelineCache>(*device_, options.pipelineCacheFile, options.logPipelines)) {
+  memory_->failAllocation(options.faults.allocation);
+}
+
+void Engine::waitForSubmission(VkFence fence, const std::string& what) {
+  const unsigned long long ms = options_.submitTimeoutMs;
+  const bool injected = ++submissions_ == options_.faults.submission;
+  // An injected timeout lets the work finish first, so that what follows the error (freeing
+  // the submission's resources) is as valid as after a real submission.
+  const uint64_t ns = ms && !injected && ms < UINT64_MAX / 1000000 ? ms * 1000000 : UINT64_MAX;
+  const VkResult r = vkWaitForFences(device_->handle(), 1, &fence, VK_TRUE, ns);
+  if (r == VK_TIMEOUT || injected)
+  {
+    char limit[32];
+    std::snprintf(limit, sizeof(limit), "%g s", double(ms) / 1000.0);
+    throw Error("the device did not finish " + what + " within " + limit +
+                " (hung, lost or too slow; SPAR_SUBMIT_TIMEOUT_MS sets the limit)" +
+                (injected ? " (injected: submission " + std::to_string(submissions_) + ")" : ""));
+  }
+  vkCheck(r, what.c_str());
+}
 
 Engine::~Engine() {
   pipelines_.reset();
@@ -78,10 +99,19 @@ void Engine::stagedCopy(const Tensor& t, void* data, size_t bytes, bool toDevice
   VkSubmitInfo submit{VK_STRUCTURE_TYPE_SUBMIT_INFO};
   submit.commandBufferCount = 1;
   submit.pCommandBuffers = &cmd;
-  VkResult r = vkQueueSubmit(device_->queue(), 1, &submit, VK_NULL_HANDLE);
-  if (r == VK_SUCCESS) r = vkQueueWaitIdle(device_->queue());
+  VkFenceCreateInfo fenceInfo{VK_STRUCTURE_TYPE_FENCE_CREATE_INFO};
+  VkFence fence;
+  SPAR_VK(vkCreateFence(dev, &fenceInfo, nullptr, &fence));
+  try {
+    vkCheck(vkQueueSubmit(device_->queue(), 1, &submit, fence), "staged copy");
+    waitForSubmission(fence, "a staged copy");
+  } catch (...) {
+    vkDestroyFence(dev, fence, nullptr);
+    vkDestroyCommandPool(dev, pool, nullptr);
+    throw;
+  }
+  vkDestroyFence(dev, fence, nullptr);
   vkDestroyCommandPool(dev, pool, nullptr);
-  vkCheck(r, "staged copy");
   if (!toDevice) std::memcpy(data, staging.mapped(), bytes);
 }
 

@@ -48,6 +48,11 @@ class Engine {
   std::vector<float> download(const Tensor& t);
   Tensor fromFloats(const Shape& shape, std::span<const float> values, DType dtype = DType::F32);
 
+  // Waits for a submitted fence at most EngineOptions::submitTimeoutMs; throws Error naming
+  // `what` on a timeout (or the injected one, EngineOptions::faults.submission).
+  void waitForSubmission(VkFence fence, const std::string& what);
+  unsigned long long submissions() const { return submissions_; }
+
  private:
   void stagedCopy(const Tensor& t, void* data, size_t bytes, bool toDevice);
 
@@ -55,6 +60,7 @@ class Engine {
   std::unique_ptr<Device> device_;
   std::unique_ptr<MemoryAllocator> memory_;
   std::unique_ptr<PipelineCache> pipelines_;
+  unsigned long long submissions_ = 0;
 };
 
 }  // namespace spar

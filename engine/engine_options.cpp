@@ -42,6 +42,16 @@ std::optional<std::array<int, N>> ints(const char* name, const char* form) {
   return out;
 }
 
+// A non-negative integer, nothing else.
+std::optional<unsigned long long> count(const char* name) {
+  const char* v = env(name);
+  if (!v) return std::nullopt;
+  char* end = nullptr;
+  const unsigned long long x = std::strtoull(v, &end, 10);
+  if (end == v || *end || *v == '-') throw Error(std::string(name) + " must be a non-negative integer, got '" + v + "'");
+  return x;
+}
+
 template <size_t N>
 void positive(const std::optional<std::array<int, N>>& t, const char* what) {
   if (!t) return;
@@ -72,6 +82,9 @@ EngineOptions EngineOptions::fromEnvironment(EngineOptions base) {
   o.validation = o.validation || flag("SPAR_VALIDATION");
   o.logPipelines = o.logPipelines || flag("SPAR_LOG_PIPELINES");
   o.profileDispatches = o.profileDispatches || flag("SPAR_PROFILE");
+  if (auto ms = count("SPAR_SUBMIT_TIMEOUT_MS")) o.submitTimeoutMs = *ms;
+  if (auto n = count("SPAR_FAULT_ALLOCATION")) o.faults.allocation = *n;
+  if (auto n = count("SPAR_FAULT_SUBMISSION")) o.faults.submission = *n;
   KernelTuning& t = o.tuning;
   if (!t.gemmTiles) t.gemmTiles = ints<5>("SPAR_GEMM_TILES", "RM,RN,LX,LY,KU");
   if (!t.attentionTiles) t.attentionTiles = ints<3>("SPAR_ATTENTION_TILES", "QPI,KB,LX");

@@ -1,5 +1,6 @@
 #include "engine/memory.h"
 
+#include <cstdio>
 #include <string>
 
 #include "engine/error.h"
@@ -44,8 +45,7 @@ uint32_t MemoryAllocator::addBlock(VkDeviceSize size, uint32_t memoryType) {
   info.allocationSize = size;
   info.memoryTypeIndex = memoryType;
   VkResult r = vkAllocateMemory(device_.handle(), &info, nullptr, &block.memory);
-  if (r != VK_SUCCESS)
-    throw Error("cannot allocate " + std::to_string(size >> 20) + " MiB of device memory: " + describeVkResult(r));
+  if (r != VK_SUCCESS) throw Error(outOfMemory(size, memoryType, describeVkResult(r)));
   if (device_.memoryProperties().memoryTypes[memoryType].propertyFlags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT)
     SPAR_VK(vkMapMemory(device_.handle(), block.memory, 0, VK_WHOLE_SIZE, 0, &block.mapped));
   block.freeRanges[0] = size;
@@ -53,8 +53,23 @@ uint32_t MemoryAllocator::addBlock(VkDeviceSize size, uint32_t memoryType) {
   return static_cast<uint32_t>(blocks_.size() - 1);
 }
 
+std::string MemoryAllocator::outOfMemory(VkDeviceSize bytes, uint32_t memoryType, const std::string& why) const {
+  const auto& props = device_.memoryProperties();
+  const VkDeviceSize heap = props.memoryHeaps[props.memoryTypes[memoryType].heapIndex].size;
+  auto mib = [](VkDeviceSize b) {
+    char text[32];
+    std::snprintf(text, sizeof(text), "%.1f MiB", double(b) / double(1 << 20));
+    return std::string(text);
+  };
+  return "cannot allocate " + mib(bytes) + " of device memory with " + mib(inUse_) + " in use (device heap " +
+         mib(heap) + "): " + why;
+}
+
 Allocation MemoryAllocator::allocate(const VkMemoryRequirements& req, MemoryUsage usage) {
   uint32_t type = chooseMemoryType(req.memoryTypeBits, usage);
+  if (++allocations_ == failAt_)
+    throw Error(outOfMemory(req.size, type,
+                            "VK_ERROR_OUT_OF_DEVICE_MEMORY (injected: allocation " + std::to_string(failAt_) + ")"));
   const VkDeviceSize maxAlloc = device_.caps().maxMemoryAllocationSize;
   if (maxAlloc && req.size > maxAlloc)
     throw Error("a buffer of " + std::to_string(req.size >> 20) + " MiB exceeds the device's largest allocation (" +

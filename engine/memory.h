@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <map>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "engine/device.h"
@@ -38,6 +39,10 @@ class MemoryAllocator {
   // Host address of the allocation, or nullptr where its memory is not mappable.
   void* mapped(const Allocation& a) const;
 
+  // Test hook (EngineOptions::faults): allocation number n (from 1) fails as out of memory.
+  void failAllocation(uint64_t n) { failAt_ = n; }
+  uint64_t allocations() const { return allocations_; }
+
   VkDeviceSize bytesInUse() const { return inUse_; }
   VkDeviceSize peakBytes() const { return peak_; }
   VkDeviceSize bytesReserved() const;
@@ -57,6 +62,10 @@ class MemoryAllocator {
   VkDeviceSize blockSize_;
   std::vector<Block> blocks_;
   VkDeviceSize inUse_ = 0, peak_ = 0;
+  uint64_t allocations_ = 0, failAt_ = 0;
+  // "cannot allocate ...: <why>" with what is in use and the heap's size, so that a request too
+  // large for the device says how much it asked for.
+  std::string outOfMemory(VkDeviceSize bytes, uint32_t memoryType, const std::string& why) const;
 };
 
 // A VkBuffer bound to a sub-allocation. Usable as storage buffer, uniform texel buffer

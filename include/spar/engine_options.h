@@ -23,6 +23,15 @@ struct SPAR_API KernelTuning {
   void validate() const;
 };
 
+// Test hooks: make the N-th device buffer allocation fail as if the device were out of memory,
+// or the N-th submission's wait report a timeout (counting from 1 in this engine; 0: never), so
+// tests can check that each failure path gives one error line, writes nothing and leaks no
+// Vulkan object. The submission's work is completed before its timeout is reported.
+struct SPAR_API FaultInjection {
+  unsigned long long allocation = 0;
+  unsigned long long submission = 0;
+};
+
 struct SPAR_API EngineOptions {
   // Which device: an index ("0") or a case-insensitive part of its name ("llvmpipe"). Empty:
   // the first discrete, integrated, virtual, then CPU device.
@@ -34,10 +43,16 @@ struct SPAR_API EngineOptions {
   bool logPipelines = false;  // every pipeline's creation and driver build on stderr
   bool profileDispatches = false;  // every dispatch's GPU time on stderr (model stages)
   KernelTuning tuning;
+  // How long one submission may run before the engine gives up on the device (an error saying
+  // so instead of a program that hangs with the GPU), in milliseconds; 0: no limit. After such a
+  // timeout the device's state is unknown: destroy the engine and exit.
+  unsigned long long submitTimeoutMs = 600000;
+  FaultInjection faults;
 
   // `base` with what the environment sets: SPAR_DEVICE, SPAR_VALIDATION=1, SPAR_LOG_PIPELINES=1,
   // SPAR_PROFILE=1, SPAR_GEMM_TILES=RM,RN,LX,LY,KU, SPAR_ATTENTION_TILES=QPI,KB,LX,
-  // SPAR_CONV_TILES / SPAR_CONVT_TILES=RC,RY,RX,LX,LY, SPAR_LINE_GROUP=SPLIT,LX,LY. A field
+  // SPAR_CONV_TILES / SPAR_CONVT_TILES=RC,RY,RX,LX,LY, SPAR_LINE_GROUP=SPLIT,LX,LY,
+  // SPAR_SUBMIT_TIMEOUT_MS, SPAR_FAULT_ALLOCATION=N, SPAR_FAULT_SUBMISSION=N. A field
   // already set in `base` (device non-empty) wins over the environment. Throws Error for a
   // malformed value, naming the variable.
   static EngineOptions fromEnvironment(EngineOptions base);

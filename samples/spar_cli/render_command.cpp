@@ -7,6 +7,7 @@
 #include <memory>
 
 #include "engine/engine.h"
+#include "engine/memory.h"
 #include "engine/recorder.h"
 #include "formats/cameras.h"
 #include "formats/colmap.h"
@@ -29,7 +30,7 @@ namespace {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 constexpr size_t kRenderChunk = 8;  // views per render call for --path / --cameras
-constexpr int kPathFps = 8;          // frames a second of path.gif
+constexpr int kPathFps = 8;          // frames a second of path.mp4 / path.gif
 
 double msSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
 
@@ -44,6 +45,7 @@ struct Validated {
   std::vector<CameraD> cameras;  // --cameras
   std::vector<std::string> labels;  // --labels, parsed
   std::vector<int32_t> labelIds;    // their CLIP token ids [P, 77]
+  AnimationChoice animation;        // --path: path.mp4 or path.gif
   double loadModelMs = 0, prepareMs = 0;
 };
 
@@ -88,6 +90,7 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
   if (!a.cameras.empty() && !fs::exists(a.cameras)) throw Error("cameras file not found: " + a.cameras);
   if (!fs::exists(a.model)) throw Error("model not found: " + a.model);
   v.outDir = checkOutDir(a.out);
+  if (a.path && *a.path > 1) v.animation = chooseAnimation(a.video);
 
   auto t = Clock::now();
   if (shared && shared->model && shared->model->path() == a.model) {
@@ -217,10 +220,6 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
                   engine.caps().name + (a.assumeStatic ? " (assume static)" : ""));
     const SparEncoded& enc = pipeline.encode(req);
 
-    RenderResult r;
-    r.viewFormat = a.format;
-    r.width = w;
-    r.height = h;
     // --labels: the prompts through CLIP's text encoder on the device, once; its weights are
     // loaded only now, for this request.
     PromptEmbeddings text;
@@ -228,64 +227,78 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
     if (a.labels) {
       progress.step("encoding " + std::to_string(v.labels.size()) + " label prompts");
       text = encodePrompts(engine, *v.model, cfg, po.weightType, v.labelIds, int64_t(v.labels.size()));
-      r.labels = v.labels;
-      r.labelHeight = h / 2;
-      r.labelWidth = w / 2;
     }
-    // After each render call: label maps on the device from its semantic features, features read back.
-    auto semanticOutputs = [&]() {
-      if (!req.semanticFeatures) return;
-      const Tensor& feats = pipeline.renderedFeatures();
-      if (a.features) {
-        const std::vector<float> f = engine.download(feats);
-        r.features.insert(r.features.end(), f.begin(), f.end());
-        r.featureChannels = cfg.semanticDim;
-      }
-      if (a.labels) {
-        const auto tl = Clock::now();
-        LabelMapsOut maps = computeLabelMaps(engine, feats, text, a.scores ? &r.scores : nullptr);
-        for (auto& m : maps.maps) r.labelMaps.push_back(std::move(m));
-        labelGpuMs += maps.gpuMs;
-        labelBuildMs += maps.buildMs;
-        labelWallMs += msSince(tl);
-      }
-    };
     RenderCameras renderCams;
     if (mode == "path") renderCams = pathCameras(enc, v.views.inputs, *a.path);
     if (mode == "cameras") renderCams = toRenderCameras(v.cameras);
     const int64_t count = mode == "targets" ? int64_t(v.views.targets.size()) : int64_t(renderCams.size());
+
+    // Outputs are written into the staged directory as each chunk is rendered: the host holds
+    // one chunk of views, however long the path.
+    StagedDir staged(v.outDir);
+    RenderLayout layout;
+    layout.viewFormat = a.format;
+    layout.width = w;
+    layout.height = h;
+    layout.labels = v.labels;
+    layout.featureChannels = cfg.semanticDim;
+    // A --path is a smooth camera move: also written as path.mp4 / path.gif (views beside label maps).
+    if (mode == "path" && count > 1) {
+      layout.animationFps = kPathFps;
+      layout.animation = v.animation;
+    }
+    RenderWriter writer(staged.path(), layout);
+    double writeMs = 0;
+    // After each render call: label maps on the device from its semantic features, features
+    // read back, everything written.
+    auto writeChunk = [&](const std::vector<float>& rgb, int64_t n) {
+      std::vector<std::vector<int32_t>> maps;
+      std::vector<float> scores, features;
+      if (req.semanticFeatures) {
+        const Tensor& feats = pipeline.renderedFeatures();
+        if (a.features) features = engine.download(feats);
+        if (a.labels) {
+          const auto tl = Clock::now();
+          LabelMapsOut out = computeLabelMaps(engine, feats, text, a.scores ? &scores : nullptr);
+          maps = std::move(out.maps);
+          labelGpuMs += out.gpuMs;
+          labelBuildMs += out.buildMs;
+          labelWallMs += msSince(tl);
+        }
+      }
+      const auto tw = Clock::now();
+      RenderedViews views;
+      views.count = n;
+      views.rgb = rgb.data();
+      views.labelMaps = a.labels ? &maps : nullptr;
+      views.scores = a.scores ? &scores : nullptr;
+      views.features = a.features ? &features : nullptr;
+      writer.addViews(views);
+      writeMs += msSince(tw);
+    };
     if (count > 0) {
       const std::string views = count == 1 ? " view" : " views";
       const std::string what = mode == "targets" ? " target" + views
                                : mode == "path"  ? views + " along the input cameras"
                                                  : views + " from " + a.cameras;
-      progress.step("rendering " + std::to_string(count) + what);
+      const std::string rendering = "rendering " + std::to_string(count) + what;
+      progress.step(rendering);
       if (mode == "targets") {
-        r.rgb = pipeline.renderTargets();
-        semanticOutputs();
+        writeChunk(pipeline.renderTargets(), count);
       } else {
         // A long path in chunks: device memory for a few views at a time, not for all N.
         for (size_t j0 = 0; j0 < renderCams.size(); j0 += kRenderChunk) {
           const size_t j1 = std::min(renderCams.size(), j0 + kRenderChunk);
+          if (j0 > 0) progress.step(rendering + " (" + std::to_string(j0) + " written)");
           RenderCameras chunk;
           chunk.c2w.assign(renderCams.c2w.begin() + j0, renderCams.c2w.begin() + j1);
           chunk.fxfycxcy.assign(renderCams.fxfycxcy.begin() + j0, renderCams.fxfycxcy.begin() + j1);
-          const std::vector<float> rgb = pipeline.render(chunk);
-          r.rgb.insert(r.rgb.end(), rgb.begin(), rgb.end());
-          semanticOutputs();
+          writeChunk(pipeline.render(chunk), int64_t(j1 - j0));
         }
       }
     }
-    r.rendered = count;
-    // A --path is a smooth camera move: also written as path.gif (views beside label maps).
-    if (mode == "path" && count > 1) r.animationFps = kPathFps;
-    if (!a.assumeStatic) {
-      r.motion = enc.motionInput;
-      r.motionViews = int64_t(v.views.inputs.size());
-    }
-    r.maskThreshold = cfg.maskThreshold;
 
-    CamerasDocument& cd = r.cameras;
+    CamerasDocument cd;
     cd.width = w;
     cd.height = h;
     cd.files = v.views.files;
@@ -298,9 +311,11 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
 
     progress.step("writing " + v.outDir);
     t = Clock::now();
-    StagedDir staged(v.outDir);
-    int written = writeRenderOutputs(staged.path(), r);
-    host.push_back({{"name", "write_outputs"}, {"wall_ms", msSince(t)}});
+    const std::vector<float> noMotion;
+    writer.finish(a.assumeStatic ? noMotion : enc.motionInput, a.assumeStatic ? 0 : int64_t(v.views.inputs.size()),
+                  cfg.maskThreshold, cd);
+    int written = writer.files();
+    host.push_back({{"name", "write_outputs"}, {"wall_ms", writeMs + msSince(t)}});
 
     nlohmann::ordered_json stages = nlohmann::ordered_json::array();
     // gpu_ms: compute only; build_ms: the driver building kernels during the stage (first
@@ -333,14 +348,26 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
         {"stages", stages},          // GPU stages that ran (pipeline.stageTimes())
         {"host_stages", host},       // CPU-side phases of the command
         {"kernels", kernelReport(engine)},  // pipelines: creation, driver builds, compute
+        // device memory at its peak, and how many buffers and submissions it took (the counts
+        // EngineOptions::faults numbers: tests/test_spar_faults.cpp)
+        {"device_memory",
+         {{"peak_bytes", engine.memory().peakBytes()},
+          {"allocations", engine.memory().allocations()},
+          {"submissions", engine.submissions()}}},
         {"weights_bytes_loaded", pipeline.weightBytesLoaded() + (text.weights ? text.weights->bytesLoaded() : 0)},
     };
+    // --path: which animation was written, and how (path.mp4 through ffmpeg, or path.gif and why)
+    if (!writer.animationFile().empty())
+      report["animation"] = {{"file", writer.animationFile()}, {"how", writer.animationDescription()}};
     writeJson((fs::path(staged.path()) / "report.json").string(), report);
     ++written;
     staged.commit();
     char done[64];
     std::snprintf(done, sizeof(done), " in %.2f s", msSince(start) / 1000.0);
-    progress.step("wrote " + std::to_string(written) + " files to " + v.outDir + done);
+    progress.step("wrote " + std::to_string(written) + " files to " + v.outDir + done +
+                  (writer.animationFile().empty()
+                       ? ""
+                       : " (" + writer.animationFile() + ": " + writer.animationDescription() + ")"));
     progress.finish();
   } catch (...) {
     progress.finish();

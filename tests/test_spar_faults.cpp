@@ -1,0 +1,115 @@
+// Faults injected into the engine (EngineOptions::faults, through SPAR_FAULT_ALLOCATION /
+// SPAR_FAULT_SUBMISSION) while the built `spar` (SPAR_CLI) renders the tiny photometric fixture:
+// whichever device buffer allocation fails as out of memory, or whichever submission's wait
+// times out, the run ends with exit 1, one error line that says what failed (how much memory,
+// which stage), no output directory and no temporary one, and no Vulkan object left alive
+// (the validation layer reports those at vkDestroyDevice; runValidated fails on any message).
+// The failure points are spread over the whole run: the run's own count of allocations and
+// submissions (report.json device_memory) is taken first, and a fault beyond it changes nothing.
+// The suite is named "spar_faults" (`ctest -R spar_faults`).
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "tests/golden_support.h"
+#include "tests/test_support.h"
+
+#ifndef SPAR_CLI
+#error "SPAR_CLI (path of the built spar binary) is defined by samples/CMakeLists.txt"
+#endif
+
+namespace spar::test {
+namespace {
+
+namespace fs = std::filesystem;
+
+const fs::path& scratch() { return scratchDir("spar_faults"); }
+const fs::path& out() {
+  static const fs::path o = scratch() / "out";
+  return o;
+}
+
+CommandResult render(const std::string& env) {
+  fs::remove_all(out());
+  std::vector<std::string> argv = {SPAR_CLI, "render", "--model", goldenPath("tiny.spar"), "--images"};
+  for (int i : {0, 2, 4}) argv.push_back(goldenPath("frame_" + std::to_string(i) + ".png"));
+  for (const char* a : {"--targets"}) argv.push_back(a);
+  argv.push_back(goldenPath("frame_1.png"));
+  argv.push_back("--path");  // the path renders in its own submissions after the targets'
+  argv.push_back("3");
+  argv.push_back("--out");
+  argv.push_back(out().string());
+  return runValidated(argv, scratch(), env);
+}
+
+// The run's counts without faults.
+nlohmann::json counts() {
+  static const nlohmann::json c = [] {
+    const CommandResult r = render("");
+    EXPECT_EQ(r.code, 0) << r.err;
+    std::ifstream in(out() / "report.json");
+    return nlohmann::json::parse(in)["device_memory"];
+  }();
+  return c;
+}
+
+// 1, 2, 3, 5, 8, ... up to n, and n itself: early, middle and last failure points.
+std::vector<unsigned long long> spread(unsigned long long n) {
+  std::set<unsigned long long> s{n};
+  for (unsigned long long a = 1, b = 2; a < n; std::swap(a, b), b += a) s.insert(a);
+  return {s.begin(), s.end()};
+}
+
+void expectCleanFailure(const CommandResult& r, const std::string& says, const std::string& what) {
+  EXPECT_EQ(r.code, 1) << what << ": " << r.err;
+  const std::vector<std::string> lines = r.errLines();
+  ASSERT_FALSE(lines.empty()) << what;
+  // progress lines, then exactly one error line, the last
+  size_t errors = 0;
+  for (const auto& l : lines) errors += l.rfind("spar: error: ", 0) == 0;
+  EXPECT_EQ(errors, 1u) << what << ": " << r.err;
+  EXPECT_EQ(lines.back().rfind("spar: error: ", 0), 0u) << what << ": " << r.err;
+  EXPECT_NE(lines.back().find(says), std::string::npos) << what << ": " << lines.back();
+  EXPECT_FALSE(fs::exists(out())) << what;
+  for (const auto& e : fs::directory_iterator(scratch()))
+    EXPECT_EQ(e.path().filename().string().rfind("out.tmp", 0), std::string::npos) << what << ": " << e.path();
+}
+
+TEST(spar_faults, EveryAllocationFailureIsOneLineNoOutputNoLeak) {
+  const unsigned long long n = counts()["allocations"].get<unsigned long long>();
+  ASSERT_GT(n, 20u);
+  for (unsigned long long i : spread(n)) {
+    const CommandResult r = render("SPAR_FAULT_ALLOCATION=" + std::to_string(i));
+    expectCleanFailure(r, "of device memory with", "allocation " + std::to_string(i));
+    EXPECT_NE(r.err.find("(injected: allocation " + std::to_string(i) + ")"), std::string::npos) << r.err;
+  }
+  std::printf("%llu allocations in the run; failures injected at %zu of them\n", n, spread(n).size());
+  EXPECT_EQ(render("SPAR_FAULT_ALLOCATION=" + std::to_string(n + 1)).code, 0);
+}
+
+TEST(spar_faults, EverySubmissionTimeoutIsOneLineNoOutputNoLeak) {
+  const unsigned long long n = counts()["submissions"].get<unsigned long long>();
+  ASSERT_GT(n, 5u);
+  for (unsigned long long i : spread(n)) {
+    const CommandResult r = render("SPAR_FAULT_SUBMISSION=" + std::to_string(i));
+    expectCleanFailure(r, "the device did not finish a ", "submission " + std::to_string(i));
+    EXPECT_NE(r.err.find("(injected: submission " + std::to_string(i) + ")"), std::string::npos) << r.err;
+  }
+  std::printf("%llu submissions in the run; timeouts injected at %zu of them\n", n, spread(n).size());
+  EXPECT_EQ(render("SPAR_FAULT_SUBMISSION=" + std::to_string(n + 1)).code, 0);
+}
+
+TEST(spar_faults, MalformedFaultSettingIsOneLine) {
+  const CommandResult r = render("SPAR_FAULT_ALLOCATION=-3");
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_NE(r.err.find("SPAR_FAULT_ALLOCATION must be a non-negative integer"), std::string::npos) << r.err;
+}
+
+}  // namespace
+}  // namespace spar::test
