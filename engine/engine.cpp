@@ -25,6 +25,7 @@ Engine::Engine(const EngineOptions& options)
       memory_(std::make_unique<MemoryAllocator>(*device_)),
       pipelines_(std::make_unique<PipelineCache>(*device_, options.pipelineCacheFile, options.logPipelines)) {
   memory_->failAllocation(options.faults.allocation);
+  memory_->limit(options.memoryLimitBytes);
 }
 
 void Engine::waitForSubmission(VkFence fence, const std::string& what) {

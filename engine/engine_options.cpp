@@ -83,6 +83,7 @@ EngineOptions EngineOptions::fromEnvironment(EngineOptions base) {
   o.logPipelines = o.logPipelines || flag("SPAR_LOG_PIPELINES");
   o.profileDispatches = o.profileDispatches || flag("SPAR_PROFILE");
   if (auto ms = count("SPAR_SUBMIT_TIMEOUT_MS")) o.submitTimeoutMs = *ms;
+  if (auto mb = count("SPAR_MEMORY_LIMIT_MB")) o.memoryLimitBytes = *mb << 20;
   if (auto n = count("SPAR_FAULT_ALLOCATION")) o.faults.allocation = *n;
   if (auto n = count("SPAR_FAULT_SUBMISSION")) o.faults.submission = *n;
   KernelTuning& t = o.tuning;

@@ -1,5 +1,6 @@
 #include "engine/memory.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <string>
 
@@ -65,11 +66,22 @@ std::string MemoryAllocator::outOfMemory(VkDeviceSize bytes, uint32_t memoryType
          mib(heap) + "): " + why;
 }
 
+VkDeviceSize MemoryAllocator::budget() const {
+  const auto& props = device_.memoryProperties();
+  VkDeviceSize heap = 0;
+  for (uint32_t i = 0; i < props.memoryHeapCount; ++i)
+    if (props.memoryHeaps[i].flags & VK_MEMORY_HEAP_DEVICE_LOCAL_BIT) heap = std::max(heap, props.memoryHeaps[i].size);
+  return limit_ ? (heap ? std::min(limit_, heap) : limit_) : heap;
+}
+
 Allocation MemoryAllocator::allocate(const VkMemoryRequirements& req, MemoryUsage usage) {
   uint32_t type = chooseMemoryType(req.memoryTypeBits, usage);
   if (++allocations_ == failAt_)
     throw Error(outOfMemory(req.size, type,
                             "VK_ERROR_OUT_OF_DEVICE_MEMORY (injected: allocation " + std::to_string(failAt_) + ")"));
+  if (limit_ && inUse_ + req.size > limit_)
+    throw Error(outOfMemory(req.size, type, "over the memory limit of " + std::to_string(limit_ >> 20) +
+                                                " MiB (EngineOptions::memoryLimitBytes, SPAR_MEMORY_LIMIT_MB)"));
   const VkDeviceSize maxAlloc = device_.caps().maxMemoryAllocationSize;
   if (maxAlloc && req.size > maxAlloc)
     throw Error("a buffer of " + std::to_string(req.size >> 20) + " MiB exceeds the device's largest allocation (" +

@@ -42,6 +42,10 @@ class MemoryAllocator {
   // Test hook (EngineOptions::faults): allocation number n (from 1) fails as out of memory.
   void failAllocation(uint64_t n) { failAt_ = n; }
   uint64_t allocations() const { return allocations_; }
+  // At most `bytes` in use at once (0: no limit beyond the device's); over it is out of memory.
+  void limit(VkDeviceSize bytes) { limit_ = bytes; }
+  // What a request may use: the limit, else the largest device-local heap.
+  VkDeviceSize budget() const;
 
   VkDeviceSize bytesInUse() const { return inUse_; }
   VkDeviceSize peakBytes() const { return peak_; }
@@ -63,6 +67,7 @@ class MemoryAllocator {
   std::vector<Block> blocks_;
   VkDeviceSize inUse_ = 0, peak_ = 0;
   uint64_t allocations_ = 0, failAt_ = 0;
+  VkDeviceSize limit_ = 0;
   // "cannot allocate ...: <why>" with what is in use and the heap's size, so that a request too
   // large for the device says how much it asked for.
   std::string outOfMemory(VkDeviceSize bytes, uint32_t memoryType, const std::string& why) const;

@@ -6,6 +6,8 @@
 // (the validation layer reports those at vkDestroyDevice; runValidated fails on any message).
 // The failure points are spread over the whole run: the run's own count of allocations and
 // submissions (report.json device_memory) is taken first, and a fault beyond it changes nothing.
+// A memory limit (SPAR_MEMORY_LIMIT_MB) below the request's estimated need refuses it before any
+// work; one between the estimate and the measured peak fails it midway, also as one line.
 // The suite is named "spar_faults" (`ctest -R spar_faults`).
 #include <gtest/gtest.h>
 
@@ -103,6 +105,33 @@ TEST(spar_faults, EverySubmissionTimeoutIsOneLineNoOutputNoLeak) {
   }
   std::printf("%llu submissions in the run; timeouts injected at %zu of them\n", n, spread(n).size());
   EXPECT_EQ(render("SPAR_FAULT_SUBMISSION=" + std::to_string(n + 1)).code, 0);
+}
+
+// model/memory_estimate.h: a lower bound of what the run used, and not a loose one.
+TEST(spar_faults, MemoryEstimateIsALowerBoundOfThePeak) {
+  const double estimate = counts()["estimated_min_bytes"].get<double>(), peak = counts()["peak_bytes"].get<double>();
+  std::printf("estimated at least %.2f MiB, peak %.2f MiB\n", estimate / (1 << 20), peak / (1 << 20));
+  EXPECT_LE(estimate, peak);
+  EXPECT_GE(estimate, 0.4 * peak);
+  EXPECT_GT(counts()["max_input_views"].get<int64_t>(), 3);
+}
+
+// Less memory than the estimate: refused before any work, saying how much it needs.
+TEST(spar_faults, RequestLargerThanTheDeviceIsRefusedBeforeWork) {
+  const uint64_t needMiB = counts()["estimated_min_bytes"].get<uint64_t>() >> 20;
+  ASSERT_GT(needMiB, 1u);
+  const CommandResult r = render("SPAR_MEMORY_LIMIT_MB=" + std::to_string(needMiB - 1));
+  expectCleanFailure(r, "this request needs at least " + std::to_string(needMiB + 1) + " MiB of device memory",
+                     "memory limit below the estimate");
+  EXPECT_EQ(r.err.find("spar: encoding"), std::string::npos) << r.err;  // no work began
+}
+
+// Between the estimate and the peak: it runs out during the work, as on a smaller device, and
+// says so in one line, with nothing written and nothing leaked.
+TEST(spar_faults, RunningOutOfMemoryMidwayIsOneLine) {
+  const uint64_t between = (counts()["estimated_min_bytes"].get<uint64_t>() + counts()["peak_bytes"].get<uint64_t>()) / 2;
+  const CommandResult r = render("SPAR_MEMORY_LIMIT_MB=" + std::to_string((between >> 20) + 1));
+  expectCleanFailure(r, "over the memory limit of", "memory limit between estimate and peak");
 }
 
 TEST(spar_faults, MalformedFaultSettingIsOneLine) {

@@ -47,12 +47,16 @@ struct SPAR_API EngineOptions {
   // so instead of a program that hangs with the GPU), in milliseconds; 0: no limit. After such a
   // timeout the device's state is unknown: destroy the engine and exit.
   unsigned long long submitTimeoutMs = 600000;
+  // At most this many bytes of device memory in use at once (0: the device's own heap size):
+  // a request that needs more is refused (before work where its need is known up front, else as
+  // an out-of-memory error), as on a device with that much memory.
+  unsigned long long memoryLimitBytes = 0;
   FaultInjection faults;
 
   // `base` with what the environment sets: SPAR_DEVICE, SPAR_VALIDATION=1, SPAR_LOG_PIPELINES=1,
   // SPAR_PROFILE=1, SPAR_GEMM_TILES=RM,RN,LX,LY,KU, SPAR_ATTENTION_TILES=QPI,KB,LX,
   // SPAR_CONV_TILES / SPAR_CONVT_TILES=RC,RY,RX,LX,LY, SPAR_LINE_GROUP=SPLIT,LX,LY,
-  // SPAR_SUBMIT_TIMEOUT_MS, SPAR_FAULT_ALLOCATION=N, SPAR_FAULT_SUBMISSION=N. A field
+  // SPAR_SUBMIT_TIMEOUT_MS, SPAR_MEMORY_LIMIT_MB, SPAR_FAULT_ALLOCATION=N, SPAR_FAULT_SUBMISSION=N. A field
   // already set in `base` (device non-empty) wins over the environment. Throws Error for a
   // malformed value, naming the variable.
   static EngineOptions fromEnvironment(EngineOptions base);

@@ -13,6 +13,7 @@
 #include "formats/colmap.h"
 #include "imaging/image_prep.h"
 #include "model/camera_checks.h"
+#include "model/memory_estimate.h"
 #include "model/packed_model.h"
 #include "model/spar_config.h"
 #include "model/spar_pipeline.h"
@@ -204,6 +205,37 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
     SparPipelineOptions po;
     po.profile = true;
     po.weightType = a.precision == "fp16" ? DType::F16 : DType::F32;
+
+    // A request that cannot fit the device is refused here, before any work, with its need.
+    MemoryQuery mq;
+    mq.views = int64_t(v.views.files.size());
+    mq.inputs = int64_t(v.views.inputs.size());
+    mq.targets = int64_t(v.views.targets.size());
+    const int64_t planned = !a.cameras.empty() ? int64_t(v.cameras.size()) : (a.path ? *a.path : mq.targets);
+    mq.renderChunk = a.path || !a.cameras.empty() ? std::min<int64_t>(planned, kRenderChunk) : mq.targets;
+    mq.height = h;
+    mq.width = w;
+    mq.assumeStatic = a.assumeStatic;
+    mq.semantic = a.labels.has_value() || a.features;
+    mq.labels = a.labels.has_value();
+    mq.matrixType = po.weightType;
+    const MemoryNeed need = estimateMemory(*v.model, cfg, mq);
+    const uint64_t budget = engine.memory().budget();
+    // The most input views this device could take at this size (the need grows by the same
+    // amount with each one): an upper limit, since the need is a lower bound.
+    MemoryQuery more = mq;
+    ++more.views;
+    ++more.inputs;
+    const uint64_t perInput = estimateMemory(*v.model, cfg, more).total() - need.total();
+    const int64_t maxInputs =
+        budget > need.total() ? mq.inputs + int64_t((budget - need.total()) / std::max<uint64_t>(perInput, 1)) : 0;
+    if (budget && need.total() > budget) {
+      auto mib = [](uint64_t b) { return std::to_string((b + (1 << 20) - 1) >> 20) + " MiB"; };
+      throw Error("this request needs at least " + mib(need.total()) + " of device memory (weights " +
+                  mib(need.weightBytes) + ", activations " + mib(need.activationBytes) + " for " + viewsText(v.views) +
+                  " at " + std::to_string(h) + "x" + std::to_string(w) + "), more than the " + mib(budget) +
+                  " available: fewer views, a smaller --size or --precision fp16");
+    }
     SparPipeline pipeline(engine, *v.model, po);
     SparRequest req;
     req.images = std::move(v.images);
@@ -352,6 +384,9 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
         // EngineOptions::faults numbers: tests/test_spar_faults.cpp)
         {"device_memory",
          {{"peak_bytes", engine.memory().peakBytes()},
+          {"estimated_min_bytes", need.total()},  // model/memory_estimate.h: weights + kept activations
+          {"budget_bytes", budget},
+          {"max_input_views", maxInputs},  // at most this many input views fit budget_bytes at this size
           {"allocations", engine.memory().allocations()},
           {"submissions", engine.submissions()}}},
         {"weights_bytes_loaded", pipeline.weightBytesLoaded() + (text.weights ? text.weights->bytesLoaded() : 0)},
