@@ -42,6 +42,10 @@ std::string quoted(const std::string& name) {
 
 std::string range(uint64_t a, uint64_t b) { return "[" + std::to_string(a) + ", " + std::to_string(b) + ")"; }
 
+[[noreturn]] void failTooShort(const std::string& path, uint64_t size) {
+  fail(path, "file of " + std::to_string(size) + " bytes is too short for a packed model (needs an 8-byte header length)");
+}
+
 bool parseFileDType(const std::string& s, FileDType& out) {
   static const std::pair<const char*, FileDType> kTypes[] = {
       {"F32", FileDType::F32}, {"F16", FileDType::F16}, {"I32", FileDType::I32},
@@ -86,6 +90,7 @@ PackedModel& PackedModel::operator=(PackedModel&& o) noexcept {
     path_ = std::move(o.path_);
     map_ = std::exchange(o.map_, nullptr);
     size_ = std::exchange(o.size_, 0);
+    owned_ = std::move(o.owned_);  // moving a vector keeps its buffer, so map_ stays valid
     dataStart_ = o.dataStart_;
     names_ = std::move(o.names_);
     tensors_ = std::move(o.tensors_);
@@ -99,9 +104,20 @@ PackedModel& PackedModel::operator=(PackedModel&& o) noexcept {
 PackedModel::~PackedModel() { unmap(); }
 
 void PackedModel::unmap() {
-  if (map_) munmap(const_cast<uint8_t*>(map_), size_);
+  if (map_ && owned_.empty()) munmap(const_cast<uint8_t*>(map_), size_);
   map_ = nullptr;
   size_ = 0;
+  owned_ = {};
+}
+
+PackedModel PackedModel::fromBytes(std::vector<uint8_t> bytes, const std::string& name) {
+  PackedModel m;
+  m.path_ = name;
+  m.owned_ = std::move(bytes);
+  m.map_ = m.owned_.empty() ? nullptr : m.owned_.data();
+  m.size_ = m.owned_.size();
+  m.parseHeader();
+  return m;
 }
 
 PackedModel PackedModel::open(const std::string& path) {
@@ -123,9 +139,9 @@ PackedModel PackedModel::open(const std::string& path) {
     fail(path, "not a regular file");
   }
   const uint64_t size = static_cast<uint64_t>(st.st_size);
-  if (size < 8) {
+  if (size < 8) {  // checked before mmap, which refuses an empty file
     ::close(fd);
-    fail(path, "file of " + std::to_string(size) + " bytes is too short for a packed model (needs an 8-byte header length)");
+    failTooShort(path, size);
   }
   void* p = mmap(nullptr, size, PROT_READ, MAP_PRIVATE, fd, 0);
   int mapErrno = errno;
@@ -133,6 +149,16 @@ PackedModel PackedModel::open(const std::string& path) {
   if (p == MAP_FAILED) fail(path, std::string("cannot memory-map: ") + std::strerror(mapErrno));
   m.map_ = static_cast<const uint8_t*>(p);
   m.size_ = size;
+  m.parseHeader();
+  return m;
+}
+
+void PackedModel::parseHeader() {
+  // The names open() gave these when the checks were its body.
+  PackedModel& m = *this;
+  const std::string& path = path_;
+  const uint64_t size = size_;
+  if (size < 8) failTooShort(path, size);
 
   // Header length and JSON.
   uint64_t headerLen = 0;
@@ -251,7 +277,6 @@ PackedModel PackedModel::open(const std::string& path) {
     }
     last = &name;
   }
-  return m;
 }
 
 const PackedTensorInfo& PackedModel::info(const std::string& name) const {

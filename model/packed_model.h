@@ -43,6 +43,10 @@ class PackedModel {
 
   // Maps and validates the file; throws spar::Error("<path>: <problem>") on anything wrong.
   static PackedModel open(const std::string& path);
+  // The same checks on a file's bytes held in memory (copied into the object); `name` stands for
+  // the path in messages. For the fuzz target (tests/fuzz/), which feeds it millions of inputs
+  // without a file each.
+  static PackedModel fromBytes(std::vector<uint8_t> bytes, const std::string& name);
 
   PackedModel(PackedModel&& other) noexcept;
   PackedModel& operator=(PackedModel&& other) noexcept;
@@ -88,10 +92,13 @@ class PackedModel {
  private:
   PackedModel() = default;
   void unmap();
+  // Checks and indexes the header of the bytes [map_, map_ + size_) (open() and fromBytes()).
+  void parseHeader();
 
   std::string path_;
-  const uint8_t* map_ = nullptr;
+  const uint8_t* map_ = nullptr;  // the mapping, or owned_.data()
   uint64_t size_ = 0;
+  std::vector<uint8_t> owned_;  // fromBytes(): the bytes map_ points into (nothing to munmap)
   uint64_t dataStart_ = 0;  // 8 + header length
   std::vector<std::string> names_;
   std::unordered_map<std::string, PackedTensorInfo> tensors_;

@@ -16,6 +16,8 @@ struct Reader {
   std::string where;
 
   [[noreturn]] void fail(const std::string& what) const { throw Error(where + ": config: " + what); }
+  // Finite and far inside float's range (fields stored as float would otherwise become infinite).
+  static bool sane(double x) { return std::isfinite(x) && std::abs(x) <= 1e30; }
 
   const nlohmann::json* find(const char* key) const {
     auto it = j.find(key);
@@ -44,7 +46,7 @@ struct Reader {
     }
     if (!v->is_number()) fail(std::string("field '") + key + "' is not a number");
     const double x = v->get<double>();
-    if (!std::isfinite(x) || std::abs(x) > 1e30) fail(std::string("field '") + key + "' is not a finite number of sane size");
+    if (!sane(x)) fail(std::string("field '") + key + "' is not a finite number of sane size");
     return x;
   }
   bool boolean(const char* key, bool def, bool required = true) const {
@@ -68,11 +70,12 @@ struct Reader {
   std::array<float, 3> triple(const char* key, std::array<float, 3> def) const {
     const nlohmann::json* v = find(key);
     if (!v) return def;
-    if (!v->is_array() || v->size() != 3) fail(std::string("field '") + key + "' is not a list of 3 numbers");
+    const std::string bad = std::string("field '") + key + "' is not a list of 3 finite numbers of sane size";
+    if (!v->is_array() || v->size() != 3) fail(bad);
     std::array<float, 3> out{};
     for (size_t i = 0; i < 3; ++i) {
-      if (!(*v)[i].is_number()) fail(std::string("field '") + key + "' is not a list of 3 numbers");
-      out[i] = (*v)[i].get<float>();
+      if (!(*v)[i].is_number() || !sane((*v)[i].get<double>())) fail(bad);
+      out[i] = static_cast<float>((*v)[i].get<double>());
     }
     return out;
   }

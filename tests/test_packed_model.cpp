@@ -16,6 +16,7 @@
 
 #include "engine/half.h"
 #include "model/packed_model.h"
+#include "model/spar_config.h"
 #include "model/weight_set.h"
 #include "tests/test_support.h"
 
@@ -130,6 +131,24 @@ TEST_F(PackedModelTest, HeaderAndConfig) {
   // names() are in data order.
   for (size_t i = 1; i < m.names().size(); ++i) EXPECT_LE(m.info(m.names()[i - 1]).end, m.info(m.names()[i]).begin);
   EXPECT_THROW(m.info("no.such.tensor"), Error);
+}
+
+// Found by tests/fuzz/spar_reader_fuzz: dino mean / std are stored as floats, and a value beyond
+// float's range (3.5e38) became infinite and was accepted.
+TEST_F(PackedModelTest, ConfigValuesBeyondFloatRangeAreRefused) {
+  const PackedModel m = PackedModel::open(kTiny);
+  EXPECT_NO_THROW(SparConfig::fromJson(m.config(), m.path()));
+  for (const char* field : {"mean", "std"}) {
+    json c = m.config();
+    c["dino"][field][0] = 3.5e38;
+    try {
+      SparConfig::fromJson(c, m.path());
+      ADD_FAILURE() << "dino." << field << "[0] = 3.5e38 was accepted";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(std::string("'") + field + "' is not a list of 3 finite"), std::string::npos)
+          << e.what();
+    }
+  }
 }
 
 TEST_F(PackedModelTest, UploadEqualsFileBytes) {

@@ -31,6 +31,7 @@ import io
 import math
 import os
 import pickle
+import pickletools
 import sys
 import tarfile
 import zipfile
@@ -105,6 +106,13 @@ _MODULE_ALIASES = {
     "copy_reg": "copyreg",
     "torch.tensor": "torch._tensor",
 }
+
+
+# What zipfile raises for a damaged or unsupported archive (NotImplementedError: an unknown
+# compression method or zip version; RuntimeError: an encrypted member); the reader turns each
+# into a one-line CheckpointError.
+_ZIP_ERRORS = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, NotImplementedError,
+               RuntimeError)
 
 
 def _one_line(text):
@@ -370,6 +378,13 @@ def _rebuild_tensor(storage, storage_offset, size, stride):
     if len(shape) != len(strides):
         raise CheckpointError("malformed checkpoint: tensor shape %s and strides %s differ in "
                               "length" % (list(shape), list(strides)))
+    # numpy (like torch) counts bytes in int64: beyond that no array exists, not even an empty
+    # one (np.zeros((0, 2**63)) raises ValueError), and no stride can be applied.
+    itemsize = np.dtype(_DTYPES[storage.dtype][0]).itemsize
+    limit = 2**63 - 1
+    if math.prod(d for d in shape if d) * itemsize > limit or any(s * itemsize > limit for s in strides):
+        raise CheckpointError("malformed checkpoint: tensor shape %s, strides %s reach beyond 64-bit "
+                              "byte offsets" % (list(shape), list(strides)))
     return TensorRef(storage, shape, strides, int(storage_offset), False, False)
 
 
@@ -492,12 +507,27 @@ def _is_dangerous(module, name):
     return False
 
 
+def _check_memo_indices(data):
+    """Refuses a memo index beyond the opcodes before it. The C unpickler grows its memo to the
+    largest index a PUT names, so one LONG_BINPUT of 4e9 in a 2 KB file would make it allocate
+    (and clear) tens of GB; a pickler numbers the memo from 0, one entry per PUT."""
+    for count, (op, arg, pos) in enumerate(pickletools.genops(data)):
+        if op.name in ("PUT", "BINPUT", "LONG_BINPUT") and arg > count:
+            raise CheckpointError("malformed data.pkl: memo index %d at byte %d is beyond the %d "
+                                  "opcodes before it" % (arg, pos, count))
+
+
 class _RestrictedUnpickler(pickle.Unpickler):
     def __init__(self, file, archive):
         super().__init__(file, encoding="utf-8")
+        self._data = file.getvalue()  # for _check_memo_indices (file is an io.BytesIO)
         self.archive = archive
         self.storages = {}
         self.placeholders = {}
+
+    def load(self):
+        _check_memo_indices(self._data)
+        return super().load()
 
     def find_class(self, module, name):
         if not isinstance(module, str) or not isinstance(name, str):
@@ -587,8 +617,7 @@ class _Archive:
                     else:
                         f.seek(start)
                         data = f.read(length)
-        except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError,
-                NotImplementedError) as e:
+        except _ZIP_ERRORS as e:
             raise CheckpointError("%s: cannot read storage record %r of %s: %s"
                                   % (label, name, self.path, _one_line(e))) from None
         if len(data) != length:
@@ -629,7 +658,7 @@ def _open_archive(path):
         raise CheckpointError("cannot open checkpoint %s: %s" % (path, _one_line(e.strerror or e)))
     try:
         zf = zipfile.ZipFile(path, "r")
-    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as e:
+    except _ZIP_ERRORS as e:
         if head.startswith(_LEGACY_MAGIC):
             raise CheckpointError(
                 "%s uses the legacy (pre-1.6, non-zip) torch.save format, which is not supported; "
@@ -668,8 +697,7 @@ def _open_archive(path):
     except CheckpointError:
         zf.close()
         raise
-    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError,
-            NotImplementedError) as e:
+    except _ZIP_ERRORS as e:
         zf.close()
         raise CheckpointError("%s is a corrupt zip archive (%s)" % (path, _one_line(e))) from None
 
@@ -759,7 +787,7 @@ def _load(archive, key):
     path = archive.path
     try:
         data = archive.zf.read(archive.prefix + "data.pkl")
-    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as e:
+    except _ZIP_ERRORS as e:
         raise CheckpointError("%s: cannot read %sdata.pkl: %s"
                               % (path, archive.prefix, _one_line(e))) from None
     unpickler = _RestrictedUnpickler(io.BytesIO(data), archive)
@@ -881,7 +909,7 @@ def open_torchscript(path):
     path = os.fspath(path)
     try:
         zf = zipfile.ZipFile(path, "r")
-    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as e:
+    except _ZIP_ERRORS as e:
         raise CheckpointError("%s is not a TorchScript archive (%s)" % (path, _one_line(e))) from None
     try:
         names = zf.namelist()
@@ -899,7 +927,7 @@ def open_torchscript(path):
         archive = _Archive(path, zf, prefix, byteorder, version)
         try:
             data = zf.read(prefix + "data.pkl")
-        except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as e:
+        except _ZIP_ERRORS as e:
             raise CheckpointError("%s: cannot read %sdata.pkl: %s"
                                   % (path, prefix, _one_line(e))) from None
         try:
@@ -921,6 +949,12 @@ def open_torchscript(path):
         for name, value in result.items():
             value._check_record_size(name)
         return Checkpoint(archive, result, None, {}, {})
+    except CheckpointError:
+        zf.close()
+        raise
+    except _ZIP_ERRORS as e:  # a damaged member (byteorder, version), as _open_archive
+        zf.close()
+        raise CheckpointError("%s is a corrupt zip archive (%s)" % (path, _one_line(e))) from None
     except BaseException:
         zf.close()
         raise

@@ -18,7 +18,7 @@ CONVERTER = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(CONVERTER))
 
 from spar_convert.torch_checkpoint import (  # noqa: E402
-    CheckpointError, TensorRef, load_state_dict, open_checkpoint, main)
+    CheckpointError, TensorRef, load_state_dict, open_checkpoint, open_torchscript, main)
 
 torch.manual_seed(0)
 
@@ -421,6 +421,46 @@ def test_torchscript_archive_is_refused(tmp_path):
         load_state_dict(path)
 
 
+def test_torchscript_archive_with_a_damaged_member_is_refused(tmp_path):
+    """Found by test_checkpoint_fuzz: open_torchscript let zipfile's BadZipFile through when the
+    local header of its version record was damaged."""
+    path = tmp_path / "scripted.pt"
+    torch.jit.save(torch.jit.script(torch.nn.Linear(2, 2)), str(path))
+    with zipfile.ZipFile(path) as z:
+        info = next(i for i in z.infolist() if i.filename.endswith("/version"))
+    data = bytearray(path.read_bytes())
+    data[info.header_offset:info.header_offset + 4] = b"XXXX"  # the local header's magic
+    path.write_bytes(bytes(data))
+    with pytest.raises(CheckpointError, match="corrupt zip archive .*Bad magic number"):
+        open_torchscript(path)
+
+
+def last_member_patched(tmp_path, offset, value):
+    """A torch.save file whose last central directory entry (its version record) has byte
+    `offset` set to `value`."""
+    path = tmp_path / "w.pt"
+    torch.save({"w": torch.ones(2)}, path)
+    data = bytearray(path.read_bytes())
+    data[data.rfind(b"PK\x01\x02") + offset] = value
+    path.write_bytes(bytes(data))
+    return path
+
+
+# Found by test_checkpoint_fuzz: zipfile's NotImplementedError for an archive that needs a newer
+# zip version, and its RuntimeError for an encrypted member, passed through the readers.
+@pytest.mark.parametrize("opener", [open_checkpoint, open_torchscript])
+def test_unsupported_zip_version_is_refused(tmp_path, opener):
+    path = last_member_patched(tmp_path, 6, 127)  # "version needed to extract": 12.7
+    with pytest.raises(CheckpointError, match="zip file version 12.7"):
+        opener(path)
+
+
+def test_encrypted_member_is_refused(tmp_path):
+    path = last_member_patched(tmp_path, 8, 1)  # general purpose flags: encrypted
+    with pytest.raises(CheckpointError, match="version' is encrypted"):
+        open_checkpoint(path)
+
+
 def test_cli(tmp_path, capsys):
     path = tmp_path / "cli.pt"
     torch.save({"model": {"a.weight": torch.ones(2, 3)}, "fwdbwd_pass_step": 5}, path)
@@ -449,7 +489,10 @@ def p_str(text):
 
 
 def p_int(value):
-    return b"J" + value.to_bytes(4, "little", signed=True)
+    if -2**31 <= value < 2**31:
+        return b"J" + value.to_bytes(4, "little", signed=True)
+    n = (value.bit_length() + 8) // 8
+    return b"\x8a" + bytes([n]) + value.to_bytes(n, "little", signed=True)  # LONG1
 
 
 def p_global(module, name):
@@ -512,6 +555,9 @@ def test_hand_made_archive_is_read(tmp_path):
             + p_dict(storage_offset=p_int(100)) + b"b"), "sets state on a TensorRef"),
     (p_dict(a=p_tensor(shape=(-1,))), "not a tuple of non-negative integers"),
     (p_dict(a=p_tensor(stride=(1, 1))), "differ in length"),
+    # Found by test_checkpoint_fuzz: numpy's ValueError for an empty tensor of absurd sizes.
+    (p_dict(a=p_tensor(shape=(0, 2**63), stride=(1, 1))), "beyond 64-bit byte offsets"),
+    (p_dict(a=p_tensor(shape=(1,), stride=(2**62,))), "beyond 64-bit byte offsets"),
     (p_dict(a=p_tensor(numel=4, offset=2, shape=(3,))), "needs 5 elements of storage '0'"),
     (p_dict(a=p_tensor(storage="QInt8Storage")), "state_dict references torch.QInt8Storage"),
     (p_dict(a=p_tensor(), b=p_tensor(numel=5)), "declared both as 4 float32 and as 5"),
@@ -520,6 +566,9 @@ def test_hand_made_archive_is_read(tmp_path):
                       p_tuple(p_int(1)), b"\x89", b"N") + b"R"),
      "state_dict references mylib.Storage"),
     (b"]q\x00(K\x01e", "the state_dict is a list"),
+    # Found by test_checkpoint_fuzz: LONG_BINPUT 359757679 made the C unpickler allocate 3 GB
+    # for its memo (9 s); up to 2**32 - 1 it would be tens of GB.
+    (b"}r\xff\xff\xff\xff", "memo index 4294967295 at byte 3 is beyond the 2 opcodes"),
 ])
 def test_hand_made_refusals(tmp_path, payload, message):
     path = hand_made(tmp_path / "bad.pt", payload, {"0": bytes(16)})
