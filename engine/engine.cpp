@@ -118,6 +118,7 @@ void Engine::stagedCopy(const Tensor& t, void* data, size_t bytes, bool toDevice
 
 void Engine::write(const Tensor& t, const void* data, size_t bytes) {
   if (bytes != t.bytes()) throw Error("writing " + std::to_string(bytes) + " bytes into " + t.describe());
+  if (bytes == 0) return;  // an empty tensor (its data pointer may be null: memcpy must not see it)
   if (void* p = t.buffer().mapped()) {
     std::memcpy(static_cast<char*>(p) + t.byteOffset(), data, bytes);
   } else {
@@ -127,6 +128,7 @@ void Engine::write(const Tensor& t, const void* data, size_t bytes) {
 
 void Engine::read(const Tensor& t, void* data, size_t bytes) {
   if (bytes != t.bytes()) throw Error("reading " + std::to_string(bytes) + " bytes from " + t.describe());
+  if (bytes == 0) return;
   if (void* p = t.buffer().mapped()) {
     std::memcpy(data, static_cast<char*>(p) + t.byteOffset(), bytes);
   } else {
