@@ -20,11 +20,8 @@
 #include <nlohmann/json.hpp>
 
 #include "imaging/image_prep.h"
+#include "tests/cli_test_support.h"
 #include "tests/test_support.h"
-
-#ifndef SPAR_CLI
-#error "SPAR_CLI (path of the built spar binary) is defined by samples/CMakeLists.txt"
-#endif
 
 namespace spar::test {
 namespace {

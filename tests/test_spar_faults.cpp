@@ -20,11 +20,8 @@
 #include <nlohmann/json.hpp>
 
 #include "tests/golden_support.h"
+#include "tests/cli_test_support.h"
 #include "tests/test_support.h"
-
-#ifndef SPAR_CLI
-#error "SPAR_CLI (path of the built spar binary) is defined by samples/CMakeLists.txt"
-#endif
 
 namespace spar::test {
 namespace {
@@ -83,28 +80,27 @@ void expectCleanFailure(const CommandResult& r, const std::string& says, const s
     EXPECT_EQ(e.path().filename().string().rfind("out.tmp", 0), std::string::npos) << what << ": " << e.path();
 }
 
-TEST(spar_faults, EveryAllocationFailureIsOneLineNoOutputNoLeak) {
-  const unsigned long long n = counts()["allocations"].get<unsigned long long>();
-  ASSERT_GT(n, 20u);
+// A fault of one kind injected at points spread over the run's own count of them (report.json
+// device_memory[countKey]), each a clean failure that says `says`; one past the count is no fault.
+void expectEveryFaultClean(const char* countKey, const std::string& variable, const std::string& injected,
+                           const std::string& says) {
+  const unsigned long long n = counts()[countKey].get<unsigned long long>();
+  ASSERT_GT(n, 5u) << countKey;
   for (unsigned long long i : spread(n)) {
-    const CommandResult r = render("SPAR_FAULT_ALLOCATION=" + std::to_string(i));
-    expectCleanFailure(r, "of device memory with", "allocation " + std::to_string(i));
-    EXPECT_NE(r.err.find("(injected: allocation " + std::to_string(i) + ")"), std::string::npos) << r.err;
+    const CommandResult r = render(variable + "=" + std::to_string(i));
+    expectCleanFailure(r, says, injected + " " + std::to_string(i));
+    EXPECT_NE(r.err.find("(injected: " + injected + " " + std::to_string(i) + ")"), std::string::npos) << r.err;
   }
-  std::printf("%llu allocations in the run; failures injected at %zu of them\n", n, spread(n).size());
-  EXPECT_EQ(render("SPAR_FAULT_ALLOCATION=" + std::to_string(n + 1)).code, 0);
+  std::printf("%llu %s in the run; faults injected at %zu of them\n", n, countKey, spread(n).size());
+  EXPECT_EQ(render(variable + "=" + std::to_string(n + 1)).code, 0);
+}
+
+TEST(spar_faults, EveryAllocationFailureIsOneLineNoOutputNoLeak) {
+  expectEveryFaultClean("allocations", "SPAR_FAULT_ALLOCATION", "allocation", "of device memory with");
 }
 
 TEST(spar_faults, EverySubmissionTimeoutIsOneLineNoOutputNoLeak) {
-  const unsigned long long n = counts()["submissions"].get<unsigned long long>();
-  ASSERT_GT(n, 5u);
-  for (unsigned long long i : spread(n)) {
-    const CommandResult r = render("SPAR_FAULT_SUBMISSION=" + std::to_string(i));
-    expectCleanFailure(r, "the device did not finish a ", "submission " + std::to_string(i));
-    EXPECT_NE(r.err.find("(injected: submission " + std::to_string(i) + ")"), std::string::npos) << r.err;
-  }
-  std::printf("%llu submissions in the run; timeouts injected at %zu of them\n", n, spread(n).size());
-  EXPECT_EQ(render("SPAR_FAULT_SUBMISSION=" + std::to_string(n + 1)).code, 0);
+  expectEveryFaultClean("submissions", "SPAR_FAULT_SUBMISSION", "submission", "the device did not finish a ");
 }
 
 // model/memory_estimate.h: a lower bound of what the run used, and not a loose one.

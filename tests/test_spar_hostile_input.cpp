@@ -12,11 +12,8 @@
 
 #include "imaging/image_prep.h"
 #include "tests/golden_support.h"
+#include "tests/cli_test_support.h"
 #include "tests/test_support.h"
-
-#ifndef SPAR_CLI
-#error "SPAR_CLI (path of the built spar binary) is defined by samples/CMakeLists.txt"
-#endif
 
 namespace spar::test {
 namespace {
