@@ -210,6 +210,31 @@ TEST(eval_metrics, InputPositionsFollowTheProtocol) {
   EXPECT_THROW(inputPositions(8, 9), std::exception);
 }
 
+// PROTOCOL.md "Baselines": the nearest input in sequence position, ties to the earlier one.
+TEST(eval_metrics, NearestInputTiesGoToTheEarlier) {
+  EXPECT_EQ(nearestInput(1, {0, 2}), 0);
+  EXPECT_EQ(nearestInput(3, {0, 2, 7}), 2);
+  EXPECT_EQ(nearestInput(5, {0, 2, 7}), 7);
+  EXPECT_EQ(nearestInput(6, {7, 0}), 7);
+  EXPECT_THROW(nearestInput(1, {}), std::exception);
+}
+
+// The inputs' mean colour, per channel over all their pixels; other frames do not count.
+TEST(eval_metrics, MeanColourOfTheInputs) {
+  const int h = 3, w = 5;
+  const size_t plane = size_t(h) * w;
+  std::vector<float> rgb(4 * 3 * plane);
+  for (size_t f = 0; f < 4; ++f)
+    for (size_t c = 0; c < 3; ++c)
+      for (size_t p = 0; p < plane; ++p) rgb[(f * 3 + c) * plane + p] = float(f * 0.25 + c * 0.01 + (p % 2) * 0.002);
+  const std::vector<float> mean = meanColourImage(rgb, {1, 3}, h, w);
+  ASSERT_EQ(mean.size(), 3 * plane);
+  const double odd = double(plane / 2) / double(plane);  // share of pixels with the 0.002 offset
+  for (size_t c = 0; c < 3; ++c)
+    for (size_t p = 0; p < plane; ++p)
+      EXPECT_NEAR(mean[c * plane + p], 0.5 + c * 0.01 + 0.002 * odd, 1e-6) << c << " " << p;
+}
+
 TEST(eval_metrics, MedianOfEvenAndOddCounts) {
   EXPECT_FALSE(median({}).has_value());
   EXPECT_DOUBLE_EQ(*median({3, 1, 2}), 2);

@@ -101,12 +101,17 @@ void expectLayout(const json& doc, const std::string& mode, bool semantic, bool 
   for (const auto& [k, targets] : {std::pair<std::string, int>{"2", 12}, {"3", 10}}) {
     const json& r = res.at(k);
     const std::string at = mode + " K=" + k + " ";
-    for (const char* key : {"psnr", "ssim", "mask_miou", "mask_iou_dynamic", "mask_recall", "sem_miou",
-                            "sem_accuracy", "target_views", "seconds", "ms_per_scene"})
+    for (const char* key : {"psnr", "ssim", "psnr_nearest_input", "ssim_nearest_input", "psnr_mean_colour",
+                            "mask_miou", "mask_iou_dynamic", "mask_recall", "sem_miou", "sem_accuracy", "target_views",
+                            "seconds", "ms_per_scene"})
       EXPECT_TRUE(r.contains(key)) << at << key;
-    EXPECT_EQ(r.size(), 10u) << at;
+    EXPECT_EQ(r.size(), 13u) << at;
     expectInRange(r.at("psnr"), at + "psnr", 0, 100);
     expectInRange(r.at("ssim"), at + "ssim", -1, 1);
+    // the baselines (PROTOCOL.md): the nearest input copied, the inputs' mean colour
+    expectInRange(r.at("psnr_nearest_input"), at + "psnr_nearest_input", 0, 100);
+    expectInRange(r.at("ssim_nearest_input"), at + "ssim_nearest_input", -1, 1);
+    expectInRange(r.at("psnr_mean_colour"), at + "psnr_mean_colour", 0, 100);
     for (const char* key : {"mask_miou", "mask_iou_dynamic", "mask_recall"}) {
       if (masks) expectInRange(r.at(key), at + key, 0, 1);
       else EXPECT_TRUE(r.at(key).is_null()) << at << key;
@@ -143,6 +148,11 @@ TEST(spar_eval, ModesOnTheSemanticModel) {
     // Gating comes after CV-DRP: the masks do not depend on it.
     for (const char* key : {"mask_miou", "mask_iou_dynamic", "mask_recall"})
       EXPECT_EQ(d.at(key), n.at(key)) << "K=" << k << " " << key;
+    // The baselines depend on the scenes and the views only.
+    for (const char* key : {"psnr_nearest_input", "ssim_nearest_input", "psnr_mean_colour"}) {
+      EXPECT_EQ(d.at(key), n.at(key)) << "K=" << k << " " << key;
+      EXPECT_EQ(d.at(key), s.at(key)) << "K=" << k << " " << key;
+    }
   }
 }
 

@@ -32,6 +32,18 @@ def psnr_static(render: np.ndarray, gt: np.ndarray, static: np.ndarray) -> Optio
     return 10.0 * np.log10(1.0 / mse)
 
 
+# ============================================================================ baselines
+def nearest_input(target: int, inputs) -> int:
+    """The input frame nearest to `target` in sequence position; ties: the earlier one."""
+    return min(inputs, key=lambda i: (abs(i - target), i))
+
+
+def mean_colour_image(frames, shape) -> np.ndarray:
+    """[H, W, 3]: every pixel the per-channel mean of all pixels of `frames` ([H, W, 3] each)."""
+    mean = np.mean(np.stack([np.asarray(f, np.float64) for f in frames]).reshape(-1, 3), axis=0)
+    return np.broadcast_to(mean, shape).copy()
+
+
 def gaussian_window(size: int = SSIM_SIZE, sigma: float = SSIM_SIGMA) -> np.ndarray:
     """The 1-D Gaussian whose outer product is the 2-D window. Normalizing the 1-D weights
     to sum 1 makes the 2-D weights sum to 1 too (the sum of an outer product is the product

@@ -47,7 +47,7 @@ def fmt(metric: str, v: Optional[float]) -> str:
     """PSNR in dB with 2 decimals, ratios with 4, times as integers; null as '-'."""
     if v is None:
         return "-"
-    if metric == "psnr":
+    if metric.startswith("psnr"):
         return f"{v:.2f}"
     if metric in ("ms_per_scene", "seconds"):
         return f"{v:.0f}" if metric == "ms_per_scene" else f"{v:.1f}"

@@ -19,8 +19,8 @@ from . import metrics
 from .protocol import ProtocolError, Scene, discover_scenes, read_scene, view_indices
 
 MODES = ("default", "no-gating", "assume-static")
-METRIC_KEYS = ("psnr", "ssim", "mask_miou", "mask_iou_dynamic", "mask_recall", "sem_miou",
-               "sem_accuracy")
+METRIC_KEYS = ("psnr", "ssim", "psnr_nearest_input", "ssim_nearest_input", "psnr_mean_colour",
+               "mask_miou", "mask_iou_dynamic", "mask_recall", "sem_miou", "sem_accuracy")
 
 
 class EvalError(Exception):
@@ -171,6 +171,10 @@ class Accumulator:
     def __init__(self, n_classes: int):
         self.psnr: List[float] = []
         self.ssim: List[float] = []
+        # PROTOCOL.md "Baselines", on the views the model's metrics keep
+        self.copy_psnr: List[float] = []
+        self.copy_ssim: List[float] = []
+        self.mean_psnr: List[float] = []
         self.mask = np.zeros(4, np.int64)
         self.has_mask = False
         self.conf = np.zeros((n_classes, n_classes), np.int64)
@@ -178,18 +182,24 @@ class Accumulator:
         self.times: List[float] = []
         self.target_views = 0
 
-    def add(self, scene: Scene, targets: List[int], pred: Prediction) -> None:
+    def add(self, scene: Scene, inputs: List[int], targets: List[int], pred: Prediction) -> None:
         self.times.append(pred.seconds)
         self.target_views += len(targets)
+        mean_colour = metrics.mean_colour_image([scene.rgb_float(i) for i in inputs],
+                                                scene.rgb_float(inputs[0]).shape)
         for j, t in enumerate(targets):
             static = ~scene.dynamic[t]
             gt = scene.rgb_float(t)
+            copy = scene.rgb_float(metrics.nearest_input(t, inputs))
             p = metrics.psnr_static(pred.rgb[j], gt, static)
             if p is not None:
                 self.psnr.append(p)
+                self.copy_psnr.append(metrics.psnr_static(copy, gt, static))
+                self.mean_psnr.append(metrics.psnr_static(mean_colour, gt, static))
             s = metrics.ssim_static(pred.rgb[j], gt, static)
             if s is not None:
                 self.ssim.append(s)
+                self.copy_ssim.append(metrics.ssim_static(copy, gt, static))
             if pred.labels is not None:
                 self.has_sem = True
                 evaluated, gt_cls = metrics.semantic_targets(scene.classes[t], static)
@@ -204,6 +214,9 @@ class Accumulator:
         r: Dict[str, Any] = {
             "psnr": float(np.mean(self.psnr)) if self.psnr else None,
             "ssim": float(np.mean(self.ssim)) if self.ssim else None,
+            "psnr_nearest_input": float(np.mean(self.copy_psnr)) if self.copy_psnr else None,
+            "ssim_nearest_input": float(np.mean(self.copy_ssim)) if self.copy_ssim else None,
+            "psnr_mean_colour": float(np.mean(self.mean_psnr)) if self.mean_psnr else None,
         }
         r.update(metrics.mask_scores(self.mask) if self.has_mask else
                  {"mask_miou": None, "mask_iou_dynamic": None, "mask_recall": None})
@@ -263,7 +276,7 @@ def evaluate(opts: Options, log: Callable[[str], None] = lambda s: None) -> Dict
         acc = Accumulator(n_classes)
         t0 = time.perf_counter()
         for i, s in enumerate(scenes):
-            acc.add(s, targets, predict(lm, s, inputs, targets, opts.mode))
+            acc.add(s, inputs, targets, predict(lm, s, inputs, targets, opts.mode))
             log(f"K={k} scene {i + 1}/{len(scenes)} {s.name}")
         results[str(k)] = acc.result(time.perf_counter() - t0)
     return {

@@ -3,8 +3,9 @@
   spar-eval-table --row "SPAR (trained)=res.json" --row "no gating=res_ng.json"
                   [--views 2,3,4] [--out table.md]
 
-One row per file (its label, then mode and precision), and per K the columns PSNR, SSIM,
-mask mIoU, recall, sem mIoU, accuracy, ms/scene. Null metrics print as '-'. Without --out
+One row per file (its label, then mode and precision), and per K the columns PSNR, copy PSNR
+and mean PSNR (the baselines: nearest input copied, the inputs' mean colour), SSIM, mask mIoU,
+recall, sem mIoU, accuracy, ms/scene. Null metrics print as '-'. Without --out
 the table goes to stdout. Exit code 2 for a bad command line or a file that is not a result.
 """
 
@@ -16,7 +17,9 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple
 from .resultfile import ResultError, fmt, read_result, sorted_views
 
 PROG = "spar-eval-table"
-COLUMNS = [("PSNR", "psnr"), ("SSIM", "ssim"), ("mask mIoU", "mask_miou"),
+# "copy PSNR" / "mean PSNR": the baselines on the same pixels (PROTOCOL.md), so the margin shows
+COLUMNS = [("PSNR", "psnr"), ("copy PSNR", "psnr_nearest_input"), ("mean PSNR", "psnr_mean_colour"),
+           ("SSIM", "ssim"), ("mask mIoU", "mask_miou"),
            ("recall", "mask_recall"), ("sem mIoU", "sem_miou"), ("accuracy", "sem_accuracy"),
            ("ms/scene", "ms_per_scene")]
 
@@ -52,7 +55,8 @@ def markdown(rows: List[Tuple[str, Dict[str, Any]]], views: List[str]) -> str:
     scenes = sorted({str(d.get("scenes")) for _, d in rows})
     lines.append("")
     lines.append(f"Scenes: {', '.join(scenes)}; PSNR (dB) and SSIM on static pixels of the "
-                 "target views; mask metrics over all frames ('-': not available); semantic "
+                 "target views (copy: the nearest input frame as the rendering, mean: the "
+                 "inputs' mean colour, same pixels); mask metrics over all frames ('-': not available); semantic "
                  "metrics on half-resolution label maps.")
     return "\n".join(lines) + "\n"
 

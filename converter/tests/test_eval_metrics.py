@@ -169,13 +169,40 @@ def test_accumulator_skips_views():
     out = np.full((2, h, w, 3), 110 / 255.0)
     pred = Prediction(out, np.zeros((f, h, w), bool), np.zeros((2, h // 2, w // 2), np.int64), 0.1)
     acc = Accumulator(2)
-    acc.add(scene, targets, pred)
+    acc.add(scene, [0], targets, pred)
     r = acc.result(1.0)
     assert r["target_views"] == 2 and len(acc.psnr) == 1 and len(acc.ssim) == 1
     assert r["psnr"] == pytest.approx(10 * math.log10(1 / (10 / 255.0) ** 2))
     assert r["sem_accuracy"] == 1.0 and r["sem_miou"] == 1.0
     assert r["mask_recall"] == 0.0 and r["mask_iou_dynamic"] == 0.0
     assert r["ms_per_scene"] == pytest.approx(100.0)
+
+
+def test_nearest_input_ties_go_to_the_earlier():
+    assert metrics.nearest_input(1, [0, 2]) == 0
+    assert metrics.nearest_input(3, [0, 2, 7]) == 2
+    assert metrics.nearest_input(5, [0, 2, 7]) == 7
+    assert metrics.nearest_input(6, [7, 0]) == 7
+
+
+def test_baselines_known_values():
+    """Frames of one grey value each: inputs 0 (100) and 2 (130), targets 1 (110) and 3 (120).
+    Nearest input copied: target 1 -> frame 0 (a tie, the earlier), target 3 -> frame 2, both
+    10 grey levels off; the inputs' mean colour (115) is 5 off for both."""
+    h, w = 16, 16
+    values = [100, 110, 130, 120]
+    rgb = np.stack([np.full((h, w, 3), v, np.uint8) for v in values])
+    dyn = np.zeros((4, h, w), bool)
+    scene = Scene("s", rgb, np.zeros((4, h, w), np.int64), dyn, ["wall"])
+    pred = Prediction(np.full((2, h, w, 3), 111 / 255.0), None, None, 0.1)
+    acc = Accumulator(1)
+    acc.add(scene, [0, 2], [1, 3], pred)
+    r = acc.result(1.0)
+    assert r["psnr_nearest_input"] == pytest.approx(10 * math.log10(1 / (10 / 255.0) ** 2))
+    assert r["psnr_mean_colour"] == pytest.approx(10 * math.log10(1 / (5 / 255.0) ** 2))
+    assert r["ssim_nearest_input"] == pytest.approx(
+        np.mean([metrics.ssim_static(rgb[0] / 255.0, rgb[1] / 255.0, ~dyn[1]),
+                 metrics.ssim_static(rgb[2] / 255.0, rgb[3] / 255.0, ~dyn[3])]))
 
 
 # ============================================================================ end to end
@@ -219,6 +246,8 @@ def check_doc(doc, mode):
         assert r["target_views"] == n
         assert 0.0 < r["psnr"] < 60.0
         assert -1.0 <= r["ssim"] <= 1.0
+        assert 0.0 < r["psnr_nearest_input"] < 60.0 and 0.0 < r["psnr_mean_colour"] < 60.0
+        assert -1.0 <= r["ssim_nearest_input"] <= 1.0
         assert r["seconds"] > 0 and r["ms_per_scene"] > 0
         for m in ("sem_miou", "sem_accuracy"):
             assert 0.0 <= r[m] <= 1.0
@@ -237,6 +266,9 @@ def test_reference_modes(runs):
         # gating with P(dynamic) = 0 keeps every token as is: the same rendering
         for m in ("psnr", "ssim", "sem_miou", "sem_accuracy"):
             assert ng[m] == st[m], (k, m)
+        # the baselines depend on the data and the views only
+        for m in ("psnr_nearest_input", "ssim_nearest_input", "psnr_mean_colour"):
+            assert ng[m] == st[m] == df[m], (k, m)
         # CV-DRP runs before gating: its masks do not depend on the mode
         for m in ("mask_miou", "mask_iou_dynamic", "mask_recall"):
             assert ng[m] == df[m], (k, m)
@@ -277,12 +309,12 @@ def test_cli_outputs_and_tools(e2e, runs, tmp_path):
     assert p.returncode == 1 and "K=3 psnr" in p.stdout
     assert tool("spar-eval-compare", files["default"], tmp_path / "shifted.json",
                 "--tolerance", "0.02").returncode == 0
-    # table: one row per file, 2 + 7 * 3 columns
+    # table: one row per file, 2 + 9 * 3 columns
     p = tool("spar-eval-table", "--row", f"tiny={files['default']}",
              "--row", f"tiny static={files['assume-static']}")
     assert p.returncode == 0, p.stderr
     rows = [l for l in p.stdout.splitlines() if l.startswith("| tiny")]
-    assert len(rows) == 2 and rows[0].count("|") == 2 + 7 * 3 + 1
+    assert len(rows) == 2 and rows[0].count("|") == 2 + 9 * 3 + 1
     assert " - | - |" in rows[1]             # assume-static: mask columns null
 
 

@@ -71,6 +71,8 @@ struct KResult {
   std::vector<int64_t> inputs, targets;
   double psnrSum = 0, ssimSum = 0;
   int64_t psnrViews = 0, ssimViews = 0, targetViews = 0;
+  // PROTOCOL.md "Baselines": the nearest input copied, the inputs' mean colour (same views)
+  double copyPsnrSum = 0, copySsimSum = 0, meanPsnrSum = 0;
   MaskCounts masks;
   std::unique_ptr<SemanticConfusion> semantic;
   double seconds = 0;
@@ -78,6 +80,10 @@ struct KResult {
   // Means over the evaluated target views of all scenes.
   std::optional<double> psnr() const { return psnrViews ? std::optional<double>(psnrSum / double(psnrViews)) : std::nullopt; }
   std::optional<double> ssim() const { return ssimViews ? std::optional<double>(ssimSum / double(ssimViews)) : std::nullopt; }
+  // The baselines skip exactly the views the model's metrics skip (no static pixel / centre).
+  std::optional<double> copyPsnr() const { return psnrViews ? std::optional<double>(copyPsnrSum / double(psnrViews)) : std::nullopt; }
+  std::optional<double> copySsim() const { return ssimViews ? std::optional<double>(copySsimSum / double(ssimViews)) : std::nullopt; }
+  std::optional<double> meanPsnr() const { return psnrViews ? std::optional<double>(meanPsnrSum / double(psnrViews)) : std::nullopt; }
 };
 
 ojson orNull(std::optional<double> v) { return v && std::isfinite(*v) ? ojson(*v) : ojson(nullptr); }
@@ -210,13 +216,22 @@ void runEval(const EvalArgs& a) {
         const double ms = msSince(t);
         r.sceneMs.push_back(ms);
 
+        const std::vector<float> meanColour = meanColourImage(data.rgb, r.inputs, h, w);
         for (size_t j = 0; j < r.targets.size(); ++j) {
           const size_t f = size_t(r.targets[j]);
           const float* gt = &data.rgb[f * 3 * plane];
           const uint8_t* dyn = &data.dynamic[f * plane];
+          const float* copy = &data.rgb[size_t(nearestInput(r.targets[j], r.inputs)) * 3 * plane];
           ++r.targetViews;
-          if (const auto p = staticPsnr(&rgb[j * 3 * plane], gt, dyn, h, w)) r.psnrSum += *p, ++r.psnrViews;
-          if (const auto s = staticSsim(&rgb[j * 3 * plane], gt, dyn, h, w)) r.ssimSum += *s, ++r.ssimViews;
+          if (const auto p = staticPsnr(&rgb[j * 3 * plane], gt, dyn, h, w)) {
+            r.psnrSum += *p, ++r.psnrViews;
+            r.copyPsnrSum += *staticPsnr(copy, gt, dyn, h, w);
+            r.meanPsnrSum += *staticPsnr(meanColour.data(), gt, dyn, h, w);
+          }
+          if (const auto s = staticSsim(&rgb[j * 3 * plane], gt, dyn, h, w)) {
+            r.ssimSum += *s, ++r.ssimViews;
+            r.copySsimSum += *staticSsim(copy, gt, dyn, h, w);
+          }
           if (semantic) r.semantic->add(labels[j].data(), &data.classes[f * plane], dyn, h, w);
         }
         if (!a.assumeStatic) {
@@ -242,6 +257,9 @@ void runEval(const EvalArgs& a) {
     byK[std::to_string(r.k)] = {
         {"psnr", orNull(r.psnr())},
         {"ssim", orNull(r.ssim())},
+        {"psnr_nearest_input", orNull(r.copyPsnr())},
+        {"ssim_nearest_input", orNull(r.copySsim())},
+        {"psnr_mean_colour", orNull(r.meanPsnr())},
         {"mask_miou", masks ? orNull(r.masks.meanIou()) : ojson(nullptr)},
         {"mask_iou_dynamic", masks ? orNull(r.masks.iouDynamic()) : ojson(nullptr)},
         {"mask_recall", masks ? orNull(r.masks.recall()) : ojson(nullptr)},
@@ -272,12 +290,14 @@ void runEval(const EvalArgs& a) {
   // The table on stdout.
   std::printf("spar eval: %zu scenes of %d frames at %s, %s, %s, %s on %s\n", scenes.size(), frames,
               sizeText.c_str(), mode.c_str(), a.precision.c_str(), a.model.c_str(), deviceName.c_str());
-  std::printf("%3s %7s %8s %7s %9s %8s %7s %8s %7s %8s %9s\n", "K", "targets", "PSNR", "SSIM", "mask mIoU", "IoU dyn",
-              "recall", "sem mIoU", "sem acc", "seconds", "ms/scene");
+  // copy / mean: PSNR of the baselines on the same pixels (nearest input copied, mean colour)
+  std::printf("%3s %7s %8s %7s %7s %7s %9s %8s %7s %8s %7s %8s %9s\n", "K", "targets", "PSNR", "copy", "mean", "SSIM",
+              "mask mIoU", "IoU dyn", "recall", "sem mIoU", "sem acc", "seconds", "ms/scene");
   for (const KResult& r : results) {
     const bool masks = !a.assumeStatic;
-    std::printf("%3d %7lld %8s %7s %9s %8s %7s %8s %7s %8.2f %9s\n", r.k, (long long)r.targetViews,
-                cell(r.psnr(), "%.2f").c_str(), cell(r.ssim(), "%.4f").c_str(),
+    std::printf("%3d %7lld %8s %7s %7s %7s %9s %8s %7s %8s %7s %8.2f %9s\n", r.k, (long long)r.targetViews,
+                cell(r.psnr(), "%.2f").c_str(), cell(r.copyPsnr(), "%.2f").c_str(), cell(r.meanPsnr(), "%.2f").c_str(),
+                cell(r.ssim(), "%.4f").c_str(),
                 cell(masks ? r.masks.meanIou() : std::nullopt, "%.4f").c_str(),
                 cell(masks ? r.masks.iouDynamic() : std::nullopt, "%.4f").c_str(),
                 cell(masks ? r.masks.recall() : std::nullopt, "%.4f").c_str(),

@@ -15,6 +15,29 @@ constexpr double kSigma = 1.5, kC1 = 0.01 * 0.01, kC2 = 0.03 * 0.03;
 
 }  // namespace
 
+int64_t nearestInput(int64_t target, const std::vector<int64_t>& inputs) {
+  if (inputs.empty()) throw Error("nearestInput: no inputs");
+  int64_t best = inputs.front();
+  for (int64_t i : inputs)
+    if (std::abs(i - target) < std::abs(best - target) || (std::abs(i - target) == std::abs(best - target) && i < best))
+      best = i;
+  return best;
+}
+
+std::vector<float> meanColourImage(const std::vector<float>& rgb, const std::vector<int64_t>& inputs, int height,
+                                   int width) {
+  const size_t plane = size_t(height) * size_t(width);
+  std::vector<float> out(3 * plane);
+  for (int c = 0; c < 3; ++c) {
+    double sum = 0;
+    for (int64_t i : inputs)
+      for (size_t p = 0; p < plane; ++p) sum += rgb[(size_t(i) * 3 + c) * plane + p];
+    const float mean = float(sum / double(inputs.size() * plane));
+    std::fill(out.begin() + c * plane, out.begin() + (c + 1) * plane, mean);
+  }
+  return out;
+}
+
 std::optional<double> staticPsnr(const float* render, const float* gt, const uint8_t* dynamic, int height, int width) {
   const size_t plane = size_t(height) * size_t(width);
   double sum = 0;

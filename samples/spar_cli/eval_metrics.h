@@ -57,6 +57,13 @@ class SemanticConfusion {
   int64_t evaluated_ = 0, correct_ = 0;
 };
 
+// The baselines a model must beat (PROTOCOL.md, "Baselines"), scored like its renderings.
+// The input nearest to target frame t in sequence position (ties: the earlier one).
+int64_t nearestInput(int64_t target, const std::vector<int64_t>& inputs);
+// [3, H, W]: every pixel the mean colour of the input views (all their pixels). rgb: [F, 3, H, W].
+std::vector<float> meanColourImage(const std::vector<float>& rgb, const std::vector<int64_t>& inputs, int height,
+                                   int width);
+
 // Median of the values (mean of the two middle ones for an even count); nullopt when empty.
 std::optional<double> median(std::vector<double> values);
 
