@@ -30,6 +30,8 @@ def main(argv=None) -> int:
     p.add_argument("--bpe", default=default_bpe(), help="CLIP BPE merges table")
     p.add_argument("--log-every", type=int, default=10)
     p.add_argument("--save-every", type=int, default=250)
+    p.add_argument("--profile", type=int, default=0, metavar="N",
+                   help="instead of training: time N steps of the recipe by part (profile.json)")
     a = p.parse_args(argv)
     if not os.path.isfile(a.bpe):
         print(f"spar-train: error: CLIP merges table not found: {a.bpe} (give --bpe PATH)",
@@ -39,5 +41,8 @@ def main(argv=None) -> int:
         print("spar-train: error: --steps, --batch must be >= 1 and --scenes > --batch",
               file=sys.stderr)
         return 2
+    if a.profile:
+        from .profile_step import profile
+        return profile(a)
     from .train import Run
     return Run(a).train()
