@@ -1,7 +1,8 @@
 // spar-bench: per op, GPU time, GFLOPS (or GB/s) and NMSE against a float64 CPU
 // reference, for every precision the engine offers, and beside them what the first use of
 // the op's kernels cost: pipeline creation and the driver's build at the first dispatch
-// (compile time, kept apart from run time). --json prints one JSON object.
+// (compile time, kept apart from run time). --json prints one JSON object. --model M.spar times
+// the whole SPAR pipeline instead, stage by stage, on synthetic inputs (samples/bench_model.h).
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cstdio>
@@ -10,6 +11,7 @@
 
 #include "engine/error.h"
 #include "samples/bench_cases.h"
+#include "samples/bench_model.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"spar-bench: time, throughput and error of the engine's ops"};
@@ -21,6 +23,19 @@ int main(int argc, char** argv) {
   app.add_option("--repeat", repeats, "timed runs per case (the median is reported)")->check(CLI::Range(1, 1000));
   app.add_flag("--json", json, "print one JSON object instead of a table");
   app.add_flag("--list-devices", listDevices, "list Vulkan devices and exit");
+  spar::bench::ModelBenchArgs m;
+  std::string size;
+  auto* modelOpt = app.add_option("--model", m.model,
+                                  "time the whole pipeline of this packed model, stage by stage, on synthetic "
+                                  "inputs (no image files) instead of the ops");
+  app.add_option("--views", m.views, "with --model: input views (default 4)")->needs(modelOpt);
+  app.add_option("--targets", m.targets, "with --model: target views rendered (default 4)")->needs(modelOpt);
+  app.add_option("--size", size, "with --model: HxW (default: the model's size)")->needs(modelOpt);
+  app.add_option("--precision", m.precision, "with --model: fp32 or fp16 weight matrices")
+      ->check(CLI::IsMember({"fp32", "fp16"}))
+      ->needs(modelOpt);
+  app.add_flag("--assume-static", m.assumeStatic, "with --model: no DINOv3 / CV-DRP")->needs(modelOpt);
+  app.add_flag("--semantic", m.semantic, "with --model: render semantic features too")->needs(modelOpt);
   CLI11_PARSE(app, argc, argv);
 
   try {
@@ -33,6 +48,21 @@ int main(int argc, char** argv) {
     options.verbose = !json;
     options = spar::EngineOptions::fromEnvironment(options);
     spar::Engine engine(options);
+    if (!m.model.empty()) {
+      if (!size.empty()) {
+        long long hh = 0, ww = 0;
+        char x = 0, extra = 0;
+        if (std::sscanf(size.c_str(), "%lld%c%lld%c", &hh, &x, &ww, &extra) != 3 || x != 'x' || hh <= 0 || ww <= 0)
+          throw spar::Error("--size must be HxW, got '" + size + "'");
+        m.height = hh;
+        m.width = ww;
+      }
+      m.repeats = repeats;
+      const auto doc = spar::bench::benchModel(engine, m);
+      if (json) std::cout << doc.dump(2) << "\n";
+      else spar::bench::printModelBench(doc);
+      return 0;
+    }
     auto cases = spar::bench::makeCases(engine, only);
     if (cases.empty()) throw spar::Error("no benchmark case matches '" + only + "'");
 

@@ -1,0 +1,35 @@
+// spar-bench --model: the whole SPAR pipeline on synthetic inputs (seeded random images, no
+// image files: the GPU check carries binaries that link nothing but libvulkan), each stage's
+// GPU time. A first run (weights uploaded, kernels created and built) is reported apart from
+// the timed runs, whose per-stage median is the figure.
+#pragma once
+#include <nlohmann/json.hpp>
+
+#include <cstdint>
+#include <string>
+
+namespace spar {
+class Engine;
+}
+
+namespace spar::bench {
+
+struct ModelBenchArgs {
+  std::string model;           // packed .spar
+  int64_t views = 4;           // input views
+  int64_t targets = 4;         // target views rendered with their estimated cameras
+  int64_t height = 0, width = 0;  // 0: the model's own size
+  std::string precision = "fp32";  // fp32 | fp16 weight matrices
+  bool assumeStatic = false;   // no DINOv3 / CV-DRP
+  bool semantic = false;       // render semantic features too (models with the semantic branch)
+  int repeats = 3;
+};
+
+// Runs it; the document holds the request, the first run's wall and build time, and per stage
+// the median GPU and wall ms of the timed runs, with their sum. Throws spar::Error.
+nlohmann::ordered_json benchModel(Engine& engine, const ModelBenchArgs& args);
+
+// The document as a table on stdout.
+void printModelBench(const nlohmann::ordered_json& doc);
+
+}  // namespace spar::bench
