@@ -17,20 +17,24 @@ def _render(args):
     seed, frames, size = args
     dyn = generate_scene(seed, n_frames=frames, size=size, distractors=True)
     sta = generate_scene(seed, n_frames=frames, size=size, distractors=False)
-    return seed, dyn["rgb"], dyn["classes"], dyn["mask"], sta["rgb"], sta["classes"]
+    # cameras: the same for both renderings of the room (canonical view F // 2, normalized K)
+    return (seed, dyn["rgb"], dyn["classes"], dyn["mask"], sta["rgb"], sta["classes"],
+            dyn["c2w_canonical"].astype(np.float32), dyn["fxfycxcy"].astype(np.float32))
 
 
 class ScenePool:
     """Scenes of train seeds 0..count-1: per scene the dynamic frames (rgb, classes, motion
-    mask) and the same room without distractors (rgb, classes)."""
+    mask), the same room without distractors (rgb, classes), and the frames' true cameras
+    (c2w relative to the canonical view F // 2, normalized intrinsics) for the camera loss."""
 
     def __init__(self, count: int, frames: int, size: int, cache_dir: str, workers: int = 2,
                  log=print):
-        path = os.path.join(cache_dir, f"pool_{count}x{frames}_{size}.npz")
+        path = os.path.join(cache_dir, f"pool_{count}x{frames}_{size}_cams.npz")
         if os.path.isfile(path):
             z = np.load(path)
             self.seeds, self.rgb, self.classes = z["seeds"], z["rgb"], z["classes"]
             self.mask, self.static_rgb, self.static_classes = z["mask"], z["static_rgb"], z["static_classes"]
+            self.c2w, self.fxfycxcy = z["c2w"], z["fxfycxcy"]
             log(f"scene pool: {count} scenes from {path}")
             return
         t0 = time.time()
@@ -48,10 +52,13 @@ class ScenePool:
         self.mask = np.stack([r[3] for r in res])
         self.static_rgb = np.stack([r[4] for r in res])
         self.static_classes = np.stack([r[5] for r in res])
+        self.c2w = np.stack([r[6] for r in res])
+        self.fxfycxcy = np.stack([r[7] for r in res])
         os.makedirs(cache_dir, exist_ok=True)
         tmp = path + ".tmp.npz"
         np.savez(tmp, seeds=self.seeds, rgb=self.rgb, classes=self.classes, mask=self.mask,
-                 static_rgb=self.static_rgb, static_classes=self.static_classes)
+                 static_rgb=self.static_rgb, static_classes=self.static_classes, c2w=self.c2w,
+                 fxfycxcy=self.fxfycxcy)
         os.replace(tmp, path)
 
     def __len__(self):
@@ -113,4 +120,7 @@ class Sampler:
             "clean": to_tensor(np.stack(clean)),          # [B, F, 3, H, W] without pasted objects
             "paste": torch.from_numpy(np.stack(paste)).float().unsqueeze(2),  # [B, F, 1, H, W]
             "inputs": inputs, "targets": targets,
+            # the true cameras of every frame (the pasted objects do not move the camera)
+            "c2w": torch.from_numpy(pool.c2w[scenes]),            # [B, F, 4, 4]
+            "fxfycxcy": torch.from_numpy(pool.fxfycxcy[scenes]),  # [B, F, 4]
         }

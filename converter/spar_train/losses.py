@@ -1,7 +1,7 @@
 """The paper's training losses (official model/spar_loss.py and the semantic part of
 model/spar.py), without the perceptual term: that needs VGG19 weights we do not have.
 
-  total = L_recon + 0.01 L_reg + 1.0 L_bce + 0.1 L_sem
+  total = L_recon + 0.01 L_reg + 1.0 L_bce + 0.1 L_sem  (+ pose_weight L_pose, off by default)
 
 L_recon: MSE weighted by the static probability 1 - P(dynamic) of the target pixels,
 normalized by the weights (gradients reach CV-DRP through the weights, as in the official
@@ -27,8 +27,25 @@ def semantic_cosine(rendered, teacher, weight=None):
     return (dist * weight).sum() / (weight.sum() + 1e-8)
 
 
+def camera_loss(c2w: torch.Tensor, fxfycxcy: torch.Tensor, true_c2w: torch.Tensor,
+                true_fxfycxcy: torch.Tensor) -> torch.Tensor:
+    """Supervision of the pose estimator by the generator's cameras (not in the paper's
+    self-supervised recipe; the official config's pose_loss_weight is 0 there). All [B, V, ...]
+    in the canonical view's frame. Rotations: squared Frobenius distance; positions: compared
+    after dividing each scene's by its mean distance from the canonical camera (the model's
+    scale is its own); intrinsics: squared error of the normalized values."""
+    l_rot = ((c2w[..., :3, :3] - true_c2w[..., :3, :3]) ** 2).sum((-1, -2)).mean()
+
+    def unit_scale(t):  # [B, V, 3] / mean over V of |t|
+        return t / t.norm(dim=-1).mean(dim=1, keepdim=True)[..., None].clamp(min=1e-6)
+
+    l_pos = ((unit_scale(c2w[..., :3, 3]) - unit_scale(true_c2w[..., :3, 3])) ** 2).sum(-1).mean()
+    l_k = ((fxfycxcy - true_fxfycxcy) ** 2).sum(-1).mean()
+    return l_rot + l_pos + l_k
+
+
 def spar_losses(out: dict, batch: dict, teacher_features: torch.Tensor,
-                dynamic_weighting: bool = True) -> dict:
+                dynamic_weighting: bool = True, pose_weight: float = 0.0) -> dict:
     b, t = batch["targets"].shape
     ar = torch.arange(b)[:, None]
     tg = batch["targets"]
@@ -65,7 +82,11 @@ def spar_losses(out: dict, batch: dict, teacher_features: torch.Tensor,
     l_sem = semantic_cosine(sem.flatten(0, 1), teacher_features, weight)
 
     total = L2_WEIGHT * l_recon + REG_WEIGHT * l_reg + BCE_WEIGHT * l_bce + SEM_WEIGHT * l_sem
+    l_pose = camera_loss(out["c2w"], out["fxfycxcy"], batch["c2w"].to(out["c2w"]),
+                         batch["fxfycxcy"].to(out["c2w"])) if "c2w" in batch else render.new_zeros(())
+    if pose_weight:
+        total = total + pose_weight * l_pose
     with torch.no_grad():
         psnr = -10.0 * torch.log10(F.mse_loss(render, target).clamp(min=1e-10))
     return {"loss": total, "recon": l_recon.detach(), "reg": l_reg.detach(),
-            "bce": l_bce.detach(), "sem": l_sem.detach(), "psnr": psnr}
+            "bce": l_bce.detach(), "sem": l_sem.detach(), "pose": l_pose.detach(), "psnr": psnr}

@@ -105,7 +105,8 @@ class Run:
         model.lseg_model.eval()
         self.log(f"training {sum(p.numel() for _, p in named) / 1e6:.2f} M parameters, "
                  f"{a.steps} steps of {a.batch} scenes, lr {a.lr}, "
-                 f"dynamic-region-aware loss {'off' if a.no_dynamic_loss else 'on'}")
+                 f"dynamic-region-aware loss {'off' if a.no_dynamic_loss else 'on'}, "
+                 f"camera loss weight {a.pose_loss}")
         t0 = time.time()
         acc = {}
         for step in range(a.steps):
@@ -116,7 +117,8 @@ class Run:
                 clean_targets = batch["clean"][ar, batch["targets"]].flatten(0, 1)
                 teacher = model.lseg_model(clean_targets)
             out = model(batch["images"], batch["inputs"], batch["targets"])
-            losses = spar_losses(out, batch, teacher, dynamic_weighting=not a.no_dynamic_loss)
+            losses = spar_losses(out, batch, teacher, dynamic_weighting=not a.no_dynamic_loss,
+                                 pose_weight=a.pose_loss)
             opt.zero_grad(set_to_none=True)
             losses["loss"].backward()
             gnorm = torch.nn.utils.clip_grad_norm_([p for _, p in named], 1.0)
@@ -131,6 +133,7 @@ class Run:
                 avg = {k: np.mean(v) for k, v in acc.items()}
                 self.log(f"step {step + 1}/{a.steps} loss {avg['loss']:.4f} recon {avg['recon']:.4f} "
                          f"sem {avg['sem']:.4f} bce {avg['bce']:.4f} reg {avg['reg']:.4f} "
+                         f"pose {avg['pose']:.4f} "
                          f"psnr {avg['psnr']:.2f} dB lr {sched.get_last_lr()[0]:.2e} "
                          f"{el / (step + 1):.2f} s/step, eta {eta / 60:.1f} min")
                 acc = {}
