@@ -28,22 +28,21 @@ Engine::Engine(const EngineOptions& options)
   memory_->limit(options.memoryLimitBytes);
 }
 
-void Engine::waitForSubmission(VkFence fence, const std::string& what) {
+void Engine::waitForSubmission(VkFence fence, const std::function<std::string()>& what) {
   const unsigned long long ms = options_.submitTimeoutMs;
   const bool injected = ++submissions_ == options_.faults.submission;
   // An injected timeout lets the work finish first, so that what follows the error (freeing
   // the submission's resources) is as valid as after a real submission.
   const uint64_t ns = ms && !injected && ms < UINT64_MAX / 1000000 ? ms * 1000000 : UINT64_MAX;
   const VkResult r = vkWaitForFences(device_->handle(), 1, &fence, VK_TRUE, ns);
-  if (r == VK_TIMEOUT || injected)
-  {
+  if (r == VK_TIMEOUT || injected) {
     char limit[32];
     std::snprintf(limit, sizeof(limit), "%g s", double(ms) / 1000.0);
-    throw Error("the device did not finish " + what + " within " + limit +
+    throw Error("the device did not finish " + what() + " within " + limit +
                 " (hung, lost or too slow; SPAR_SUBMIT_TIMEOUT_MS sets the limit)" +
                 (injected ? " (injected: submission " + std::to_string(submissions_) + ")" : ""));
   }
-  vkCheck(r, what.c_str());
+  if (r != VK_SUCCESS) vkCheck(r, what().c_str());
 }
 
 Engine::~Engine() {
@@ -105,7 +104,7 @@ void Engine::stagedCopy(const Tensor& t, void* data, size_t bytes, bool toDevice
   SPAR_VK(vkCreateFence(dev, &fenceInfo, nullptr, &fence));
   try {
     vkCheck(vkQueueSubmit(device_->queue(), 1, &submit, fence), "staged copy");
-    waitForSubmission(fence, "a staged copy");
+    waitForSubmission(fence, [] { return std::string("a staged copy"); });
   } catch (...) {
     vkDestroyFence(dev, fence, nullptr);
     vkDestroyCommandPool(dev, pool, nullptr);

@@ -1,5 +1,6 @@
 // The engine a model runs on: device, memory, pipelines, and tensor upload/download.
 #pragma once
+#include <functional>
 #include <memory>
 #include <span>
 #include <string>
@@ -49,8 +50,9 @@ class Engine {
   Tensor fromFloats(const Shape& shape, std::span<const float> values, DType dtype = DType::F32);
 
   // Waits for a submitted fence at most EngineOptions::submitTimeoutMs; throws Error naming
-  // `what` on a timeout (or the injected one, EngineOptions::faults.submission).
-  void waitForSubmission(VkFence fence, const std::string& what);
+  // what was submitted on a timeout (or the injected one, EngineOptions::faults.submission).
+  // `what` is called only then: every run() waits here, and the common case builds no text.
+  void waitForSubmission(VkFence fence, const std::function<std::string()>& what);
   unsigned long long submissions() const { return submissions_; }
 
  private:

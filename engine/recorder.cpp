@@ -302,8 +302,10 @@ void Recorder::submitPending() {
   submit.pCommandBuffers = &cmd_;
   SPAR_VK(vkResetFences(dev, 1, &fence_));
   SPAR_VK(vkQueueSubmit(engine_.device().queue(), 1, &submit, fence_));
-  engine_.waitForSubmission(fence_, "a submission of " + std::to_string(pending_.size()) + " dispatches" +
-                                         (stage_.empty() ? std::string() : " (stage " + stage_ + ")"));
+  engine_.waitForSubmission(fence_, [this] {
+    return "a submission of " + std::to_string(pending_.size()) + " dispatches" +
+           (stage_.empty() ? std::string() : " (stage " + stage_ + ")");
+  });
 
   if (profile_) collectTimings(pipelines);
   SPAR_VK(vkResetCommandBuffer(cmd_, 0));
