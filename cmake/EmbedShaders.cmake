@@ -18,6 +18,9 @@ function(spar_embed_shaders SET DIR OUT_SOURCES)
   set(table_text "")
   foreach(src IN LISTS shader_sources)
     file(STRINGS ${src} variant_lines REGEX "^//! variant ")
+    # "//! spirv coopmat-khr": written against GL_NV_cooperative_matrix (what Debian 12's
+    # glslang compiles) and rewritten into SPV_KHR_cooperative_matrix after compiling.
+    file(STRINGS ${src} coopmat_line REGEX "^//! spirv coopmat-khr")
     if(NOT variant_lines)
       message(FATAL_ERROR "${src} declares no '//! variant' line")
     endif()
@@ -30,13 +33,25 @@ function(spar_embed_shaders SET DIR OUT_SOURCES)
         list(APPEND defines "-D${d}")
       endforeach()
       set(out ${gen_dir}/${name}.h)
-      add_custom_command(
-        OUTPUT ${out}
-        COMMAND ${GLSLANG_VALIDATOR} -V --quiet --target-env vulkan1.2 ${defines}
-                -I${PROJECT_SOURCE_DIR}/shaders --vn spv_${name} -o ${out} ${src}
-        DEPENDS ${src} ${shader_includes}
-        COMMENT "glslang: ${name}"
-        VERBATIM)
+      if(coopmat_line)
+        add_custom_command(
+          OUTPUT ${out}
+          COMMAND ${GLSLANG_VALIDATOR} -V --quiet --target-env vulkan1.2 ${defines}
+                  -I${PROJECT_SOURCE_DIR}/shaders -o ${gen_dir}/${name}.nv.spv ${src}
+          COMMAND ${Python3_EXECUTABLE} ${PROJECT_SOURCE_DIR}/cmake/coopmat_nv_to_khr.py
+                  ${gen_dir}/${name}.nv.spv ${out} --vn spv_${name}
+          DEPENDS ${src} ${shader_includes} ${PROJECT_SOURCE_DIR}/cmake/coopmat_nv_to_khr.py
+          COMMENT "glslang + coopmat_nv_to_khr: ${name}"
+          VERBATIM)
+      else()
+        add_custom_command(
+          OUTPUT ${out}
+          COMMAND ${GLSLANG_VALIDATOR} -V --quiet --target-env vulkan1.2 ${defines}
+                  -I${PROJECT_SOURCE_DIR}/shaders --vn spv_${name} -o ${out} ${src}
+          DEPENDS ${src} ${shader_includes}
+          COMMENT "glslang: ${name}"
+          VERBATIM)
+      endif()
       list(APPEND headers ${out})
       string(APPEND includes_text "#include \"${name}.h\"\n")
       string(APPEND table_text "    {\"${name}\", spv_${name}, sizeof(spv_${name}) / sizeof(uint32_t)},\n")

@@ -6,6 +6,7 @@
 #include <cstring>
 #include <iostream>
 
+#include "engine/coopmat_khr.h"
 #include "engine/error.h"
 
 namespace spar {
@@ -96,6 +97,35 @@ bool layerAvailable(const char* name) {
   return false;
 }
 
+bool hasDeviceExtension(VkPhysicalDevice device, const char* name) {
+  uint32_t count = 0;
+  vkEnumerateDeviceExtensionProperties(device, nullptr, &count, nullptr);
+  std::vector<VkExtensionProperties> exts(count);
+  vkEnumerateDeviceExtensionProperties(device, nullptr, &count, exts.data());
+  for (const auto& e : exts)
+    if (std::strcmp(e.extensionName, name) == 0) return true;
+  return false;
+}
+
+// The subgroup-scope sizes of VK_KHR_cooperative_matrix (empty without the extension).
+std::vector<CoopMatSize> coopMatSizes(VkInstance instance, VkPhysicalDevice device) {
+  auto get = reinterpret_cast<PFN_vkGetPhysicalDeviceCooperativeMatrixPropertiesKHR>(
+      vkGetInstanceProcAddr(instance, "vkGetPhysicalDeviceCooperativeMatrixPropertiesKHR"));
+  std::vector<CoopMatSize> out;
+  if (!get) return out;
+  uint32_t count = 0;
+  if (get(device, &count, nullptr) != VK_SUCCESS || count == 0) return out;
+  std::vector<VkCooperativeMatrixPropertiesKHR> props(count);
+  for (auto& p : props) p = {VK_STRUCTURE_TYPE_COOPERATIVE_MATRIX_PROPERTIES_KHR};
+  if (get(device, &count, props.data()) != VK_SUCCESS) return out;
+  for (uint32_t i = 0; i < count; ++i) {
+    const auto& p = props[i];
+    if (p.scope != VK_SCOPE_SUBGROUP_KHR) continue;
+    out.push_back({p.MSize, p.NSize, p.KSize, int(p.AType), int(p.BType), int(p.CType), int(p.ResultType)});
+  }
+  return out;
+}
+
 bool texelFormatSupported(VkPhysicalDevice device, VkFormat format) {
   VkFormatProperties props{};
   vkGetPhysicalDeviceFormatProperties(device, format, &props);
@@ -143,6 +173,8 @@ Device::Device(const DeviceOptions& options) {
               << VK_API_VERSION_MAJOR(caps_.apiVersion) << "." << VK_API_VERSION_MINOR(caps_.apiVersion)
               << (caps_.driverInfo.empty() ? "" : ", " + caps_.driverInfo) << ")\n  features used: subgroup size " << caps_.subgroupSize
               << ", fp16 storage " << (caps_.supportsFp16Storage() ? "yes" : "no")
+              << ", fp16 arithmetic " << (caps_.shaderFloat16 ? "yes" : "no")
+              << ", cooperative matrices " << (caps_.cooperativeMatrix ? "yes" : "no")
               << ", timestamps " << (caps_.timestamps ? "yes" : "no")
               << ", host-visible device memory " << (caps_.hostVisibleDeviceLocal ? "yes" : "no (staging)")
               << ", max binding " << (caps_.maxStorageBufferRange >> 20) << " MiB"
@@ -213,6 +245,10 @@ void Device::readCaps() {
   VkPhysicalDeviceDriverProperties driver{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_DRIVER_PROPERTIES};
   VkPhysicalDeviceSubgroupProperties subgroup{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_PROPERTIES};
   subgroup.pNext = &driver;
+  VkPhysicalDeviceSubgroupSizeControlPropertiesEXT sizeControl{
+      VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_SIZE_CONTROL_PROPERTIES_EXT};
+  const bool hasSizeControl = hasDeviceExtension(physical_, VK_EXT_SUBGROUP_SIZE_CONTROL_EXTENSION_NAME);
+  if (hasSizeControl) driver.pNext = &sizeControl;
   VkPhysicalDeviceMaintenance3Properties maintenance3{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_MAINTENANCE_3_PROPERTIES};
   maintenance3.pNext = &subgroup;
   VkPhysicalDeviceProperties2 props2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_PROPERTIES_2};
@@ -227,7 +263,14 @@ void Device::readCaps() {
   caps_.driverInfo = driver.driverInfo;
   caps_.driverVersion = p.driverVersion;
   if (caps_.driverInfo.rfind("Mesa ", 0) == 0) caps_.mesaMajor = static_cast<uint32_t>(std::atoi(caps_.driverInfo.c_str() + 5));
+  caps_.vendorId = p.vendorID;
+  caps_.deviceId = p.deviceID;
   caps_.subgroupSize = subgroup.subgroupSize;
+  caps_.minSubgroupSize = hasSizeControl ? sizeControl.minSubgroupSize : subgroup.subgroupSize;
+  caps_.maxSubgroupSize = hasSizeControl ? sizeControl.maxSubgroupSize : subgroup.subgroupSize;
+  caps_.requiredSubgroupSize = hasSizeControl && (sizeControl.requiredSubgroupSizeStages & VK_SHADER_STAGE_COMPUTE_BIT);
+  caps_.subgroupArithmetic = (subgroup.supportedStages & VK_SHADER_STAGE_COMPUTE_BIT) &&
+                             (subgroup.supportedOperations & VK_SUBGROUP_FEATURE_ARITHMETIC_BIT);
   caps_.maxStorageBufferRange = l.maxStorageBufferRange;
   caps_.maxTexelBufferElements = l.maxTexelBufferElements;
   caps_.minStorageBufferOffsetAlignment = l.minStorageBufferOffsetAlignment;
@@ -262,6 +305,29 @@ void Device::readCaps() {
   vkGetPhysicalDeviceFeatures2(physical_, &features);
   caps_.shaderFloat16 = f12.shaderFloat16;
   caps_.storageBuffer16BitAccess = f11.storageBuffer16BitAccess;
+  if (hasSizeControl) {
+    VkPhysicalDeviceSubgroupSizeControlFeaturesEXT size{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_SIZE_CONTROL_FEATURES_EXT};
+    VkPhysicalDeviceFeatures2 f2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2};
+    f2.pNext = &size;
+    vkGetPhysicalDeviceFeatures2(physical_, &f2);
+    caps_.fullSubgroups = size.subgroupSizeControl && size.computeFullSubgroups;
+    caps_.requiredSubgroupSize = caps_.requiredSubgroupSize && size.subgroupSizeControl;
+  }
+  // The cooperative-matrix kernel's SPIR-V uses the Vulkan memory model (what glslang emits
+  // for cooperative-matrix loads and stores; with it on, the device scope of other kernels'
+  // atomics needs vulkanMemoryModelDeviceScope), and its subgroups must be full (SPIR-V
+  // before 1.6): all of them are needed.
+  if (f12.vulkanMemoryModel && f12.vulkanMemoryModelDeviceScope && caps_.fullSubgroups &&
+      hasDeviceExtension(physical_, VK_KHR_COOPERATIVE_MATRIX_EXTENSION_NAME)) {
+    VkPhysicalDeviceCooperativeMatrixFeaturesKHR coop{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_COOPERATIVE_MATRIX_FEATURES_KHR};
+    VkPhysicalDeviceFeatures2 f2{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2};
+    f2.pNext = &coop;
+    vkGetPhysicalDeviceFeatures2(physical_, &f2);
+    if (coop.cooperativeMatrix) {
+      caps_.coopMatSizes = coopMatSizes(instance_, physical_);
+      caps_.cooperativeMatrix = !caps_.coopMatSizes.empty();
+    }
+  }
   caps_.fp16TexelBuffers = texelFormatSupported(physical_, VK_FORMAT_R16G16B16A16_SFLOAT) &&
                            texelFormatSupported(physical_, VK_FORMAT_R16_SFLOAT);
   if (!texelFormatSupported(physical_, VK_FORMAT_R32G32B32A32_SFLOAT) ||
@@ -297,9 +363,31 @@ void Device::createLogicalDevice() {
   f12.shaderFloat16 = caps_.shaderFloat16;
   VkPhysicalDeviceFeatures2 features{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_FEATURES_2};
   features.pNext = &f11;
+  // Full subgroups (kernels that divide a workgroup among its subgroups) and cooperative
+  // matrices (the GEMM of fp16 weights on GPUs that have them).
+  std::vector<const char*> extensions;
+  void** tail = &f12.pNext;
+  VkPhysicalDeviceSubgroupSizeControlFeaturesEXT size{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_SUBGROUP_SIZE_CONTROL_FEATURES_EXT};
+  if (caps_.fullSubgroups) {
+    size.subgroupSizeControl = VK_TRUE;
+    size.computeFullSubgroups = VK_TRUE;
+    *tail = &size;
+    tail = &size.pNext;
+    extensions.push_back(VK_EXT_SUBGROUP_SIZE_CONTROL_EXTENSION_NAME);
+  }
+  VkPhysicalDeviceCooperativeMatrixFeaturesKHR coop{VK_STRUCTURE_TYPE_PHYSICAL_DEVICE_COOPERATIVE_MATRIX_FEATURES_KHR};
+  if (caps_.cooperativeMatrix) {
+    coop.cooperativeMatrix = VK_TRUE;
+    f12.vulkanMemoryModel = VK_TRUE;
+    f12.vulkanMemoryModelDeviceScope = VK_TRUE;  // the other kernels' device-scope atomics
+    *tail = &coop;
+    extensions.push_back(VK_KHR_COOPERATIVE_MATRIX_EXTENSION_NAME);
+  }
 
   VkDeviceCreateInfo info{VK_STRUCTURE_TYPE_DEVICE_CREATE_INFO};
   info.pNext = &features;
+  info.enabledExtensionCount = static_cast<uint32_t>(extensions.size());
+  info.ppEnabledExtensionNames = extensions.data();
   info.queueCreateInfoCount = 1;
   info.pQueueCreateInfos = &queueInfo;
   SPAR_VK(vkCreateDevice(physical_, &info, nullptr, &device_));

@@ -20,6 +20,14 @@ struct DeviceOptions {
   bool verbose = false;
 };
 
+// One matrix multiply-add a subgroup can do on VK_KHR_cooperative_matrix: an M x K matrix A
+// times a K x N matrix B plus an M x N matrix C (component types as the extension numbers
+// them: 0 fp16, 1 fp32; only subgroup-scope entries are kept).
+struct CoopMatSize {
+  uint32_t m = 0, n = 0, k = 0;
+  int aType = -1, bType = -1, cType = -1, resultType = -1;
+};
+
 // What the engine reads off the device to choose kernels, tile sizes and binding ranges.
 struct DeviceCaps {
   std::string name;
@@ -29,7 +37,16 @@ struct DeviceCaps {
   uint32_t driverVersion = 0;  // vendor-encoded (lavapipe reports 1: its version is in driverInfo)
   uint32_t mesaMajor = 0;      // Mesa drivers: the major version from driverInfo (22, 25, ...); else 0
   uint32_t apiVersion = 0;
+  uint32_t vendorId = 0, deviceId = 0;
   uint32_t subgroupSize = 1;
+  bool subgroupArithmetic = false;   // subgroupAdd / subgroupMax in compute shaders
+  // VK_EXT_subgroup_size_control, enabled: pipelines can require full subgroups (and, where
+  // requiredSubgroupSizeStages has compute, a size between min and max).
+  bool fullSubgroups = false;
+  uint32_t minSubgroupSize = 0, maxSubgroupSize = 0;
+  bool requiredSubgroupSize = false;
+  bool cooperativeMatrix = false;    // VK_KHR_cooperative_matrix, enabled (needs fullSubgroups)
+  std::vector<CoopMatSize> coopMatSizes;
   uint64_t maxStorageBufferRange = 0;
   uint64_t maxTexelBufferElements = 0;
   uint64_t minStorageBufferOffsetAlignment = 1;

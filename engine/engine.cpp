@@ -7,6 +7,7 @@
 
 #include "engine/error.h"
 #include "engine/half.h"
+#include "engine/kernel_tuner.h"
 
 namespace spar {
 
@@ -26,6 +27,30 @@ Engine::Engine(const EngineOptions& options)
       pipelines_(std::make_unique<PipelineCache>(*device_, options.pipelineCacheFile, options.logPipelines)) {
   memory_->failAllocation(options.faults.allocation);
   memory_->limit(options.memoryLimitBytes);
+  plan_ = planKernels(device_->caps(), options_.tuning);
+}
+
+void Engine::setTuning(const KernelTuning& tuning) {
+  tuning.validate();
+  KernelPlan plan = planKernels(device_->caps(), tuning);
+  options_.tuning = tuning;
+  plan_ = std::move(plan);
+}
+
+const KernelPlan& Engine::plan() {
+  if (plan_.measureGemm && !planning_) {
+    planning_ = true;
+    try {
+      chooseGemmTilesByMeasurement(*this, plan_);
+    } catch (...) {
+      planning_ = false;
+      plan_.measureGemm = false;
+      throw;
+    }
+    planning_ = false;
+    plan_.measureGemm = false;
+  }
+  return plan_;
 }
 
 void Engine::waitForSubmission(VkFence fence, const std::function<std::string()>& what) {

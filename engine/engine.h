@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "engine/device.h"
+#include "engine/kernel_plan.h"
 #include "engine/memory.h"
 #include "engine/pipeline.h"
 #include "engine/tensor.h"
@@ -28,10 +29,11 @@ class Engine {
   const EngineOptions& options() const { return options_; }
   // Replaces the tile overrides between batches (tests run one device's kernel shapes on
   // another; kernels are keyed by their shapes, so nothing made earlier goes stale).
-  void setTuning(const KernelTuning& tuning) {
-    tuning.validate();
-    options_.tuning = tuning;
-  }
+  void setTuning(const KernelTuning& tuning);
+  // Which kernel family and tiles each op uses here (engine/kernel_plan.h). The first call on
+  // a GPU may measure the GEMM tile candidates (engine/kernel_tuner.h) or read the earlier
+  // measurement from kernel-choice.json beside the pipeline cache file.
+  const KernelPlan& plan();
   Device& device() { return *device_; }
   const DeviceCaps& caps() const { return device_->caps(); }
   MemoryAllocator& memory() { return *memory_; }
@@ -63,6 +65,8 @@ class Engine {
   std::unique_ptr<MemoryAllocator> memory_;
   std::unique_ptr<PipelineCache> pipelines_;
   unsigned long long submissions_ = 0;
+  KernelPlan plan_;
+  bool planning_ = false;  // measuring: the tuner's own GEMMs use the plan as it stands
 };
 
 }  // namespace spar

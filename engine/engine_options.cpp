@@ -68,6 +68,17 @@ void KernelTuning::validate() const {
     throw Error("attention tiles (SPAR_ATTENTION_TILES): keys per block must be a multiple of 4");
   positive(convTiles, "conv2d tiles (SPAR_CONV_TILES: RC,RY,RX,LX,LY)");
   positive(convTransposeTiles, "conv_transpose2d tiles (SPAR_CONVT_TILES: RC,RY,RX,LX,LY)");
+  positive(gpuGemmTiles, "GPU GEMM tiles (SPAR_GPU_GEMM_TILES: BM,BN,BK,TM,TN)");
+  if (gpuGemmTiles) {
+    const auto [bm, bn, bk, tm, tn] = *gpuGemmTiles;
+    if (bm % tm || bn % tn || bk % 4 || (bm / tm) * (bn / tn) > 1024)
+      throw Error("GPU GEMM tiles (SPAR_GPU_GEMM_TILES): BM, BN multiples of TM, TN, BK of 4, at most 1024 invocations");
+  }
+  positive(gpuAttentionTiles, "GPU attention tiles (SPAR_GPU_ATTENTION_TILES: QUERIES,KEYS)");
+  if (gpuAttentionTiles && ((*gpuAttentionTiles)[0] > 1024 || (*gpuAttentionTiles)[1] % 4))
+    throw Error("GPU attention tiles (SPAR_GPU_ATTENTION_TILES): at most 1024 queries, keys a multiple of 4");
+  if (!kernels.empty() && kernels != "cpu" && kernels != "gpu" && kernels != "gpu-fp16" && kernels != "coopmat")
+    throw Error("kernel family (SPAR_KERNELS) must be cpu, gpu, gpu-fp16 or coopmat, got '" + kernels + "'");
   if (lineGroup) {
     const auto [split, x, y] = *lineGroup;
     if ((split != 0 && split != 1) || x <= 0 || x % 8 || y <= 0)
@@ -92,6 +103,12 @@ EngineOptions EngineOptions::fromEnvironment(EngineOptions base) {
   if (!t.convTiles) t.convTiles = ints<5>("SPAR_CONV_TILES", "RC,RY,RX,LX,LY");
   if (!t.convTransposeTiles) t.convTransposeTiles = ints<5>("SPAR_CONVT_TILES", "RC,RY,RX,LX,LY");
   if (!t.lineGroup) t.lineGroup = ints<3>("SPAR_LINE_GROUP", "SPLIT,LX,LY");
+  if (t.kernels.empty())
+    if (const char* k = env("SPAR_KERNELS")) t.kernels = k;
+  if (!t.gpuGemmTiles) t.gpuGemmTiles = ints<5>("SPAR_GPU_GEMM_TILES", "BM,BN,BK,TM,TN");
+  if (!t.gpuAttentionTiles) t.gpuAttentionTiles = ints<2>("SPAR_GPU_ATTENTION_TILES", "QUERIES,KEYS");
+  if (!t.measureKernels)
+    if (const char* m = env("SPAR_MEASURE_KERNELS")) t.measureKernels = std::string(m) != "0";
   t.validate();
   return o;
 }

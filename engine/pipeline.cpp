@@ -20,6 +20,7 @@ std::string keyOf(const KernelSpec& spec) {
   for (auto b : spec.bindings) key += static_cast<char>('0' + static_cast<int>(b));
   key += "|" + std::to_string(spec.pushBytes) + "|";
   for (auto c : spec.constants) key += std::to_string(c) + ",";
+  if (spec.subgroupSize) key += "|sg" + std::to_string(spec.subgroupSize);
   return key;
 }
 
@@ -147,6 +148,17 @@ VkPipeline PipelineCache::build(const Kernel& kernel, double* ms) {
   info.stage.module = module;
   info.stage.pName = "main";
   info.stage.pSpecializationInfo = &specInfo;
+  VkPipelineShaderStageRequiredSubgroupSizeCreateInfoEXT requiredSize{
+      VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_REQUIRED_SUBGROUP_SIZE_CREATE_INFO_EXT};
+  if (kernel.spec.subgroupSize) {
+    const DeviceCaps& caps = device_.caps();
+    if (!caps.fullSubgroups) throw Error("kernel " + kernel.name + " needs full subgroups (VK_EXT_subgroup_size_control)");
+    info.stage.flags = VK_PIPELINE_SHADER_STAGE_CREATE_REQUIRE_FULL_SUBGROUPS_BIT_EXT;
+    if (caps.requiredSubgroupSize && caps.minSubgroupSize != caps.maxSubgroupSize) {
+      requiredSize.requiredSubgroupSize = kernel.spec.subgroupSize;
+      info.stage.pNext = &requiredSize;
+    }
+  }
   info.layout = kernel.layout;
   VkPipeline pipeline = VK_NULL_HANDLE;
   const auto t0 = std::chrono::steady_clock::now();

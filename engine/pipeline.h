@@ -37,6 +37,10 @@ struct KernelSpec {
   // Specialization constants by constant_id 0, 1, 2, ...; ids 0-2 are the workgroup size
   // (local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in every shader.
   std::vector<int32_t> constants;
+  // Non-zero: the kernel divides its workgroup among subgroups of this size (constant 0, the
+  // workgroup's x size, is a multiple of it): the pipeline requires full subgroups, and this
+  // size where the device lets a pipeline choose (DeviceCaps::requiredSubgroupSize).
+  uint32_t subgroupSize = 0;
 };
 
 struct Kernel {

@@ -11,6 +11,10 @@
 // Partial results meet in shared memory and are combined in lane order, so every invocation
 // of a line gets the same value. Every invocation must call the reductions (they contain
 // barriers): invocations past the last line take part with neutral values.
+// SUBGROUP (variants *_sg, GPUs with subgroup arithmetic; the host gives such a workgroup one
+// split line, LY = 1, so every subgroup lies inside the line whatever the device's mapping of
+// invocations to subgroups): each subgroup reduces its lanes with one subgroup operation and
+// the subgroups' results meet in shared memory, combined in subgroup order.
 
 layout(constant_id = 3) const bool SPLIT_LINES = true;
 // VEC4: a line is read in units of a vec4 (4 consecutive values; line length, strides and
@@ -34,8 +38,29 @@ uint lineIndex() {
 
 shared float lineShared[gl_WorkGroupSize.x * gl_WorkGroupSize.y];
 
+#ifndef SUBGROUP
+#define SUBGROUP 0
+#endif
+#if SUBGROUP
+#extension GL_KHR_shader_subgroup_arithmetic : require
+#extension GL_KHR_shader_subgroup_basic : require
+// op: 0 sum, 1 max.
+float subgroupLineReduce(float v, int op) {
+  const float s = op == 0 ? subgroupAdd(v) : subgroupMax(v);
+  if (subgroupElect()) lineShared[gl_SubgroupID] = s;
+  barrier();
+  float r = lineShared[0];
+  for (uint j = 1; j < gl_NumSubgroups; ++j) r = op == 0 ? r + lineShared[j] : max(r, lineShared[j]);
+  barrier();
+  return r;
+}
+#endif
+
 float lineSum(float v) {
   if (!SPLIT_LINES) return v;
+#if SUBGROUP
+  return subgroupLineReduce(v, 0);
+#endif
   const uint row = gl_LocalInvocationID.y * gl_WorkGroupSize.x;
   lineShared[row + gl_LocalInvocationID.x] = v;
   barrier();
@@ -47,6 +72,9 @@ float lineSum(float v) {
 
 float lineMax(float v) {
   if (!SPLIT_LINES) return v;
+#if SUBGROUP
+  return subgroupLineReduce(v, 1);
+#endif
   const uint row = gl_LocalInvocationID.y * gl_WorkGroupSize.x;
   lineShared[row + gl_LocalInvocationID.x] = v;
   barrier();

@@ -13,6 +13,10 @@
 //! variant layernorm_inplace NORM=0 IN_PLACE=1
 //! variant rmsnorm NORM=1 IN_PLACE=0
 //! variant rmsnorm_inplace NORM=1 IN_PLACE=1
+//! variant layernorm_sg NORM=0 IN_PLACE=0 SUBGROUP=1
+//! variant layernorm_inplace_sg NORM=0 IN_PLACE=1 SUBGROUP=1
+//! variant rmsnorm_sg NORM=1 IN_PLACE=0 SUBGROUP=1
+//! variant rmsnorm_inplace_sg NORM=1 IN_PLACE=1 SUBGROUP=1
 #extension GL_GOOGLE_include_directive : require
 #include "common.glsl"
 

@@ -14,6 +14,10 @@
 //! variant l2normalize OP=1 IN_PLACE=0
 //! variant l2normalize_inplace OP=1 IN_PLACE=1
 //! variant argmax OP=2 IN_PLACE=0
+//! variant softmax_sg OP=0 IN_PLACE=0 SUBGROUP=1
+//! variant softmax_inplace_sg OP=0 IN_PLACE=1 SUBGROUP=1
+//! variant l2normalize_sg OP=1 IN_PLACE=0 SUBGROUP=1
+//! variant l2normalize_inplace_sg OP=1 IN_PLACE=1 SUBGROUP=1
 #extension GL_GOOGLE_include_directive : require
 #include "common.glsl"
 

@@ -38,6 +38,9 @@ struct CaseOptions {
 // Runs the case and checks all stages; returns the pipeline's stage times for further checks.
 std::vector<StageTime> runGoldenCase(Engine& engine, const std::string& caseName, const CaseOptions& options);
 
+// Per-stage NMSE thresholds of the pipeline with fp16 weights (measured; see pipeline_check.cpp).
+const std::map<std::string, double>& fp16WeightThresholds();
+
 // The input images of a case, prepared by the engine (imaging/image_prep.h).
 std::vector<float> prepareFrames(const GoldenCase& g, int64_t h, int64_t w);
 

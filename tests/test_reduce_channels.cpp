@@ -344,8 +344,12 @@ TEST_F(EngineTest, ArgmaxNaNAndInfinity) {
 // The workgroup shapes other devices get (lines split over 16-64 invocations, several lines
 // a workgroup) give the same results as lavapipe's.
 TEST_F(EngineTest, ReduceChannelsWorkgroupShapesAgree) {
-  for (const std::array<int, 3> group : {std::array{1, 16, 4}, {1, 64, 2}, {1, 8, 3}, {0, 16, 2}, {0, 8, 1}}) {
-    KernelTuning tuning;
+  // {1, LX, 1}: one split line a workgroup, the subgroup-reduction variants where the plan has
+  // them (the GPU family: SPAR_KERNELS=gpu).
+  const KernelTuning saved = eng().options().tuning;
+  for (const std::array<int, 3> group :
+       {std::array{1, 16, 4}, {1, 64, 2}, {1, 8, 3}, {0, 16, 2}, {0, 8, 1}, {1, 64, 1}, {1, 8, 1}}) {
+    KernelTuning tuning = saved;
     tuning.lineGroup = group;
     eng().setTuning(tuning);
     const std::string shape = std::to_string(group[0]) + "," + std::to_string(group[1]) + "," + std::to_string(group[2]);
@@ -372,7 +376,7 @@ TEST_F(EngineTest, ReduceChannelsWorkgroupShapesAgree) {
       l2.expectAllWritten();
     }
   }
-  eng().setTuning({});
+  eng().setTuning(saved);
 }
 
 TEST_F(EngineTest, ReduceChannelsRejectsBadShapes) {

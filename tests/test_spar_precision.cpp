@@ -1,7 +1,7 @@
 // fp16 weights (SparPipelineOptions::weightType = F16, or a `spar-convert --fp16` pack) through
 // the whole photometric pipeline on the tiny model, against the PyTorch reference's float64
 // goldens (fixture spar_goldens), stage by stage (tests/pipeline_check.*):
-//  - every stage within the fp16 thresholds below (measured, see kFp16), motion masks identical
+//  - every stage within the fp16 thresholds (measured, fp16WeightThresholds in pipeline_check.cpp), motion masks identical
 //    except near the threshold;
 //  - a --fp16 pack (made here from the fixture's checkpoint) and F16 at upload from the F32
 //    file load the same weights (up to one fp16 step where the converter folded BatchNorm) and
@@ -28,43 +28,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-// NMSE thresholds of the fp16-weight pipeline against float64, per stage. Measured on the tiny
-// perturbed model, largest over the interleaved, odd_targets, static, path and --fp16-pack cases
-// (NMSE, max abs in the comment); thresholds are 10x the NMSE, or the fp32 threshold
-// (tests/pipeline_check.cpp, 1e-10) where that is larger. Rounding a weight to fp16 is a relative
-// error up to 2^-11 (NMSE ~ 1e-7 on one product); the token stages carry 4e-8 of it, while the
-// cameras (from a 9- and a 1-row head on pooled tokens), the CV-DRP logits (dominated by the
-// decoder's bias) and rgb (after the sigmoid) barely see it. pe_code reads no weight: fp32 check.
-const std::map<std::string, double> kFp16 = {
-    {"img_tokens_raw", 5e-7},        // 4.1e-8, max abs 3.4e-4
-    {"img_tokens", 4e-7},            // 3.6e-8, 3.4e-4
-    {"cam_tokens_in", 1e-8},         // 9.9e-10, 6.8e-6
-    {"pose_encoder_out", 4e-7},      // 3.6e-8, 3.4e-4
-    {"cam_tokens", 4e-8},            // 3.2e-9, 1.2e-5
-    {"c2w", 1e-10},                  // 9.6e-12, 4.0e-6
-    {"fxfycxcy", 1e-10},             // 2.0e-12, 2.0e-6
-    {"plucker", 2e-10},              // 1.1e-11, 4.2e-6
-    {"ray_tokens", 4e-7},            // 3.9e-8, 2.0e-4
-    {"dino", 9e-7},                  // 8.3e-8, 1.7e-3
-    {"cv_drp_input.logits", 1e-10},  // 6.7e-12, 3.7e-6
-    {"cv_drp_input.prob", 1e-10},    // 1.4e-12, 8.2e-7
-    {"dynamic_patch", 1e-10},        // 1.5e-12, 5.7e-7
-    {"cv_drp_target.logits", 1e-10}, // 6.7e-12, 3.7e-6
-    {"cv_drp_target.prob", 1e-10},   // 1.4e-12, 8.2e-7
-    {"fused_tokens", 4e-8},          // 3.7e-9, 2.5e-5
-    {"gated_tokens", 4e-8},          // 3.7e-9, 2.5e-5
-    {"scene_encoder_in", 4e-8},      // 3.7e-9, 2.5e-5
-    {"scene_encoder_out", 7e-8},     // 6.7e-9, 3.4e-5
-    {"scene_tokens", 5e-7},          // 4.0e-8, 1.9e-5
-    {"render_c2w", 2e-10},           // 1.2e-11, 4.0e-6
-    {"render_fxfycxcy", 1e-10},      // 1.9e-12, 1.9e-6
-    {"render_plucker", 2e-10},       // 1.4e-11, 4.2e-6
-    {"rgb_queries", 4e-7},           // 3.8e-8, 2.2e-4
-    {"decoder_in", 5e-7},            // 4.2e-8, 7.6e-4
-    {"decoder_out", 5e-7},           // 4.2e-8, 7.5e-4
-    {"rgb_tokens", 5e-7},            // 4.2e-8, 7.5e-4
-    {"rgb", 6e-9},                   // 5.1e-10, 4.7e-5
-};
 // P(dynamic) moves by at most 8.2e-7 with fp16 weights (measured, above): a reference
 // probability within 1e-4 of the threshold may land on either side (measured: no mask pixel
 // differs, and none is that close).
@@ -72,7 +35,7 @@ constexpr double kMaskTieBand = 1e-4;
 
 CaseOptions fp16Case(CaseOptions o) {
   o.weightType = DType::F16;
-  o.thresholds = kFp16;
+  o.thresholds = fp16WeightThresholds();
   o.maskTieBand = kMaskTieBand;
   return o;
 }

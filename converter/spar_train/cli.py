@@ -33,6 +33,10 @@ def main(argv=None) -> int:
     p.add_argument("--pose-loss", type=float, default=0.0, metavar="W",
                    help="weight of a camera loss against the generator's true cameras (not in the "
                         "paper's self-supervised recipe; 0, the default, leaves it out)")
+    p.add_argument("--input-targets", type=int, default=0, metavar="N",
+                   help="also render each scene's first N input views as targets (reconstruction of "
+                        "what the model saw; not in the paper's recipe, which renders only the "
+                        "other views; 0, the default, leaves it out)")
     p.add_argument("--profile", type=int, default=0, metavar="N",
                    help="instead of training: time N steps of the recipe by part (profile.json)")
     a = p.parse_args(argv)

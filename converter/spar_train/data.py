@@ -77,8 +77,11 @@ class Sampler:
     augmented with probability p_copy_paste (the official copy_paste.prob)."""
 
     def __init__(self, pool: ScenePool, seed: int, p_dynamic: float = 0.5,
-                 p_copy_paste: float = 0.5, views_range=(2, 4)):
+                 p_copy_paste: float = 0.5, views_range=(2, 4), input_targets: int = 0):
         self.pool = pool
+        # input views also rendered as targets (each scene's first `input_targets` inputs, in
+        # sequence order); 0 is the paper's recipe (targets are the other views only)
+        self.input_targets = input_targets
         self.rng = np.random.default_rng([seed, 101])
         self.p_dynamic, self.p_copy_paste = p_dynamic, p_copy_paste
         self.views_range = views_range
@@ -112,8 +115,10 @@ class Sampler:
                 clean.append(static["rgb"])
         order = [np.sort(rng.permutation(f)[:k]) for _ in range(b)]
         inputs = torch.as_tensor(np.stack(order), dtype=torch.long)
-        targets = torch.as_tensor(np.stack([np.setdiff1d(np.arange(f), o) for o in order]),
-                                  dtype=torch.long)
+        t_idx = [np.setdiff1d(np.arange(f), o) for o in order]
+        if self.input_targets:
+            t_idx = [np.sort(np.concatenate([t, o[:self.input_targets]])) for t, o in zip(t_idx, order)]
+        targets = torch.as_tensor(np.stack(t_idx), dtype=torch.long)
         return {
             "kind": kind,
             "images": to_tensor(np.stack(imgs)),          # [B, F, 3, H, W] what the model sees

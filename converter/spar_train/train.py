@@ -93,7 +93,7 @@ class Run:
         pool = ScenePool(a.scenes, 8, 128, os.path.join(a.out, "..", "scene-cache")
                          if a.cache is None else a.cache, log=self.log)
         model = self.build(pool)
-        sampler = Sampler(pool, a.seed)
+        sampler = Sampler(pool, a.seed, input_targets=a.input_targets)
         named = [(k, p) for k, p in model.named_parameters() if p.requires_grad]
         groups = [{"params": [p for _, p in named if p.dim() != 1], "weight_decay": 0.05},
                   {"params": [p for _, p in named if p.dim() == 1], "weight_decay": 0.0}]

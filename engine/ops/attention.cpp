@@ -1,5 +1,6 @@
 #include "engine/ops/attention.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -53,7 +54,33 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   if (out.tensor.bytes() > engine.device().bindingRangeLimit())
     throw Error("attention: output " + out.tensor.describe() + " exceeds the device's storage binding range");
 
-  const bool cpu = engine.caps().isCpu();
+  const float s = scale != 0.0f ? scale : 1.0f / std::sqrt(static_cast<float>(headDim));
+  AttentionPush push{int32_t(gq.rows), int32_t(gk.rows),
+                     int32_t(gq.cols), int32_t(gk.cols), int32_t(gv.cols), int32_t(go.cols),
+                     int32_t(q.column), int32_t(k.column), int32_t(v.column), int32_t(out.column),
+                     int32_t(gq.rows * gq.cols), int32_t(gk.rows * gk.cols), int32_t(gv.rows * gv.cols),
+                     int32_t(go.rows * go.cols), s * 1.4426950408889634f};
+  const std::vector<Arg> args = {Arg::texel(q.tensor, 4), Arg::texel(k.tensor, 4), Arg::texel(v.tensor, 4),
+                                 Arg::out(out.tensor)};
+  const bool f16Out = out.tensor.dtype() == DType::F16;
+
+  const KernelPlan& plan = engine.plan();
+  if (plan.attention == KernelFamily::Tiled) {
+    // GPU family (shaders/attention_tiled.comp): a workgroup per block of queries of a head;
+    // keys per block bounded by the shared memory their k and v rows take.
+    const int queries = std::min<int>(plan.attentionQueries, int(engine.caps().maxWorkGroupInvocations));
+    int keys = plan.attentionKeys;
+    while (keys > 4 && uint64_t(keys) * headDim * 8 > engine.caps().maxSharedMemory) keys /= 2;
+    const Kernel& kernel = engine.kernel({f16Out ? "attention_tiled_f16out" : "attention_tiled_f32",
+                                          {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                                          sizeof(AttentionPush),
+                                          {queries, 1, 1, headDim, keys, causal ? 1 : 0}});
+    rec.dispatch(kernel, args, push, static_cast<uint32_t>((gq.rows + queries - 1) / queries),
+                 static_cast<uint32_t>(heads), static_cast<uint32_t>(gq.batch));
+    return;
+  }
+
+  const bool cpu = plan.cpuShapes;
   // CPU: 8 queries per invocation; blocks of 16 keys for 64-wide heads (spar-bench's case,
   // 20-27 GFLOPS), 8 for narrower ones, which runs as fast there and compiles in 60 % of the
   // time (Mesa 22.3, 32-wide heads: 2.1 s instead of 3.5 s). Mesa 25.0.7 compiles 3x slower:
@@ -69,21 +96,13 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
     keysPerBlock = (*t)[1];
     localX = (*t)[2];
   }
-  const Kernel& kernel = engine.kernel({out.tensor.dtype() == DType::F16 ? "attention_f16out" : "attention_f32",
+  const Kernel& kernel = engine.kernel({f16Out ? "attention_f16out" : "attention_f32",
                                         {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
                                         sizeof(AttentionPush),
                                         {localX, 1, 1, headDim, queriesPerInvocation, keysPerBlock, causal ? 1 : 0}});
-  const float s = scale != 0.0f ? scale : 1.0f / std::sqrt(static_cast<float>(headDim));
-  AttentionPush push{int32_t(gq.rows), int32_t(gk.rows),
-                     int32_t(gq.cols), int32_t(gk.cols), int32_t(gv.cols), int32_t(go.cols),
-                     int32_t(q.column), int32_t(k.column), int32_t(v.column), int32_t(out.column),
-                     int32_t(gq.rows * gq.cols), int32_t(gk.rows * gk.cols), int32_t(gv.rows * gv.cols),
-                     int32_t(go.rows * go.cols), s * 1.4426950408889634f};
   const int64_t perGroup = int64_t(queriesPerInvocation) * localX;
-  rec.dispatch(kernel,
-               {Arg::texel(q.tensor, 4), Arg::texel(k.tensor, 4), Arg::texel(v.tensor, 4), Arg::out(out.tensor)}, push,
-               static_cast<uint32_t>((gq.rows + perGroup - 1) / perGroup), static_cast<uint32_t>(heads),
-               static_cast<uint32_t>(gq.batch));
+  rec.dispatch(kernel, args, push, static_cast<uint32_t>((gq.rows + perGroup - 1) / perGroup),
+               static_cast<uint32_t>(heads), static_cast<uint32_t>(gq.batch));
 }
 
 }  // namespace spar

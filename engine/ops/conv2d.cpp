@@ -15,6 +15,57 @@ struct ConvPush {
   int32_t Cin, H, W, Cout, Ho, Wo, padY, padX, coBlocks, zBase, inBase, wBase, biasBase, outBase;
 };
 
+// shaders/gemm_tiled.comp, CONV: the push block of its convolution.
+struct ConvGemmPush {
+  int32_t Cin, H, W, Cout, Ho, Wo, padY, padX, wRow, inBase, wBase, biasBase, outBase, blocks, blockChannels, zBase;
+};
+
+// The GPU family: convolution as an implicit GEMM (M = output pixels of an image, N = Cout,
+// K = Cin*kh*kw, the weight as PyTorch stores it is the [N, K] matrix), one workgroup layer
+// per work unit (an image, or a block of its output channels when one image's output is
+// larger than a binding).
+void conv2dAsGemm(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
+                  const Conv2dParams& params) {
+  using namespace ops;
+  Engine& engine = rec.engine();
+  const DeviceCaps& caps = engine.caps();
+  const int64_t N = x.dim(0), Cin = x.dim(1), H = x.dim(2), W = x.dim(3);
+  const int64_t Cout = w.dim(0), KH = w.dim(2), KW = w.dim(3), Ho = y.dim(2), Wo = y.dim(3);
+  const int64_t depth = Cin * KH * KW;
+  const TiledGemmTiles& t = engine.plan().tilesFor(Ho * Wo, Cout, N);
+  const BoundRange wr = bindRange(caps, w, 0, w.numel(), true);
+  const BoundRange br = bias.defined() ? bindRange(caps, bias, 0, Cout, true) : wr;
+  // Weight rows as RGBA texels when they are whole texels from a texel-aligned start.
+  const int texelK = depth % 4 == 0 && wr.base % 4 == 0 ? 4 : 1;
+  if (wr.view.numel() / texelK > int64_t(caps.maxTexelBufferElements))
+    throw Error("conv2d: weight " + w.describe() + " exceeds the device's texel-buffer size");
+  const Kernel& kernel = engine.kernel({"conv2d_tiled_f32",
+                                        {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                                        sizeof(ConvGemmPush),
+                                        {t.invocations(), 1, 1, t.bm, t.bn, t.bk, t.tm, t.tn, texelK,
+                                         static_cast<int>(params.act), bias.defined(), int(KH), int(KW), params.stride}});
+  // Output channels per unit: all of them, unless an image's output is over a binding.
+  const int64_t plane = Ho * Wo;
+  const int64_t room = bindingElements(engine, false) - alignmentSlack(caps, false);
+  int64_t blockChannels = Cout;
+  if (blockChannels * plane > room) {
+    blockChannels = room / plane / t.bn * t.bn;
+    if (blockChannels == 0) blockChannels = std::max<int64_t>(1, room / plane);
+  }
+  const int64_t blocks = ceilDiv(Cout, blockChannels);
+  const uint32_t gx = ceilDiv(plane, t.bm), gy = ceilDiv(blockChannels, t.bn);
+  if (gx > caps.maxWorkGroupCount[0] || gy > caps.maxWorkGroupCount[1])
+    throw Error("conv2d: output " + y.describe() + " needs more workgroups than the device allows");
+  forEachUnitChunk(engine, x, y, N, Cout, blockChannels, plane, 1, "conv2d", [&](const UnitChunk& c) {
+    const ConvGemmPush push{int32_t(Cin), int32_t(H), int32_t(W), int32_t(Cout), int32_t(Ho), int32_t(Wo),
+                            params.padY, params.padX, int32_t(depth / texelK), int32_t(-c.in.base),
+                            int32_t(-wr.base / texelK), int32_t(-br.base), int32_t(-c.out.base), int32_t(blocks),
+                            int32_t(blockChannels), int32_t(c.u0)};
+    rec.dispatch(kernel, {Arg::texel(c.in.view, 1), Arg::texel(wr.view, texelK), Arg::texel(br.view, 1), Arg::out(c.out.view)},
+                 push, gx, gy, static_cast<uint32_t>(c.u1 - c.u0));
+  });
+}
+
 }  // namespace
 
 ConvTiles chooseConvTiles(const DeviceCaps& caps, const KernelTuning& tuning, int64_t kh, int64_t kw, int64_t cout) {
@@ -81,6 +132,7 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   for (const Tensor* t : {&x, &w, &y}) checkElementCount(*t, "conv2d");
   if (y.numel() == 0) return;
   if (Cin == 0) throw Error("conv2d: input has no channels");
+  if (engine.plan().conv == KernelFamily::Tiled) return conv2dAsGemm(rec, x, w, bias, y, params);
 
   const ConvTiles tiles = chooseConvTiles(caps, engine.options().tuning, KH, KW, Cout);
   // Weights and bias may sit at any offset: they are bound from an aligned start.

@@ -20,7 +20,8 @@ struct Tiles {
   int channels, rows, cols, localX, localY;
 };
 
-Tiles chooseTiles(const DeviceCaps& caps, const KernelTuning& tuning, int k, double multiplyAdds) {
+// cpu: the plan's CPU shapes (engine/kernel_plan.h).
+Tiles chooseTiles(const DeviceCaps& caps, bool cpu, const KernelTuning& tuning, int k, double multiplyAdds) {
   // EngineOptions::tuning.convTransposeTiles (SPAR_CONVT_TILES) overrides, for tuning with
   // spar-bench --only drp_.
   if (const auto& t = tuning.convTransposeTiles) return {(*t)[0], (*t)[1], (*t)[2], (*t)[3], (*t)[4]};
@@ -31,9 +32,9 @@ Tiles chooseTiles(const DeviceCaps& caps, const KernelTuning& tuning, int k, dou
   // cost. Mesa 25.0.7 compiles 3x slower and ran 64 outputs as fast: 4 channels x 1 row there,
   // 2 channels for k = 4 (4 took 4 s).
   const int lanes = ops::cpuLanes(caps);
-  if (caps.isCpu() && ops::cpuTiles(caps) == ops::CpuTiles::Newer) return {k > 4 ? 1 : k > 2 ? 2 : 4, 1, 4, lanes, 1};
-  if (caps.isCpu() && multiplyAdds < double(1 << 26)) return {k > 4 ? 1 : 4, 1, 4, lanes, 1};
-  if (caps.isCpu()) return {k > 4 ? 1 : 4, std::clamp(512 / (16 * k * k), 1, 4), 4, lanes, 1};
+  if (cpu && ops::cpuTiles(caps) == ops::CpuTiles::Newer) return {k > 4 ? 1 : k > 2 ? 2 : 4, 1, 4, lanes, 1};
+  if (cpu && multiplyAdds < double(1 << 26)) return {k > 4 ? 1 : 4, 1, 4, lanes, 1};
+  if (cpu) return {k > 4 ? 1 : 4, std::clamp(512 / (16 * k * k), 1, 4), 4, lanes, 1};
   return {2, 1, 4, 16, 8};
 }
 
@@ -64,7 +65,7 @@ void convTranspose2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tens
   if (Cin == 0) throw Error("convTranspose2d: input has no channels");
 
   const int ks = static_cast<int>(k);
-  const Tiles tiles = chooseTiles(caps, engine.options().tuning, ks, double(N) * double(Cin) * double(Cout) * double(H * W) * double(k * k));
+  const Tiles tiles = chooseTiles(caps, engine.plan().cpuShapes, engine.options().tuning, ks, double(N) * double(Cin) * double(Cout) * double(H * W) * double(k * k));
   const BoundRange wr = bindRange(caps, w, 0, w.numel(), true);
   const BoundRange br = bias.defined() ? bindRange(caps, bias, 0, Cout, true) : wr;
   const bool rgbaW = (k * k) % 4 == 0 && wr.base % 4 == 0;

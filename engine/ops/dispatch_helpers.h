@@ -73,21 +73,26 @@ inline bool sameMemory(const Tensor& a, const Tensor& b) {
 struct LineGroup {
   bool split = true;
   int localX = 8, localY = 1;
+  // The *_sg shader variants: split lines, one a workgroup, reduced with subgroup operations.
+  bool subgroup = false;
   uint64_t linesPerGroup() const { return split ? uint64_t(localY) : uint64_t(localX) * localY; }
 };
 // lineLength counts the units a kernel loads (vec4s or values); contiguous: a line's values
 // are adjacent in memory (rows), not strided (NCHW channels).
-// CPU (lavapipe): an invocation per line unless lines are long and too few to keep the
+// CPU shapes (the plan's, engine/kernel_plan.h; lavapipe): an invocation per line unless lines are long and too few to keep the
 // cores busy (splitting costs barriers, which are coroutine switches there: LayerNorm of
 // 4096 x 1024 took ~10 ms unsplit, ~15 ms split). GPU: long contiguous lines are split so that
-// neighbouring invocations read neighbouring addresses.
+// neighbouring invocations read neighbouring addresses; with the plan's subgroup reductions a
+// split line is a workgroup of its own, reduced by the *_sg variants.
 // EngineOptions::tuning.lineGroup (SPAR_LINE_GROUP="SPLIT,LX,LY", SPLIT 0 or 1) overrides the choice, for tuning and for
 // testing the GPU shapes on a CPU device.
-inline LineGroup lineGroupFor(const DeviceCaps& caps, const KernelTuning& tuning, int64_t lineLength, bool contiguous,
-                              int64_t lines) {
-  if (const auto& t = tuning.lineGroup) return {(*t)[0] == 1, (*t)[1], (*t)[2]};
+inline LineGroup lineGroupFor(Engine& engine, int64_t lineLength, bool contiguous, int64_t lines) {
+  const DeviceCaps& caps = engine.caps();
+  const KernelTuning& tuning = engine.options().tuning;
+  const bool subgroups = engine.plan().subgroupReductions;
+  if (const auto& t = tuning.lineGroup) return {(*t)[0] == 1, (*t)[1], (*t)[2], subgroups && (*t)[0] == 1 && (*t)[2] == 1};
   const int simd = std::max(8, static_cast<int>((caps.subgroupSize + 7) / 8 * 8));
-  if (caps.isCpu()) {
+  if (engine.plan().cpuShapes) {
     const bool split = lineLength >= 32 && lines < 512;
     return {split, simd, split ? 1 : 8};
   }
@@ -95,6 +100,8 @@ inline LineGroup lineGroupFor(const DeviceCaps& caps, const KernelTuning& tuning
   if (!split) return {false, std::max(simd, 64), 1};
   int lanes = simd;
   while (lanes < 64 && lanes < lineLength) lanes *= 2;
+  // With subgroup reductions a workgroup is one line (see line_reduce.glsl, SUBGROUP).
+  if (subgroups) return {true, lanes, 1, true};
   return {true, lanes, std::max(1, 256 / lanes)};
 }
 

@@ -6,6 +6,7 @@
 
 #include "engine/engine.h"
 #include "engine/error.h"
+#include "engine/kernel_plan.h"
 #include "engine/ops/cpu_tiles.h"
 #include "engine/ops/op_support.h"
 
@@ -15,6 +16,65 @@ namespace {
 struct GemmPush {
   int32_t M, N, K, ldx, ldw, ldy, xBatch, wBatch, yBatch;
 };
+
+// The kernel of a product and the outputs one workgroup covers (rows x columns).
+struct GemmLaunch {
+  const Kernel* kernel;
+  int64_t rowsPerGroup, colsPerGroup;
+};
+
+// By the device's plan (engine/kernel_plan.h): gemm.comp's register blocks on CPU devices,
+// gemm_tiled.comp's shared-memory tiles on GPUs (fp16 arithmetic for fp16 weights where the
+// plan says so), gemm_coopmat.comp for fp16 weights where the device has cooperative matrices.
+GemmLaunch gemmLaunch(Engine& engine, DType wType, DType yType, int64_t M, int64_t N, int64_t B, int64_t K, int texelK,
+                      Activation act, bool hasBias) {
+  const DeviceCaps& caps = engine.caps();
+  const KernelPlan& plan = engine.plan();
+  const bool f16Out = yType == DType::F16;
+  const KernelFamily family = wType == DType::F16 ? plan.gemmF16 : plan.gemm;
+  if (family == KernelFamily::CoopMat) {
+    const CoopMatTiles& c = plan.coop;
+    // Full subgroups of the largest size the device may use (what REQUIRE_FULL_SUBGROUPS
+    // needs the workgroup's x size to be a multiple of); the shader counts them itself.
+    const uint32_t subgroup = caps.maxSubgroupSize;
+    const int local = int(subgroup) * c.sgM * c.sgN;
+    std::vector<int32_t> constants = {local, 1, 1, c.sgM, c.sgN, c.wm, c.wn, c.kSteps, texelK, static_cast<int>(act),
+                                      hasBias};
+    constants.resize(20, 0);  // ids 11-19 unused; 20-22 the multiply-add shape
+    constants.insert(constants.end(), {c.m, c.n, c.k});
+    const Kernel& k = engine.kernel({f16Out ? "gemm_coopmat_f16out" : "gemm_coopmat_f32",
+                                     {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write}, sizeof(GemmPush), constants,
+                                     subgroup});
+    return {&k, c.rows(), c.cols()};
+  }
+  if (family == KernelFamily::Tiled) {
+    const TiledGemmTiles& t = plan.tilesFor(M, N, B);
+    const bool h16 = wType == DType::F16 && plan.fp16Math;
+    const std::string name = std::string(h16 ? "gemm_tiled_h16" : "gemm_tiled") + (f16Out ? "_f16out" : h16 ? "" : "_f32");
+    const Kernel& k = engine.kernel({name,
+                                     {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                                     sizeof(GemmPush),
+                                     {t.invocations(), 1, 1, t.bm, t.bn, t.bk, t.tm, t.tn, texelK, static_cast<int>(act),
+                                      hasBias, 1, 1, 1}});
+    return {&k, t.bm, t.bn};
+  }
+  GemmTiles tiles = chooseGemmTiles(caps, engine.options().tuning, double(B) * double(M) * double(N) * double(K));
+  // Small outputs (heads with N = 1 or 9, a handful of rows) would mostly compute clamped
+  // duplicates with big blocks: on GPUs the blocks are halved down to the problem. CPU blocks
+  // are small already, and every other block is one more variant to compile (0.3-0.4 s each
+  // on llvmpipe) for work that takes microseconds either way.
+  if (!caps.isCpu()) {
+    while (tiles.colsPerInvocation > 4 && tiles.colsPerInvocation / 2 >= N) tiles.colsPerInvocation /= 2;
+    while (tiles.localY > 1 && int64_t(tiles.colsPerInvocation) * tiles.localY / 2 >= N) tiles.localY /= 2;
+    while (tiles.rowsPerInvocation > 4 && tiles.rowsPerInvocation / 2 >= M) tiles.rowsPerInvocation /= 2;
+  }
+  const Kernel& k = engine.kernel({f16Out ? "gemm_f16out" : "gemm_f32",
+                                   {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                                   sizeof(GemmPush),
+                                   {tiles.localX, tiles.localY, 1, tiles.rowsPerInvocation, tiles.colsPerInvocation,
+                                    texelK, static_cast<int>(act), hasBias, tiles.kUnroll}});
+  return {&k, int64_t(tiles.rowsPerInvocation) * tiles.localX, int64_t(tiles.colsPerInvocation) * tiles.localY};
+}
 
 }  // namespace
 
@@ -66,30 +126,15 @@ void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
 
   const int texelK = K % 4 == 0 ? 4 : 1;
   const int64_t kTexels = K / texelK;
-  GemmTiles tiles = chooseGemmTiles(caps, engine.options().tuning, double(B) * double(M) * double(N) * double(K));
-  // Small outputs (heads with N = 1 or 9, a handful of rows) would mostly compute clamped
-  // duplicates with big blocks: on GPUs the blocks are halved down to the problem. CPU blocks
-  // are small already, and every other block is one more variant to compile (0.3-0.4 s each
-  // on llvmpipe) for work that takes microseconds either way.
-  if (!caps.isCpu()) {
-    while (tiles.colsPerInvocation > 4 && tiles.colsPerInvocation / 2 >= N) tiles.colsPerInvocation /= 2;
-    while (tiles.localY > 1 && int64_t(tiles.colsPerInvocation) * tiles.localY / 2 >= N) tiles.localY /= 2;
-    while (tiles.rowsPerInvocation > 4 && tiles.rowsPerInvocation / 2 >= M) tiles.rowsPerInvocation /= 2;
-  }
-  const Kernel& kernel = engine.kernel({y.dtype() == DType::F16 ? "gemm_f16out" : "gemm_f32",
-                                        {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                                        sizeof(GemmPush),
-                                        {tiles.localX, tiles.localY, 1, tiles.rowsPerInvocation,
-                                         tiles.colsPerInvocation, texelK, static_cast<int>(act), bias.defined(),
-                                         tiles.kUnroll}});
+  const GemmLaunch launch = gemmLaunch(engine, w.dtype(), y.dtype(), M, N, B, K, texelK, act, bias.defined());
+  const Kernel& kernel = *launch.kernel;
   const Tensor biasArg = bias.defined() ? bias : w;
 
   if (batched) {
     GemmPush push{int32_t(M), int32_t(N), int32_t(kTexels), int32_t(kTexels), int32_t(kTexels), int32_t(N),
                   int32_t(M * kTexels), int32_t(N * kTexels), int32_t(M * N)};
     rec.dispatch(kernel, {Arg::texel(x, texelK), Arg::texel(w, texelK), Arg::texel(biasArg, 1), Arg::out(y)}, push,
-                 ops::ceilDiv(M, int64_t(tiles.rowsPerInvocation) * tiles.localX),
-                 ops::ceilDiv(N, int64_t(tiles.colsPerInvocation) * tiles.localY), static_cast<uint32_t>(B));
+                 ops::ceilDiv(M, launch.rowsPerGroup), ops::ceilDiv(N, launch.colsPerGroup), static_cast<uint32_t>(B));
     return;
   }
 
@@ -111,8 +156,7 @@ void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
     rec.dispatch(kernel,
                  {Arg::texel(x2.view(m0 * K, {rows, K}), texelK), Arg::texel(w, texelK), Arg::texel(biasArg, 1),
                   Arg::out(y2.view(m0 * N, {rows, N}))},
-                 push, ops::ceilDiv(rows, int64_t(tiles.rowsPerInvocation) * tiles.localX),
-                 ops::ceilDiv(N, int64_t(tiles.colsPerInvocation) * tiles.localY), 1);
+                 push, ops::ceilDiv(rows, launch.rowsPerGroup), ops::ceilDiv(N, launch.colsPerGroup), 1);
   }
 }
 

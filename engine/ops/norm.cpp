@@ -29,13 +29,14 @@ void normLines(Recorder& rec, Norm norm, const Tensor& x2, int64_t xCol0, const 
     throw Error(op + ": too many lines for 32-bit indexing");
 
   const bool vec4 = dh % 4 == 0 && cx % 4 == 0 && cy % 4 == 0 && xCol0 % 4 == 0 && yCol0 % 4 == 0;
-  const ops::LineGroup g = ops::lineGroupFor(engine.caps(), engine.options().tuning, vec4 ? dh / 4 : dh, true, rows * heads);
+  const ops::LineGroup g = ops::lineGroupFor(engine, vec4 ? dh / 4 : dh, true, rows * heads);
   const bool rms = norm == Norm::Rms;
   std::vector<Bind> bindings =
       inPlace ? std::vector<Bind>{Bind::ReadWrite} : std::vector<Bind>{Bind::Read, Bind::Write};
   bindings.push_back(Bind::Read);            // weight
   if (!rms) bindings.push_back(Bind::Read);  // bias
-  const char* shader = rms ? (inPlace ? "rmsnorm_inplace" : "rmsnorm") : (inPlace ? "layernorm_inplace" : "layernorm");
+  const std::string shader = std::string(rms ? (inPlace ? "rmsnorm_inplace" : "rmsnorm") : (inPlace ? "layernorm_inplace" : "layernorm")) +
+                             (g.subgroup ? "_sg" : "");
   const Kernel& kernel = engine.kernel(
       {shader, bindings, sizeof(NormPush), {g.localX, g.localY, 1, g.split, vec4, weight.defined(), bias.defined()}});
 

@@ -32,8 +32,8 @@ void patchCopy(Recorder& rec, const Tensor& images, const Tensor& tokens, int p,
 
   // 16 outputs per invocation: on llvmpipe smaller blocks pay more per-workgroup overhead
   // than the copy itself.
-  const int rx = caps.isCpu() ? 16 : 4;
-  const int localX = caps.isCpu() ? std::max<int>(8, caps.subgroupSize) : 64;
+  const int rx = engine.plan().cpuShapes ? 16 : 4;
+  const int localX = engine.plan().cpuShapes ? std::max<int>(8, caps.subgroupSize) : 64;
   const Kernel& kernel = engine.kernel({toTokens ? "patchify_f32" : "unpatchify_f32",
                                         {Bind::Texel, Bind::Write},
                                         sizeof(PatchifyPush),

@@ -29,7 +29,7 @@ void avgPool2d(Recorder& rec, const Tensor& x, const Tensor& y, int k) {
   for (const Tensor* t : {&x, &y}) checkElementCount(*t, "avgPool2d");
 
   const int rx = 4, rc = 4;
-  const int localX = caps.isCpu() ? std::max<int>(8, caps.subgroupSize) : 64;
+  const int localX = engine.plan().cpuShapes ? std::max<int>(8, caps.subgroupSize) : 64;
   const Kernel& kernel =
       engine.kernel({"avg_pool2d_f32", {Bind::Texel, Bind::Write}, sizeof(PoolPush), {localX, 1, 1, rx, rc}});
   const int64_t cBlocks = (C + rc - 1) / rc;

@@ -51,10 +51,13 @@ void reduceChannels(Recorder& rec, Reduce what, const Tensor& x, const Tensor& y
   if (lines > 0xffffffffull || x.numel() > 0x7fffffff) throw Error(op + ": too many values for 32-bit indexing");
 
   const bool vec4 = v.inner == 1 && v.C % 4 == 0;
-  const ops::LineGroup g = ops::lineGroupFor(engine.caps(), engine.options().tuning, vec4 ? v.C / 4 : v.C, v.inner == 1, int64_t(lines));
-  const char* shader = what == Reduce::Softmax ? (inPlace ? "softmax_inplace" : "softmax")
-                       : what == Reduce::L2    ? (inPlace ? "l2normalize_inplace" : "l2normalize")
-                                               : "argmax";
+  const ops::LineGroup g = ops::lineGroupFor(engine, vec4 ? v.C / 4 : v.C, v.inner == 1, int64_t(lines));
+  // argmax keeps its index through shared memory: no subgroup variant.
+  const std::string shader =
+      std::string(what == Reduce::Softmax ? (inPlace ? "softmax_inplace" : "softmax")
+                  : what == Reduce::L2    ? (inPlace ? "l2normalize_inplace" : "l2normalize")
+                                          : "argmax") +
+      (g.subgroup && what != Reduce::Argmax ? "_sg" : "");
   const std::vector<Bind> bindings =
       inPlace ? std::vector<Bind>{Bind::ReadWrite} : std::vector<Bind>{Bind::Read, Bind::Write};
   const Kernel& kernel = engine.kernel({shader, bindings, sizeof(ReducePush), {g.localX, g.localY, 1, g.split, vec4}});

@@ -31,7 +31,7 @@ void resizeBilinear(Recorder& rec, const Tensor& x, const Tensor& y, bool alignC
   for (const Tensor* t : {&x, &y}) checkElementCount(*t, "resizeBilinear");
 
   const int rx = 4, rc = 4;
-  const int localX = caps.isCpu() ? std::max<int>(8, caps.subgroupSize) : 64;
+  const int localX = engine.plan().cpuShapes ? std::max<int>(8, caps.subgroupSize) : 64;
   const Kernel& kernel = engine.kernel({"resize_bilinear_f32",
                                         {Bind::Texel, Bind::Write},
                                         sizeof(ResizePush),

@@ -19,6 +19,18 @@ struct SPAR_API KernelTuning {
   std::optional<std::array<int, 5>> convTransposeTiles;  // RC, RY, RX, LX, LY
   std::optional<std::array<int, 3>> lineGroup;           // SPLIT (0|1), LX (multiple of 8), LY
 
+  // The kernel family, forced (SPAR_KERNELS): "" lets the engine choose per device;
+  // "cpu": register blocks through texel buffers, no shared memory (what llvmpipe rewards);
+  // "gpu": shared-memory tiles and subgroup reductions; "gpu-fp16": "gpu", and GEMMs with
+  // fp16 weights compute in fp16 (fp32 accumulation); "coopmat": "gpu", and GEMMs with fp16
+  // weights run on VK_KHR_cooperative_matrix (an error on a device without it).
+  std::string kernels;
+  std::optional<std::array<int, 5>> gpuGemmTiles;       // BM, BN, BK, TM, TN (SPAR_GPU_GEMM_TILES)
+  std::optional<std::array<int, 2>> gpuAttentionTiles;  // queries per workgroup, keys per block
+  // Measure the GPU GEMM tile candidates at first use (SPAR_MEASURE_KERNELS=1 / 0); unset: on
+  // GPUs only. The choice is kept in kernel-choice.json beside the pipeline cache file.
+  std::optional<bool> measureKernels;
+
   // Throws Error (one line, naming the field) for a value no kernel can take.
   void validate() const;
 };
@@ -56,6 +68,8 @@ struct SPAR_API EngineOptions {
   // `base` with what the environment sets: SPAR_DEVICE, SPAR_VALIDATION=1, SPAR_LOG_PIPELINES=1,
   // SPAR_PROFILE=1, SPAR_GEMM_TILES=RM,RN,LX,LY,KU, SPAR_ATTENTION_TILES=QPI,KB,LX,
   // SPAR_CONV_TILES / SPAR_CONVT_TILES=RC,RY,RX,LX,LY, SPAR_LINE_GROUP=SPLIT,LX,LY,
+  // SPAR_KERNELS=cpu|gpu|gpu-fp16|coopmat, SPAR_GPU_GEMM_TILES=BM,BN,BK,TM,TN,
+  // SPAR_GPU_ATTENTION_TILES=QUERIES,KEYS, SPAR_MEASURE_KERNELS=0|1,
   // SPAR_SUBMIT_TIMEOUT_MS, SPAR_MEMORY_LIMIT_MB, SPAR_FAULT_ALLOCATION=N, SPAR_FAULT_SUBMISSION=N. A field
   // already set in `base` (device non-empty) wins over the environment. Throws Error for a
   // malformed value, naming the variable.

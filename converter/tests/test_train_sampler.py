@@ -1,0 +1,53 @@
+#!/usr/bin/python3
+"""The training batches of ``spar-train`` (converter/spar_train/data.py, Sampler): targets are
+the views that are not inputs (the paper's recipe), and with ``--input-targets N`` also each
+scene's first N inputs (reconstruction of what the model saw).
+Run: cd /work/main && /usr/bin/python3 -m pytest -q converter/tests/test_train_sampler.py
+"""
+
+import os
+import sys
+
+import numpy as np
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, ".."))
+
+from spar_train.data import Sampler  # noqa: E402
+
+
+class TinyPool:
+    """Stands in for ScenePool: 5 scenes of 8 frames, 16x16."""
+
+    def __init__(self, n=5, f=8, s=16):
+        rng = np.random.default_rng(0)
+        self.seeds = np.arange(n)
+        self.rgb = rng.integers(0, 255, (n, f, s, s, 3), dtype=np.uint8)
+        self.static_rgb = self.rgb.copy()
+        self.classes = np.zeros((n, f, s, s), np.uint8)
+        self.static_classes = self.classes.copy()
+        self.mask = np.zeros((n, f, s, s), bool)
+        self.c2w = np.tile(np.eye(4, dtype=np.float32), (n, f, 1, 1))
+        self.fxfycxcy = np.tile(np.array([1, 1, 0.5, 0.5], np.float32), (n, f, 1))
+
+    def __len__(self):
+        return len(self.seeds)
+
+
+def test_targets_are_the_other_views():
+    s = Sampler(TinyPool(), seed=3, p_dynamic=1.0)
+    for _ in range(10):
+        b = s.batch(2)
+        for inp, tg in zip(b["inputs"].tolist(), b["targets"].tolist()):
+            assert sorted(inp + tg) == list(range(8))
+
+
+def test_input_targets_add_the_first_inputs():
+    plain, recon = Sampler(TinyPool(), seed=3, p_dynamic=1.0), Sampler(TinyPool(), seed=3, p_dynamic=1.0,
+                                                                         input_targets=1)
+    for _ in range(10):
+        a, b = plain.batch(2), recon.batch(2)
+        assert a["inputs"].tolist() == b["inputs"].tolist()  # the same draws
+        for inp, tg, tg_plain in zip(b["inputs"].tolist(), b["targets"].tolist(), a["targets"].tolist()):
+            assert sorted(tg) == tg
+            assert set(tg) == set(tg_plain) | {inp[0]}

@@ -1,0 +1,162 @@
+#include "engine/kernel_plan.h"
+
+#include <cstdio>
+
+#include "engine/error.h"
+
+namespace spar {
+
+const char* familyName(KernelFamily family) {
+  switch (family) {
+    case KernelFamily::CpuBlocks: return "cpu register blocks";
+    case KernelFamily::Tiled: return "gpu shared-memory tiles";
+    case KernelFamily::CoopMat: return "gpu cooperative matrices";
+  }
+  return "?";
+}
+
+std::string TiledGemmTiles::text() const {
+  char b[64];
+  std::snprintf(b, sizeof(b), "%dx%dx%d / %dx%d", bm, bn, bk, tm, tn);
+  return b;
+}
+
+std::string CoopMatTiles::text() const {
+  char b[96];
+  std::snprintf(b, sizeof(b), "%dx%dx%d MMA, %dx%d per subgroup, %dx%d subgroups, k step %d", m, n, k, wm, wn,
+                sgM, sgN, k * kSteps);
+  return b;
+}
+
+const TiledGemmTiles& KernelPlan::tilesFor(int64_t m, int64_t n, int64_t batch) const {
+  // A GPU needs a few workgroups per compute unit to hide memory latency; 256 workgroups fill
+  // the largest GPUs (an H200 has 132 multiprocessors), and below that smaller tiles win.
+  const int64_t groups = (m + gemmTiles.bm - 1) / gemmTiles.bm * ((n + gemmTiles.bn - 1) / gemmTiles.bn) * batch;
+  return groups >= 256 ? gemmTiles : gemmSmallTiles;
+}
+
+CoopMatSize coopMatF16Size(const DeviceCaps& caps) {
+  constexpr int kF16 = 0, kF32 = 1;
+  CoopMatSize best;
+  for (const auto& s : caps.coopMatSizes) {
+    if (s.aType != kF16 || s.bType != kF16 || s.cType != kF32 || s.resultType != kF32) continue;
+    if (s.m % 8 || s.n % 8 || s.k % 8 || s.m > 32 || s.n > 32 || s.k > 32) continue;
+    const bool preferred = s.m == 16 && s.n == 16 && s.k == 16;
+    if (best.m == 0 || preferred) best = s;
+    if (preferred) break;
+  }
+  return best;
+}
+
+KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
+  KernelPlan plan;
+  const std::string& forced = tuning.kernels;
+  const bool gpu = forced.empty() ? !caps.isCpu() : forced != "cpu";
+  plan.source = forced.empty() ? "device properties" : "SPAR_KERNELS=" + forced;
+  if (!gpu) {
+    plan.reasons.push_back(forced.empty()
+                               ? "CPU device: register blocks through texel buffers, no shared memory (on llvmpipe shared "
+                                 "memory is a loop over the SIMD lanes and a coroutine switch per barrier)"
+                               : "forced: the CPU family");
+    return plan;
+  }
+  plan.gemm = plan.gemmF16 = plan.attention = plan.conv = KernelFamily::Tiled;
+  plan.cpuShapes = false;
+  plan.reasons.push_back(forced.empty() ? std::string(caps.isCpu() ? "CPU" : "GPU") +
+                                              " device: workgroup tiles in shared memory (" +
+                                              std::to_string(caps.maxSharedMemory / 1024) + " KiB a workgroup)"
+                                        : "forced: the GPU family on a " + std::string(caps.isCpu() ? "CPU" : "GPU") +
+                                              " device");
+  plan.subgroupReductions = caps.subgroupArithmetic && caps.subgroupSize >= 4;
+  plan.reasons.push_back(plan.subgroupReductions
+                             ? "norms and softmax reduce with subgroup operations (subgroup size " +
+                                   std::to_string(caps.subgroupSize) + ")"
+                             : "no subgroup arithmetic in compute shaders: reductions through shared memory");
+  // GEMM tiles: 64 x 64 outputs a workgroup of 256 invocations, 4 x 4 each, from 16 k a step
+  // (8 KiB of shared memory); 128 x 128 / 8 x 8 is the other common GPU choice and the first
+  // measured candidate (kernel_tuner.cpp). Small products get 32 x 32 so that they still
+  // spread over the device.
+  plan.gemmTiles = {64, 64, 16, 4, 4};
+  if (tuning.gpuGemmTiles) {
+    const auto& t = *tuning.gpuGemmTiles;
+    plan.gemmTiles = plan.gemmSmallTiles = {t[0], t[1], t[2], t[3], t[4]};
+    plan.reasons.push_back("GEMM tiles forced: " + plan.gemmTiles.text());
+  } else {
+    plan.measureGemm = tuning.measureKernels.value_or(!caps.isCpu());
+    plan.reasons.push_back("GEMM tiles " + plan.gemmTiles.text() + " (" + plan.gemmSmallTiles.text() +
+                           " below 256 workgroups)" +
+                           (plan.measureGemm ? ", to be measured against other candidates at first use" : ""));
+  }
+  if (plan.gemmTiles.invocations() > int(caps.maxWorkGroupInvocations))
+    throw Error("GPU GEMM tiles " + plan.gemmTiles.text() + " need more invocations than the device allows");
+  if (tuning.gpuAttentionTiles) {
+    plan.attentionQueries = (*tuning.gpuAttentionTiles)[0];
+    plan.attentionKeys = (*tuning.gpuAttentionTiles)[1];
+  }
+  plan.reasons.push_back("attention: " + std::to_string(plan.attentionQueries) + " queries a workgroup, keys in blocks of " +
+                         std::to_string(plan.attentionKeys) + " through shared memory, online softmax");
+  plan.reasons.push_back("conv2d: implicit GEMM on the GEMM tiles (im2col while loading a tile)");
+
+  // fp16 weights (the fp16 precision): cooperative matrices where the device multiplies fp16
+  // into fp32, else fp16 arithmetic where it has it, else the fp32 tiles (texel fetches convert
+  // the weights). SPAR_KERNELS=gpu keeps the fp32 tiles, gpu-fp16 / coopmat force the others.
+  const CoopMatSize cm = coopMatF16Size(caps);
+  if (forced == "coopmat" && cm.m == 0)
+    throw Error("SPAR_KERNELS=coopmat: " + caps.name + " reports no VK_KHR_cooperative_matrix size with fp16 A, B and fp32 C");
+  if (forced == "gpu-fp16" && !caps.shaderFloat16)
+    throw Error("SPAR_KERNELS=gpu-fp16: " + caps.name + " has no fp16 arithmetic (shaderFloat16)");
+  if ((forced.empty() || forced == "coopmat") && cm.m != 0) {
+    plan.gemmF16 = KernelFamily::CoopMat;
+    plan.coop.m = int(cm.m);
+    plan.coop.n = int(cm.n);
+    plan.coop.k = int(cm.k);
+    plan.reasons.push_back("fp16 weights: VK_KHR_cooperative_matrix " + plan.coop.text() + ", fp32 accumulation");
+  } else if (forced == "gpu-fp16" || (forced.empty() && caps.shaderFloat16)) {
+    plan.fp16Math = true;
+    plan.reasons.push_back("fp16 weights: fp16 arithmetic (shaderFloat16) in runs of 4 k, fp32 accumulation" +
+                           std::string(forced.empty() ? " (no cooperative-matrix size with fp16 A, B and fp32 C)" : ""));
+  } else {
+    plan.reasons.push_back(std::string("fp16 weights: the fp32 tiles (") +
+                           (forced.empty() ? "no cooperative matrices, no fp16 arithmetic" : "forced") + ")");
+  }
+  return plan;
+}
+
+std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& caps) {
+  std::vector<std::string> out;
+  char line[256];
+  std::snprintf(line, sizeof(line), "device: %s (%s), vendor 0x%04x, subgroup size %u, shared memory %u KiB, fp16 arithmetic %s",
+                caps.name.c_str(), caps.isCpu() ? "CPU" : "GPU", caps.vendorId, caps.subgroupSize,
+                caps.maxSharedMemory / 1024, caps.shaderFloat16 ? "yes" : "no");
+  out.push_back(line);
+  std::string sizes;
+  for (const auto& s : caps.coopMatSizes) {
+    static const char* names[] = {"f16", "f32", "f64", "s8", "s16", "s32", "s64", "u8", "u16", "u32", "u64"};
+    auto name = [&](int t) { return t >= 0 && t < 11 ? names[t] : "?"; };
+    std::snprintf(line, sizeof(line), "%s%ux%ux%u %s*%s+%s", sizes.empty() ? "" : ", ", s.m, s.n, s.k, name(s.aType),
+                  name(s.bType), name(s.cType));
+    sizes += line;
+  }
+  out.push_back("cooperative matrices: " + (caps.cooperativeMatrix ? sizes : std::string("none")));
+  out.push_back(std::string("chosen from: ") + plan.source);
+  auto gemmText = [&](KernelFamily f, bool f16) {
+    if (f == KernelFamily::CpuBlocks) return std::string("gemm.comp (") + familyName(f) + ")";
+    if (f == KernelFamily::CoopMat) return "gemm_coopmat.comp (" + plan.coop.text() + ")";
+    return "gemm_tiled.comp (" + plan.gemmTiles.text() + ", small " + plan.gemmSmallTiles.text() +
+           (f16 && plan.fp16Math ? ", fp16 arithmetic" : "") + ")";
+  };
+  out.push_back("linear, fp32 weights: " + gemmText(plan.gemm, false));
+  out.push_back("linear, fp16 weights: " + gemmText(plan.gemmF16, true));
+  out.push_back(plan.attention == KernelFamily::CpuBlocks
+                    ? "attention: attention.comp (cpu register blocks)"
+                    : "attention: attention_tiled.comp (" + std::to_string(plan.attentionQueries) + " queries, " +
+                          std::to_string(plan.attentionKeys) + "-key blocks)");
+  out.push_back(plan.conv == KernelFamily::CpuBlocks ? "conv2d: conv2d.comp (cpu register blocks)"
+                                                     : "conv2d: gemm_tiled.comp, CONV (implicit GEMM)");
+  out.push_back(std::string("reductions: ") + (plan.subgroupReductions ? "subgroup operations" : "shared memory") +
+                ", workgroup shapes for " + (plan.cpuShapes ? "CPU SIMD lanes" : "GPUs"));
+  for (const auto& r : plan.reasons) out.push_back("why: " + r);
+  return out;
+}
+
+}  // namespace spar

@@ -1,0 +1,72 @@
+// Which family of kernels each op runs on a device, with which tiles, and why. Chosen once per
+// engine from the device's properties (type, subgroup operations, fp16 arithmetic,
+// cooperative-matrix sizes) and the tuning overrides; on GPUs the GEMM tiles may then be
+// measured at first use (engine/kernel_tuner.h). `spar-bench --list-kernels` prints it.
+#pragma once
+#include <string>
+#include <vector>
+
+#include "engine/device.h"
+#include "spar/engine_options.h"
+
+namespace spar {
+
+enum class KernelFamily {
+  CpuBlocks,  // register blocks through texel buffers, no shared memory (gemm.comp, ...): llvmpipe
+  Tiled,      // workgroup tiles in shared memory (gemm_tiled.comp, attention_tiled.comp): GPUs
+  CoopMat,    // VK_KHR_cooperative_matrix, fp16 in, fp32 accumulation (gemm_coopmat.comp)
+};
+const char* familyName(KernelFamily family);
+
+// gemm_tiled.comp: a workgroup computes BM x BN outputs per BK step, an invocation TM x TN.
+struct TiledGemmTiles {
+  int bm = 64, bn = 64, bk = 16, tm = 4, tn = 4;
+  int invocations() const { return (bm / tm) * (bn / tn); }
+  std::string text() const;  // "64x64x16 / 4x4"
+  bool operator==(const TiledGemmTiles&) const = default;
+};
+
+// gemm_coopmat.comp: one subgroup MMA is M x N x K; a subgroup owns WM x WN of them and a
+// workgroup SG_M x SG_N subgroups; k advances K * KSTEPS per shared-memory step.
+struct CoopMatTiles {
+  int m = 0, n = 0, k = 0;   // the device's size (CoopMatSize)
+  int wm = 2, wn = 2;        // MMAs per subgroup along rows / columns
+  int sgM = 2, sgN = 2;      // subgroups per workgroup along rows / columns
+  int kSteps = 2;            // K blocks per shared-memory step
+  int rows() const { return m * wm * sgM; }
+  int cols() const { return n * wn * sgN; }
+  std::string text() const;
+};
+
+struct KernelPlan {
+  KernelFamily gemm = KernelFamily::CpuBlocks;     // linear layers with fp32 weights
+  KernelFamily gemmF16 = KernelFamily::CpuBlocks;  // linear layers with fp16 weights
+  bool fp16Math = false;  // Tiled GEMM of fp16 weights computes in fp16 (gemm_tiled.comp, FP16_MATH)
+  KernelFamily attention = KernelFamily::CpuBlocks;
+  KernelFamily conv = KernelFamily::CpuBlocks;     // conv2d (Tiled: an implicit GEMM)
+  bool cpuShapes = true;            // workgroup shapes of the other ops: a CPU's SIMD lanes or a GPU's
+  bool subgroupReductions = false;  // norms and softmax combine partial results with subgroup ops
+  TiledGemmTiles gemmTiles;                          // products that fill the device
+  TiledGemmTiles gemmSmallTiles{32, 32, 16, 2, 2};   // products with few output tiles
+  CoopMatTiles coop;
+  int attentionQueries = 64, attentionKeys = 32;     // attention_tiled.comp: per workgroup / block
+  bool measureGemm = false;  // the GEMM tiles are still to be measured (kernel_tuner.h)
+  std::string source;        // "device properties", "SPAR_KERNELS=gpu", "measured ...", "cache ..."
+  std::vector<std::string> reasons;  // one line per decision, for --list-kernels
+
+  // The tiles for a product of M x N outputs: gemmTiles when they give enough workgroups to
+  // fill the device, gemmSmallTiles otherwise.
+  const TiledGemmTiles& tilesFor(int64_t m, int64_t n, int64_t batch) const;
+};
+
+// From the device's properties and the overrides; throws Error for a forced family the device
+// cannot run (coopmat without VK_KHR_cooperative_matrix, gpu-fp16 without shaderFloat16).
+KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning);
+
+// The subgroup MMA size for fp16 A, B and fp32 C (16 x 16 x 16 preferred); m = 0 if none.
+CoopMatSize coopMatF16Size(const DeviceCaps& caps);
+
+// Human-readable lines: every op's family and tiles, and the reasons.
+std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& caps);
+
+}  // namespace spar

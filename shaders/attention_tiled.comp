@@ -1,0 +1,103 @@
+#version 450
+// Fused multi-head attention for GPUs, o = softmax(q k^T * scale (+ causal mask)) v per head,
+// with keys and values staged in shared memory. Host side: engine/ops/attention.cpp (the
+// llvmpipe family is attention.comp: register blocks, no shared memory).
+//
+// A workgroup of BQ invocations takes BQ consecutive queries of one head, one query each
+// (its DH-wide q and output accumulator in registers). Per block of BKEYS keys the workgroup
+// copies the keys' k and v rows into shared memory once; every invocation then reads them
+// all (the same address across the workgroup: a broadcast), scores its query against the
+// block, and folds the block into its output with an online softmax. Same numerics as
+// attention.comp: running max from -FLT_MAX/2 (never -inf), masked keys contribute exactly
+// 0, guarded final division. Bindings and push constants are attention.comp's.
+//! variant attention_tiled_f32 OUT_F16=0
+//! variant attention_tiled_f16out OUT_F16=1
+#extension GL_GOOGLE_include_directive : require
+#include "common.glsl"
+
+layout(local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in;  // BQ x 1 x 1
+layout(constant_id = 3) const int DH = 64;      // head dimension (multiple of 4)
+layout(constant_id = 4) const int BKEYS = 32;   // keys per shared-memory block
+layout(constant_id = 5) const bool CAUSAL = false;
+
+layout(binding = 0) uniform samplerBuffer Q;
+layout(binding = 1) uniform samplerBuffer K;
+layout(binding = 2) uniform samplerBuffer V;
+layout(binding = 3) writeonly buffer O { OUT_T o[]; };
+
+layout(push_constant) uniform Push {
+  int Nq, Nk;
+  int qStride, kStride, vStride, oStride;  // row strides in elements (q, k, v: multiples of 4)
+  int qOff, kOff, vOff, oOff;              // column of head 0 in elements
+  int qBatch, kBatch, vBatch, oBatch;      // batch strides in elements
+  float scaleLog2;                         // softmax scale times log2(e)
+} p;
+
+const float kNegLarge = -3.4028235e38 / 2.0;
+const int D4 = DH / 4;
+shared vec4 blockK[BKEYS * D4];
+shared vec4 blockV[BKEYS * D4];
+
+void main() {
+  const int BQ = int(gl_WorkGroupSize.x);
+  const int q0 = int(gl_WorkGroupID.x) * BQ;
+  const int q = q0 + int(gl_LocalInvocationID.x);
+  const int head = int(gl_WorkGroupID.y);
+  const int b = int(gl_WorkGroupID.z);
+  const bool live = q < p.Nq;
+
+  vec4 qv[D4], acc[D4];
+  const int qTexel = (b * p.qBatch + min(q, p.Nq - 1) * p.qStride + p.qOff + head * DH) / 4;
+  [[unroll]] for (int d = 0; d < D4; ++d) {
+    qv[d] = texelFetch(Q, qTexel + d);
+    acc[d] = vec4(0.0);
+  }
+  const int kBase = (b * p.kBatch + p.kOff + head * DH) / 4, kRow = p.kStride / 4;
+  const int vBase = (b * p.vBatch + p.vOff + head * DH) / 4, vRow = p.vStride / 4;
+  float runMax = kNegLarge, runSum = 0.0;
+
+  // With a causal mask no query of this workgroup sees keys past its last query.
+  const int kEnd = CAUSAL ? min(p.Nk, q0 + BQ) : p.Nk;
+  for (int kb = 0; kb < kEnd; kb += BKEYS) {
+    for (int i = int(gl_LocalInvocationID.x); i < BKEYS * D4; i += BQ) {
+      const int key = kb + i / D4, d = i % D4;
+      const bool inside = key < p.Nk;
+      blockK[i] = inside ? texelFetch(K, kBase + key * kRow + d) : vec4(0.0);
+      blockV[i] = inside ? texelFetch(V, vBase + key * vRow + d) : vec4(0.0);
+    }
+    barrier();
+    float s[BKEYS];
+    float blockMax = runMax;
+    [[unroll]] for (int j = 0; j < BKEYS; ++j) {
+      float dotv = 0.0;
+      [[unroll]] for (int d = 0; d < D4; ++d) {
+        const vec4 kv = blockK[j * D4 + d];
+        dotv = fma(qv[d].w, kv.w, fma(qv[d].z, kv.z, fma(qv[d].y, kv.y, fma(qv[d].x, kv.x, dotv))));
+      }
+      const int key = kb + j;
+      const bool valid = key < p.Nk && (!CAUSAL || key <= q);
+      s[j] = valid ? dotv * p.scaleLog2 : kNegLarge;
+      blockMax = max(blockMax, s[j]);
+    }
+    const float correction = exp2(runMax - blockMax);
+    runMax = blockMax;
+    float sum = runSum * correction;
+    [[unroll]] for (int j = 0; j < BKEYS; ++j) {
+      const int key = kb + j;
+      const bool valid = key < p.Nk && (!CAUSAL || key <= q);
+      s[j] = valid ? exp2(s[j] - blockMax) : 0.0;
+      sum += s[j];
+    }
+    runSum = sum;
+    [[unroll]] for (int d = 0; d < D4; ++d) acc[d] *= correction;
+    [[unroll]] for (int j = 0; j < BKEYS; ++j)
+      [[unroll]] for (int d = 0; d < D4; ++d) acc[d] = fma(vec4(s[j]), blockV[j * D4 + d], acc[d]);
+    barrier();
+  }
+
+  if (!live) return;
+  const float inv = runSum > 0.0 ? 1.0 / runSum : 0.0;
+  const int base = b * p.oBatch + q * p.oStride + p.oOff + head * DH;
+  [[unroll]] for (int d = 0; d < D4; ++d)
+    [[unroll]] for (int c = 0; c < 4; ++c) o[base + d * 4 + c] = TO_OUT(acc[d][c] * inv);
+}

@@ -1,0 +1,226 @@
+// The kernel choice per device (engine/kernel_plan.h, engine/kernel_tuner.h): which family a
+// device's properties select, the forced families, the measured GEMM tiles and their cache file,
+// and the fp16-arithmetic GEMM of the GPU family against float64 (its own thresholds).
+// The GPU kernels themselves run every op test a second time (CTest entries gpu_family.*, the
+// op executables under SPAR_KERNELS=gpu); cooperative matrices: tests/coopmat/.
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "engine/kernel_plan.h"
+#include "engine/kernel_tuner.h"
+#include "engine/ops/linear.h"
+#include "tests/test_support.h"
+
+namespace spar::test {
+namespace {
+
+namespace fs = std::filesystem;
+
+DeviceCaps gpuCaps() {
+  DeviceCaps c;
+  c.name = "Test GPU";
+  c.type = VK_PHYSICAL_DEVICE_TYPE_DISCRETE_GPU;
+  c.subgroupSize = c.minSubgroupSize = c.maxSubgroupSize = 32;
+  c.subgroupArithmetic = true;
+  c.maxSharedMemory = 48 * 1024;
+  c.maxWorkGroupInvocations = 1024;
+  return c;
+}
+
+DeviceCaps cpuCaps() {
+  DeviceCaps c = gpuCaps();
+  c.name = "llvmpipe";
+  c.type = VK_PHYSICAL_DEVICE_TYPE_CPU;
+  c.subgroupSize = c.minSubgroupSize = c.maxSubgroupSize = 8;
+  return c;
+}
+
+TEST(KernelPlan, CpuDeviceGetsRegisterBlocks) {
+  const KernelPlan p = planKernels(cpuCaps(), {});
+  EXPECT_EQ(p.gemm, KernelFamily::CpuBlocks);
+  EXPECT_EQ(p.gemmF16, KernelFamily::CpuBlocks);
+  EXPECT_EQ(p.attention, KernelFamily::CpuBlocks);
+  EXPECT_EQ(p.conv, KernelFamily::CpuBlocks);
+  EXPECT_TRUE(p.cpuShapes);
+  EXPECT_FALSE(p.subgroupReductions);
+  EXPECT_FALSE(p.measureGemm);
+}
+
+TEST(KernelPlan, GpuGetsTilesSubgroupsAndMeasuredGemm) {
+  const KernelPlan p = planKernels(gpuCaps(), {});
+  EXPECT_EQ(p.gemm, KernelFamily::Tiled);
+  EXPECT_EQ(p.gemmF16, KernelFamily::Tiled);  // no fp16 arithmetic, no cooperative matrices
+  EXPECT_FALSE(p.fp16Math);
+  EXPECT_EQ(p.attention, KernelFamily::Tiled);
+  EXPECT_EQ(p.conv, KernelFamily::Tiled);
+  EXPECT_FALSE(p.cpuShapes);
+  EXPECT_TRUE(p.subgroupReductions);
+  EXPECT_TRUE(p.measureGemm);
+  DeviceCaps noSubgroups = gpuCaps();
+  noSubgroups.subgroupArithmetic = false;
+  EXPECT_FALSE(planKernels(noSubgroups, {}).subgroupReductions);
+}
+
+TEST(KernelPlan, Fp16WeightsUseCoopMatThenFp16Arithmetic) {
+  DeviceCaps c = gpuCaps();
+  c.shaderFloat16 = true;
+  KernelPlan p = planKernels(c, {});
+  EXPECT_EQ(p.gemmF16, KernelFamily::Tiled);
+  EXPECT_TRUE(p.fp16Math);
+  // Sizes the kernel cannot use (int8, fp16 accumulation, 64 wide) are passed over; 16^3 wins.
+  c.coopMatSizes = {{16, 8, 32, 3, 3, 5, 5}, {16, 16, 16, 0, 0, 0, 0}, {64, 64, 64, 0, 0, 1, 1},
+                    {16, 8, 16, 0, 0, 1, 1}, {16, 16, 16, 0, 0, 1, 1}};
+  c.cooperativeMatrix = true;
+  p = planKernels(c, {});
+  EXPECT_EQ(p.gemmF16, KernelFamily::CoopMat);
+  EXPECT_EQ(p.gemm, KernelFamily::Tiled);  // fp32 weights never lose precision to fp16
+  EXPECT_EQ(p.coop.m, 16);
+  EXPECT_EQ(p.coop.n, 16);
+  EXPECT_EQ(p.coop.k, 16);
+  c.coopMatSizes = {{16, 8, 16, 0, 0, 1, 1}};
+  EXPECT_EQ(planKernels(c, {}).coop.n, 8);
+}
+
+TEST(KernelPlan, ForcedFamilies) {
+  KernelTuning t;
+  t.kernels = "cpu";
+  EXPECT_EQ(planKernels(gpuCaps(), t).gemm, KernelFamily::CpuBlocks);
+  t.kernels = "gpu";
+  const KernelPlan g = planKernels(cpuCaps(), t);
+  EXPECT_EQ(g.gemm, KernelFamily::Tiled);
+  EXPECT_FALSE(g.cpuShapes);
+  EXPECT_FALSE(g.measureGemm);  // a CPU device measures only when asked
+  t.kernels = "coopmat";
+  EXPECT_THROW(planKernels(gpuCaps(), t), Error);
+  t.kernels = "gpu-fp16";
+  EXPECT_THROW(planKernels(gpuCaps(), t), Error);
+  DeviceCaps h = gpuCaps();
+  h.shaderFloat16 = true;
+  EXPECT_TRUE(planKernels(h, t).fp16Math);
+  t.kernels = "vulkan";
+  EXPECT_THROW(t.validate(), Error);
+  t.kernels = "gpu";
+  t.gpuGemmTiles = std::array<int, 5>{64, 32, 8, 4, 2};
+  const KernelPlan forced = planKernels(gpuCaps(), t);
+  EXPECT_EQ(forced.gemmTiles, (TiledGemmTiles{64, 32, 8, 4, 2}));
+  EXPECT_FALSE(forced.measureGemm);
+  t.gpuGemmTiles = std::array<int, 5>{64, 32, 6, 4, 2};  // BK not a multiple of 4
+  EXPECT_THROW(t.validate(), Error);
+}
+
+TEST(KernelPlan, DescribeSaysWhatAndWhy) {
+  DeviceCaps c = gpuCaps();
+  c.cooperativeMatrix = true;
+  c.coopMatSizes = {{16, 16, 16, 0, 0, 1, 1}};
+  const auto lines = describePlan(planKernels(c, {}), c);
+  std::string all;
+  for (const auto& l : lines) all += l + "\n";
+  EXPECT_NE(all.find("16x16x16 f16*f16+f32"), std::string::npos) << all;
+  EXPECT_NE(all.find("linear, fp16 weights: gemm_coopmat.comp"), std::string::npos) << all;
+  EXPECT_NE(all.find("attention: attention_tiled.comp"), std::string::npos) << all;
+  EXPECT_NE(all.find("why: "), std::string::npos) << all;
+}
+
+TEST(KernelPlan, SmallProductsGetSmallTiles) {
+  KernelPlan p = planKernels(gpuCaps(), {});
+  EXPECT_EQ(p.tilesFor(4096, 4096, 1), p.gemmTiles);
+  EXPECT_EQ(p.tilesFor(64, 768, 1), p.gemmSmallTiles);
+}
+
+// On a CPU device forced onto the GPU family and asked to measure: the tiles are measured once,
+// written beside the pipeline cache, and read back by the next engine without measuring.
+TEST(KernelTuner, MeasuresOnceThenReadsTheCacheFile) {
+  const fs::path dir = scratchDir("kernel_tuner");
+  EngineOptions o;
+  o.validation = true;
+  o.tuning.kernels = "gpu";
+  o.tuning.measureKernels = true;
+  o.pipelineCacheFile = (dir / "pipelines.bin").string();
+  const std::string file = kernelChoiceFile(o.pipelineCacheFile);
+  EXPECT_EQ(fs::path(file).filename(), "kernel-choice.json");
+  std::string first;
+  {
+    Engine e(o);
+    const KernelPlan& p = e.plan();
+    EXPECT_NE(p.source.find("measured now"), std::string::npos) << p.source;
+    first = p.gemmTiles.text();
+    EXPECT_EQ(e.device().validationMessageCount(), 0u);
+  }
+  ASSERT_TRUE(fs::exists(file));
+  std::ifstream in(file);
+  const auto j = nlohmann::json::parse(in);
+  ASSERT_EQ(j.size(), 1u);
+  const auto& entry = j.begin().value();
+  EXPECT_GE(entry["candidates"].size(), 3u);
+  for (const auto& c : entry["candidates"]) EXPECT_GT(c["ms"].get<double>(), 0.0);
+  {
+    Engine e(o);
+    const KernelPlan& p = e.plan();
+    EXPECT_NE(p.source.find("kernel-choice.json"), std::string::npos) << p.source;
+    EXPECT_EQ(p.gemmTiles.text(), first);
+  }
+}
+
+// gemm_tiled.comp with FP16_MATH (SPAR_KERNELS=gpu-fp16 on any device with shaderFloat16):
+// inputs rounded to fp16 and 4-term partial sums in fp16, accumulated in fp32. Against float64
+// on the fp16-rounded inputs the error is the partials' rounding (measured NMSE 1.6e-7 at
+// K = 384, 2.0e-7 at K = 61 through R texels; thresholds 1e-6), and saturation instead of inf.
+class Fp16MathTest : public EngineTest {
+ protected:
+  void SetUp() override {
+    EngineTest::SetUp();
+    saved_ = eng().options().tuning;
+    KernelTuning t = saved_;
+    t.kernels = "gpu-fp16";
+    t.gpuGemmTiles.reset();
+    eng().setTuning(t);
+  }
+  void TearDown() override {
+    eng().setTuning(saved_);
+    EngineTest::TearDown();
+  }
+  KernelTuning saved_;
+};
+
+std::vector<double> productRef(const std::vector<float>& x, const std::vector<float>& w, const std::vector<float>& b,
+                               int64_t M, int64_t N, int64_t K) {
+  std::vector<double> y(size_t(M * N));
+  for (int64_t m = 0; m < M; ++m)
+    for (int64_t n = 0; n < N; ++n) {
+      double s = b.empty() ? 0.0 : b[n];
+      for (int64_t k = 0; k < K; ++k) s += double(x[m * K + k]) * w[n * K + k];
+      y[m * N + n] = s;
+    }
+  return y;
+}
+
+TEST_F(Fp16MathTest, MatchesFloat64WithinFp16Partials) {
+  ASSERT_TRUE(eng().plan().fp16Math);
+  for (const auto [M, N, K] : {std::array<int64_t, 3>{45, 70, 384}, {33, 17, 61}, {1, 1, 4}}) {
+    auto x = randomUniform(M * K, -1, 1, 21), w = randomUniform(N * K, -1, 1, 22), b = randomUniform(N, -1, 1, 23);
+    Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w, DType::F16);
+    Tensor tb = eng().fromFloats({N}, b);
+    GuardedOutput y(eng(), {M, N});
+    Recorder rec(eng());
+    linear(rec, tx, tw, tb, y.tensor());
+    rec.run();
+    expectClose(y.read(), productRef(roundToHalf(x), roundToHalf(w), b, M, N, K), 1e-6, 2e-2, "fp16 math");
+    y.expectAllWritten();
+  }
+}
+
+// A 4-term partial beyond 65504 saturates (the fp32 sum of two of them is then 131008, not inf).
+TEST_F(Fp16MathTest, PartialOverflowSaturates) {
+  const int64_t M = 2, N = 3, K = 8;
+  std::vector<float> x(M * K, 200.0f), w(N * K, 100.0f);  // each product 20000, 4 of them 80000
+  Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w, DType::F16);
+  GuardedOutput y(eng(), {M, N});
+  Recorder rec(eng());
+  linear(rec, tx, tw, Tensor(), y.tensor());
+  rec.run();
+  for (float v : y.read()) EXPECT_EQ(v, 2 * 65504.0f);
+}
+
+}  // namespace
+}  // namespace spar::test
