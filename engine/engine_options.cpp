@@ -2,6 +2,7 @@
 // the one place the engine's settings are read from the environment.
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <string>
 
 #include "spar/engine_options.h"
@@ -114,5 +115,18 @@ EngineOptions EngineOptions::fromEnvironment(EngineOptions base) {
 }
 
 EngineOptions EngineOptions::fromEnvironment() { return fromEnvironment(EngineOptions{}); }
+
+std::string EngineOptions::defaultPipelineCacheFile() {
+  namespace fs = std::filesystem;
+  const char* off = env("SPAR_PIPELINE_CACHE");
+  if (off && std::string(off) == "0") return "";
+  const char* xdg = env("XDG_CACHE_HOME");
+  const char* home = env("HOME");
+  const fs::path dir = xdg ? fs::path(xdg) / "spar" : home ? fs::path(home) / ".cache" / "spar" : fs::path();
+  if (dir.empty()) return "";
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  return ec ? "" : (dir / "pipelines.bin").string();
+}
 
 }  // namespace spar

@@ -271,13 +271,15 @@ void addDecoderCases(std::vector<BenchCase>& cases, Engine& engine) {
 
 }  // namespace
 
-std::vector<BenchCase> makeCases(Engine& engine, const std::string& only) {
+std::vector<BenchCase> makeCases(Engine& engine, const std::string& only, bool large) {
   std::vector<BenchCase> cases;
   std::vector<DType> storages = {DType::F32};
   if (engine.caps().supportsFp16Storage()) storages.push_back(DType::F16);
   for (DType s : storages) {
     addGemm(cases, engine, 1024, 1024, 1024, s);
     addGemm(cases, engine, 1024, 768, 3072, s);
+    // The size GPU libraries are compared at (issue 15's bar: cuBLAS on the same GPU).
+    if (large) addGemm(cases, engine, 4096, 4096, 4096, s);
   }
   for (DType s : storages) {
     addAttention(cases, engine, 1280, 12, 64, s);

@@ -20,7 +20,8 @@ struct BenchCase {
   std::function<double()> nmse;           // error of the last run's output vs float64
 };
 
-// Every case of the benchmark, with inputs uploaded. `only` filters by name substring.
-std::vector<BenchCase> makeCases(Engine& engine, const std::string& only);
+// Every case of the benchmark, with inputs uploaded. `only` filters by name substring; `large`
+// adds the 4096^3 GEMMs (GPUs; minutes on a CPU device).
+std::vector<BenchCase> makeCases(Engine& engine, const std::string& only, bool large);
 
 }  // namespace spar::bench

@@ -4,7 +4,6 @@
 #include <chrono>
 #include <cstdio>
 #include <map>
-#include <random>
 #include <vector>
 
 #include "engine/engine.h"
@@ -34,6 +33,21 @@ std::map<std::string, StageTime> snapshot(const SparPipeline& p) {
 
 }  // namespace
 
+std::vector<float> syntheticImages(int64_t views, int64_t height, int64_t width) {
+  std::vector<float> images(size_t(views * 3 * height * width));
+  for (size_t i = 0; i < images.size(); ++i) {
+    // murmur3's 32-bit finalizer of the index (plus a seed): a hash Python repeats exactly
+    uint32_t x = uint32_t(i) + 0x9E3779B9u * 12345u;
+    x ^= x >> 16;
+    x *= 0x85EBCA6Bu;
+    x ^= x >> 13;
+    x *= 0xC2B2AE35u;
+    x ^= x >> 16;
+    images[i] = float(x >> 8) * (1.0f / 16777216.0f);
+  }
+  return images;
+}
+
 nlohmann::ordered_json benchModel(Engine& engine, const ModelBenchArgs& a) {
   if (a.views < 1 || a.targets < 0) throw Error("--views must be at least 1 and --targets at least 0");
   const PackedModel model = PackedModel::open(a.model);
@@ -48,10 +62,7 @@ nlohmann::ordered_json benchModel(Engine& engine, const ModelBenchArgs& a) {
   SparPipeline pipeline(engine, model, po);
   SparRequest req;
   const int64_t v = a.views + a.targets;
-  req.images.resize(size_t(v * 3 * h * w));
-  std::mt19937 rng(12345);
-  std::uniform_real_distribution<float> uniform(0.0f, 1.0f);
-  for (float& x : req.images) x = uniform(rng);
+  req.images = syntheticImages(v, h, w);
   req.height = h;
   req.width = w;
   req.plan.views = v;

@@ -16,13 +16,17 @@
 int main(int argc, char** argv) {
   CLI::App app{"spar-bench: time, throughput and error of the engine's ops"};
   std::string device, only;
-  bool json = false, listDevices = false;
+  bool json = false, listDevices = false, listKernels = false, large = false;
   int repeats = 5;
   app.add_option("--device", device, "device index or name part (default: SPAR_DEVICE, else the first GPU)");
   app.add_option("--only", only, "run the cases whose name contains this");
   app.add_option("--repeat", repeats, "timed runs per case (the median is reported)")->check(CLI::Range(1, 1000));
   app.add_flag("--json", json, "print one JSON object instead of a table");
   app.add_flag("--list-devices", listDevices, "list Vulkan devices and exit");
+  app.add_flag("--list-kernels", listKernels,
+               "say which kernel family and tiles each op uses on the device, and why, and exit (on a GPU "
+               "this may first measure the GEMM tiles; kept in kernel-choice.json beside the pipeline cache)");
+  app.add_flag("--large", large, "also the 4096x4096x4096 GEMMs (default on GPUs)");
   spar::bench::ModelBenchArgs m;
   std::string size;
   auto* modelOpt = app.add_option("--model", m.model,
@@ -47,7 +51,15 @@ int main(int argc, char** argv) {
     options.device = device;
     options.verbose = !json;
     options = spar::EngineOptions::fromEnvironment(options);
+    if (options.pipelineCacheFile.empty()) options.pipelineCacheFile = spar::EngineOptions::defaultPipelineCacheFile();
     spar::Engine engine(options);
+    if (listKernels) {
+      const auto lines = spar::describePlan(engine.plan(), engine.caps());
+      if (json) std::cout << nlohmann::json{{"device", engine.caps().name}, {"kernels", lines}}.dump(2) << "\n";
+      else
+        for (const auto& l : lines) std::cout << l << "\n";
+      return 0;
+    }
     if (!m.model.empty()) {
       if (!size.empty()) {
         long long hh = 0, ww = 0;
@@ -63,11 +75,12 @@ int main(int argc, char** argv) {
       else spar::bench::printModelBench(doc);
       return 0;
     }
-    auto cases = spar::bench::makeCases(engine, only);
+    auto cases = spar::bench::makeCases(engine, only, large || !engine.caps().isCpu());
     if (cases.empty()) throw spar::Error("no benchmark case matches '" + only + "'");
 
     nlohmann::json report;
     report["device"] = engine.caps().name;
+    report["kernels"] = spar::describePlan(engine.plan(), engine.caps());
     report["ops"] = nlohmann::json::array();
     if (!json)
       std::printf("%-15s %-30s %10s %10s %12s %10s %10s\n", "op", "shape", "ms", "GFLOPS", "NMSE", "create ms",

@@ -31,18 +31,8 @@ sys.path.insert(0, os.path.join(ROOT, "tests", "python"))
 
 from spar_convert.model_config import full  # noqa: E402
 from make_spar_goldens import frames  # noqa: E402
+from spar_reference.cli import ENGINE_STAGE_MAP as STAGE_MAP  # noqa: E402
 
-# engine stage -> reference stages (cli.MODEL_STAGES) covering the same work
-STAGE_MAP = [
-    ("image_tokens", ["image_tokens"]),
-    ("pose_estimator", ["pose_encoder", "pose_head"]),
-    ("rays", ["ray_tokens"]),
-    ("dino_v3", ["dino"]),
-    ("cv_drp", ["cv_drp"]),
-    ("gating", ["token_fusion"]),
-    ("scene_encoder", ["scene_encoder"]),
-    ("renderer", ["decoder", "rgb_head"]),
-]
 
 
 def timed(cmd, env=None):
@@ -127,6 +117,8 @@ def main():
         for stage, refs in STAGE_MAP:
             r = sum(rs.get(x, 0.0) for x in refs)
             w = es.get(stage, 0.0)
+            if not r and not w:  # a stage neither ran (e.g. LSeg of a model without it)
+                continue
             print(f"| {stage} | {w:.2f} | {egpu.get(stage, 0.0):.2f} | {r:.2f} | {w / r if r else 0:.2f} |")
         print(f"| **total (process)** | {e['total_seconds']:.2f} | | {ref['total_seconds']:.2f} | "
               f"{e['total_seconds'] / ref['total_seconds']:.2f} |")

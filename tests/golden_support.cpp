@@ -1,5 +1,6 @@
 #include "golden_support.h"
 
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <stdexcept>
@@ -8,16 +9,29 @@
 
 namespace spar::test {
 
-std::string goldenPath(const std::string& rel) { return std::string(SPAR_GOLDENS_DIR) + "/" + rel; }
+namespace {
+
+// The build's fixture directory, or where the environment variable of the same name points
+// (test programs run on another machine, scripts/gpu-check.sh, with goldens made there).
+std::string goldenDir(const char* variable, const char* built) {
+  const char* v = std::getenv(variable);
+  return v && *v ? v : built;
+}
+
+}  // namespace
+
+std::string goldenPath(const std::string& rel) { return goldenDir("SPAR_GOLDENS_DIR", SPAR_GOLDENS_DIR) + "/" + rel; }
 std::string tinyModelPath() { return goldenPath("tiny.spar"); }
-std::string fullGoldenPath(const std::string& rel) { return std::string(SPAR_FULL_GOLDENS_DIR) + "/" + rel; }
+std::string fullGoldenPath(const std::string& rel) {
+  return goldenDir("SPAR_FULL_GOLDENS_DIR", SPAR_FULL_GOLDENS_DIR) + "/" + rel;
+}
 std::string semanticGoldenPath(const std::string& rel) {
-  return std::string(SPAR_SEMANTIC_GOLDENS_DIR) + "/" + rel;
+  return goldenDir("SPAR_SEMANTIC_GOLDENS_DIR", SPAR_SEMANTIC_GOLDENS_DIR) + "/" + rel;
 }
 std::string clipBpePath() {
-  if (!std::filesystem::exists(SPAR_CLIP_BPE))
-    throw std::runtime_error(std::string("CLIP BPE merges table not found: ") + SPAR_CLIP_BPE);
-  return SPAR_CLIP_BPE;
+  const std::string path = goldenDir("SPAR_CLIP_BPE", SPAR_CLIP_BPE);
+  if (!std::filesystem::exists(path)) throw std::runtime_error("CLIP BPE merges table not found: " + path);
+  return path;
 }
 
 GoldenCase::GoldenCase(const std::string& name)

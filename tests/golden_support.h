@@ -11,7 +11,8 @@
 
 namespace spar::test {
 
-// SPAR_GOLDENS_DIR/<rel>
+// SPAR_GOLDENS_DIR/<rel> (the build's fixture directory; the environment variable of the same
+// name replaces it, likewise SPAR_FULL_GOLDENS_DIR and SPAR_SEMANTIC_GOLDENS_DIR below)
 std::string goldenPath(const std::string& rel);
 // The packed tiny model (SPAR_GOLDENS_DIR/tiny.spar).
 std::string tinyModelPath();

@@ -9,11 +9,13 @@
 #include <gtest/gtest.h>
 
 #include <set>
+#include <sstream>
 #include <string>
 #include <vector>
 
 #include <nlohmann/json.hpp>
 
+#include "samples/bench_model.h"
 #include "tests/golden_support.h"
 #include "tests/test_support.h"
 
@@ -84,6 +86,51 @@ TEST(spar_bench_model, NeedsNoImageLibrary) {
   EXPECT_NE(r.out.find("libvulkan"), std::string::npos) << r.out;
   for (const char* lib : {"OpenImageIO", "libpng", "libicu", "libjpeg"})
     EXPECT_EQ(r.out.find(lib), std::string::npos) << lib << " in\n" << r.out;
+}
+
+// --list-kernels: what each op runs and why, from the device's properties (CPU family here)
+// or forced (SPAR_KERNELS=gpu: the GPU family on this CPU device).
+TEST(spar_bench_model, ListKernelsSaysWhatAndWhy) {
+  CommandResult r = runValidated({SPAR_BENCH, "--list-kernels"}, scratch(), "SPAR_PIPELINE_CACHE=0");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("linear, fp32 weights: gemm.comp"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("why: CPU device"), std::string::npos) << r.out;
+  r = runValidated({SPAR_BENCH, "--list-kernels", "--json"}, scratch(), "SPAR_PIPELINE_CACHE=0 SPAR_KERNELS=gpu");
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json doc = json::parse(r.out);
+  std::string all;
+  for (const auto& line : doc["kernels"]) all += line.get<std::string>() + "\n";
+  EXPECT_NE(all.find("linear, fp32 weights: gemm_tiled.comp"), std::string::npos) << all;
+  EXPECT_NE(all.find("attention: attention_tiled.comp"), std::string::npos) << all;
+  EXPECT_NE(all.find("SPAR_KERNELS=gpu"), std::string::npos) << all;
+  r = runValidated({SPAR_BENCH, "--list-kernels"}, scratch(), "SPAR_PIPELINE_CACHE=0 SPAR_KERNELS=coopmat");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("SPAR_KERNELS=coopmat"), std::string::npos) << r.err;
+}
+
+// The synthetic frames are the ones scripts/gpu_reference_bench.py makes for the PyTorch
+// reference (the same hash in Python): the GPU check compares both on the same inputs.
+TEST(spar_bench_model, SyntheticFramesAreThePythonScripts) {
+  const std::vector<float> frames = bench::syntheticImages(2, 16, 24);
+  const std::string code = "import sys; sys.path.insert(0, '" + std::string(SPAR_SOURCE_DIR) +
+                           "/scripts'); from gpu_reference_bench import synthetic_images; "
+                           "x = synthetic_images(2, 16, 24).ravel(); print(len(x)); print(' '.join(repr(float(v)) for v in x))";
+  const CommandResult r = runCommand({SPAR_PYTHON, "-c", code}, scratch());
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::istringstream in(r.out);
+  size_t n = 0;
+  in >> n;
+  ASSERT_EQ(n, frames.size());
+  double lo = 1, hi = 0;
+  for (size_t i = 0; i < n; ++i) {
+    double v = 0;
+    in >> v;
+    ASSERT_EQ(float(v), frames[i]) << "value " << i;
+    lo = std::min(lo, v);
+    hi = std::max(hi, v);
+  }
+  EXPECT_LT(lo, 0.01);  // spread over [0, 1)
+  EXPECT_GT(hi, 0.99);
 }
 
 }  // namespace

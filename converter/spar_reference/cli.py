@@ -131,6 +131,22 @@ MODEL_STAGES = [
 ]
 
 
+# The engine's stages (model/spar_pipeline.cpp, report.json / spar-bench) -> the reference's
+# stages above that cover the same work (scripts/compare_full.py, scripts/gpu_check_report.py).
+ENGINE_STAGE_MAP = [
+    ("image_tokens", ["image_tokens"]),
+    ("pose_estimator", ["pose_encoder", "pose_head"]),
+    ("rays", ["ray_tokens"]),
+    ("dino_v3", ["dino"]),
+    ("cv_drp", ["cv_drp"]),
+    ("gating", ["token_fusion"]),
+    ("lseg", ["lseg"]),
+    ("semantic_tokens", ["semantic_tokens"]),
+    ("scene_encoder", ["scene_encoder"]),
+    ("renderer", ["decoder", "rgb_head", "semantic_head"]),
+]
+
+
 def attach_stage_hooks(timer: StageTimer, model) -> List[str]:
     import torch.nn as nn
     names = []

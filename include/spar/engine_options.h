@@ -75,6 +75,11 @@ struct SPAR_API EngineOptions {
   // malformed value, naming the variable.
   static EngineOptions fromEnvironment(EngineOptions base);
   static EngineOptions fromEnvironment();
+  // The pipeline cache file the command-line tools use, and beside it kernel-choice.json (the
+  // measured kernel choice): $XDG_CACHE_HOME/spar/pipelines.bin, else ~/.cache/spar/pipelines.bin
+  // (the directory is made); "" when SPAR_PIPELINE_CACHE=0, neither variable is set, or the
+  // directory cannot be made.
+  static std::string defaultPipelineCacheFile();
 };
 
 }  // namespace spar

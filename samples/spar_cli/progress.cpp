@@ -4,11 +4,9 @@
 
 #include <cstdio>
 #include <cstdlib>
-#include <filesystem>
+#include "spar/engine_options.h"
 
 namespace spar::cli {
-
-namespace fs = std::filesystem;
 
 Progress::Progress() : tty_(::isatty(STDERR_FILENO) == 1) {}
 
@@ -27,17 +25,6 @@ void Progress::finish() {
   open_ = false;
 }
 
-std::string pipelineCachePath() {
-  const char* off = std::getenv("SPAR_PIPELINE_CACHE");
-  if (off && std::string(off) == "0") return "";
-  const char* xdg = std::getenv("XDG_CACHE_HOME");
-  const char* home = std::getenv("HOME");
-  fs::path dir = xdg && *xdg ? fs::path(xdg) / "spar" : home && *home ? fs::path(home) / ".cache" / "spar" : fs::path();
-  if (dir.empty()) return "";
-  std::error_code ec;
-  fs::create_directories(dir, ec);
-  if (ec) return "";
-  return (dir / "pipelines.bin").string();
-}
+std::string pipelineCachePath() { return EngineOptions::defaultPipelineCacheFile(); }
 
 }  // namespace spar::cli

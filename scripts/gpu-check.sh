@@ -1,0 +1,175 @@
+#!/usr/bin/env bash
+# The GPU check (issue 15), prepared here and run in one call on a machine with a GPU (the
+# NVIDIA H200 the device tool lends: PyTorch + CUDA, an NVIDIA Vulkan driver, no package
+# registries), in under 8 minutes, ending in one report ($OUT/report.json and report.md):
+#
+#   bash scripts/gpu-check.sh pack        # here, after the build: .gpucheck/bundle.tar.xz
+#   bash scripts/gpu-check.sh run         # there, in the repository root, .gpucheck carried
+#   bash scripts/gpu-check.sh run --cpu   # here: the same steps on lavapipe, small shapes
+#
+# The bundle holds the programs that need no image library (spar-bench, the op tests, the
+# model-level tests on goldens, the cooperative-matrix tests: they link libvulkan and the C++
+# runtime only) and a runtime to run them with: Debian 13's dynamic loader, C and C++ libraries,
+# Vulkan loader and Khronos validation layer (1.4.309, which knows VK_KHR_cooperative_matrix),
+# from scripts/coopmat-lavapipe.sh's download. So nothing on that machine but its GPU driver is
+# used, and every program runs under the validation layer where the tests ask for it.
+# Steps of `run` (each with its own time limit; a failing step is reported, the rest go on):
+#   1. spar-bench --list-kernels: the device, the kernel plan and why (the GEMM tiles measured)
+#   2. the op tests and test_kernel_plan, test_coopmat (validation layer on, zero messages)
+#   3. spar-bench: every op case (4096^3 GEMMs on a GPU) with the plan, JSON
+#   4. gpu_reference_bench.py --ops: cuBLAS GEMM (TF32 off) and SDPA on the same GPU
+#   5. the full-size model (official configuration, random weights made there, seed 11):
+#      spar-bench --model fp32 and fp16, 4 inputs + 4 targets at 256x256, per stage
+#   6. gpu_reference_bench.py on the same checkpoint and frames: fp32 eager and bf16
+#   7. goldens made there (tests/python/make_spar_goldens.py) and the model-level tests
+#   8. scripts/gpu_check_report.py: report.json, report.md (side by side, the issue's bars)
+set -uo pipefail
+cd "$(dirname "$0")/.."
+root=$(pwd)
+mode=${1:-}
+shift || true
+
+bins=(spar-bench test_linear test_attention test_conv2d test_conv_transpose2d test_norm test_reduce_channels
+      test_patchify test_pool test_resize test_transformer_block test_unary test_binary test_copy2d test_rope
+      test_embedding test_runtime test_count_nonfinite test_kernel_plan test_plucker_rays test_coopmat
+      test_dino_v3 test_cv_drp)
+op_tests=(test_linear test_attention test_conv2d test_conv_transpose2d test_norm test_reduce_channels test_patchify
+          test_pool test_resize test_transformer_block test_unary test_binary test_copy2d test_rope test_embedding
+          test_runtime test_count_nonfinite test_kernel_plan test_plucker_rays)
+model_tests=(test_dino_v3 test_cv_drp)
+
+if [ "$mode" = pack ]; then
+  build=${SPAR_BUILD:-build}
+  bash scripts/coopmat-lavapipe.sh >/dev/null || exit 1
+  trixie="$build/mesa-trixie/root/usr/lib/x86_64-linux-gnu"
+  stage=$(mktemp -d)
+  mkdir -p "$stage/bin" "$stage/runtime" "$stage/layers"
+  for b in "${bins[@]}"; do
+    f=$(find "$build/samples" "$build/tests" -maxdepth 1 -type f -name "$b" | head -n 1)
+    [ -n "$f" ] || { echo "gpu-check: $b not built (cmake --build $build)" >&2; exit 1; }
+    if ldd "$f" | grep -q -E "OpenImageIO|libpng|libicu"; then
+      echo "gpu-check: $b links an image library; it cannot travel" >&2; exit 1
+    fi
+    strip -o "$stage/bin/$b" "$f"
+  done
+  for l in ld-linux-x86-64.so.2 libc.so.6 libm.so.6 libstdc++.so.6 libgcc_s.so.1 libvulkan.so.1; do
+    cp -L "$trixie/$l" "$stage/runtime/$l"
+  done
+  cp -L "$trixie/libVkLayer_khronos_validation.so" "$stage/layers/"
+  # the manifest's relative library path is relative to the manifest
+  sed 's#"library_path": *"[^"]*"#"library_path": "./libVkLayer_khronos_validation.so"#' \
+    "$build/mesa-trixie/root/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json" \
+    > "$stage/layers/VkLayer_khronos_validation.json"
+  mkdir -p .gpucheck
+  grep -qxF '/.gpucheck/' .git/info/exclude 2>/dev/null || echo '/.gpucheck/' >> .git/info/exclude
+  tar -C "$stage" -cf - bin runtime layers | xz -T2 -6 > .gpucheck/bundle.tar.xz
+  git rev-parse HEAD > .gpucheck/commit
+  rm -rf "$stage"
+  echo "gpu-check: .gpucheck/bundle.tar.xz ($(du -h .gpucheck/bundle.tar.xz | cut -f1)) from $(cat .gpucheck/commit);"
+  echo "           carry .gpucheck and run: bash scripts/gpu-check.sh run"
+  exit 0
+fi
+
+if [ "$mode" != run ]; then
+  echo "usage: bash scripts/gpu-check.sh pack | run [--cpu]" >&2
+  exit 2
+fi
+cpu=0
+[ "${1:-}" = --cpu ] && cpu=1
+out=${OUT:-$root/build/gpu-check-out}
+mkdir -p "$out"
+work=${GPU_CHECK_WORK:-/tmp/spar-gpu-check}
+rm -rf "$work" && mkdir -p "$work"
+log="$out/steps.log"
+: > "$log"
+t_start=$(date +%s)
+say() { echo "[gpu-check $(( $(date +%s) - t_start ))s] $*" | tee -a "$log"; }
+
+[ -f .gpucheck/bundle.tar.xz ] || { echo "gpu-check: no .gpucheck/bundle.tar.xz (run 'pack' here first)" >&2; exit 1; }
+tar -C "$work" -xJf .gpucheck/bundle.tar.xz
+rt="$work/runtime"
+# NVIDIA's Vulkan driver: where the device README says it is, else the usual places.
+libpath="$rt"
+if [ $cpu = 0 ]; then
+  for icd in "${VK_DRIVER_FILES:-}" /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json /usr/share/vulkan/icd.d/nvidia_icd.json \
+             /etc/vulkan/icd.d/nvidia_icd.json; do
+    [ -n "$icd" ] && [ -f "$icd" ] && break
+  done
+  [ -f "$icd" ] || { say "no NVIDIA Vulkan driver manifest found"; exit 1; }
+  export VK_DRIVER_FILES="$icd" VK_ICD_FILENAMES="$icd"
+  for d in /usr/local/nvidia/lib64 /usr/local/nvidia/lib /usr/lib/x86_64-linux-gnu /lib/x86_64-linux-gnu; do
+    [ -d "$d" ] && libpath="$libpath:$d"
+  done
+else
+  libpath="$libpath:/usr/lib/x86_64-linux-gnu:/lib/x86_64-linux-gnu"
+fi
+export VK_LAYER_PATH="$work/layers"
+py=${PYTHON:-python3}
+[ $cpu = 1 ] && py=${PYTHON:-/usr/bin/python3}
+export PYTHONPATH="$root/converter${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1
+export XDG_CACHE_HOME="$work/cache"  # the pipeline cache and kernel-choice.json of this run
+# bin PROGRAM ARGS...: a program of the bundle through the bundle's loader and libraries (a
+# script, so that `timeout` can run it).
+cat > "$work/bin.sh" <<EOS
+#!/bin/sh
+b=\$1; shift
+exec "$rt/ld-linux-x86-64.so.2" --library-path "$libpath" "$work/bin/\$b" "\$@"
+EOS
+chmod +x "$work/bin.sh"
+bin="$work/bin.sh"
+step() {  # step NAME SECONDS COMMAND... : runs it with a limit, its output in $out/NAME.log
+  local name=$1 limit=$2; shift 2
+  say "$name ..."
+  timeout "$limit" "$@" > "$out/$name.log" 2>&1
+  local rc=$?
+  echo "$name $rc" >> "$out/steps.rc"
+  say "$name: exit $rc ($(tail -n 1 "$out/$name.log" | cut -c1-150))"
+  return $rc
+}
+: > "$out/steps.rc"
+
+say "device check: $($bin spar-bench --list-devices 2>&1 | tr '\n' ' ')"
+step kernels 120 $bin spar-bench --list-kernels --json
+cp "$out/kernels.log" "$out/kernels.json" 2>/dev/null
+
+mkdir -p "$out/tests"
+for t in "${op_tests[@]}" test_coopmat; do
+  [ $cpu = 1 ] && [ $t = test_coopmat ] && continue   # lavapipe 22.3 has no cooperative matrices
+  step "test-$t" 300 $bin "$t" --gtest_output="json:$out/tests/$t.json"
+done
+
+large=()
+[ $cpu = 1 ] && large=(--only _f32)
+step bench-ops 300 $bin spar-bench --json --repeat 10 "${large[@]}"
+small=()
+[ $cpu = 1 ] && small=(--small --repeat 3)
+step reference-ops 240 "$py" scripts/gpu_reference_bench.py --ops --out "$out/reference_ops.json" "${small[@]}"
+
+# The full-size model (or, with --cpu, the tiny configuration): checkpoint, pack, timings.
+cfg=full
+size=256x256
+[ $cpu = 1 ] && cfg=tiny && size=""
+step make-model 300 bash -c "$py -c 'import json, sys; from spar_convert.model_config import $cfg; \
+json.dump($cfg().to_dict(), open(sys.argv[1], \"w\"))' '$work/model.json' && \
+  $py converter/spar-reference make-checkpoint --config '$work/model.json' --seed 11 --perturb --no-optimizer \
+  -o '$work/model.pt' && $py converter/spar-convert -q '$work/model.pt' --config '$work/model.json' -o '$work/model.spar' \
+  --bpe text/data/clip/bpe_simple_vocab_16e6.txt.gz"
+sizearg=()
+[ -n "$size" ] && sizearg=(--size "$size")
+for p in fp32 fp16; do
+  step "bench-model-$p" 300 $bin spar-bench --model "$work/model.spar" --views 4 --targets 4 "${sizearg[@]}" \
+    --precision $p --repeat 5 --json
+done
+step reference-model 420 "$py" scripts/gpu_reference_bench.py --checkpoint "$work/model.pt" --config "$work/model.json" \
+  --views 4 --targets 4 "${sizearg[@]}" --repeat 5 --out "$out/reference_model.json"
+
+# Goldens made there (PyTorch on the CPU), then the model-level tests on them.
+step goldens 300 "$py" tests/python/make_spar_goldens.py "$work/goldens"
+export SPAR_GOLDENS_DIR="$work/goldens" SPAR_CLIP_BPE="$root/text/data/clip/bpe_simple_vocab_16e6.txt.gz"
+for t in "${model_tests[@]}"; do
+  step "test-$t" 300 $bin "$t" --gtest_output="json:$out/tests/$t.json"
+done
+
+step report 60 "$py" scripts/gpu_check_report.py "$out"
+say "done in $(( $(date +%s) - t_start )) s: $out/report.md"
+cat "$out/report.md" 2>/dev/null
