@@ -52,7 +52,7 @@ std::vector<TiledGemmTiles> candidates(const DeviceCaps& caps) {
       {64, 64, 16, 4, 4}, {128, 128, 8, 8, 8}, {128, 64, 16, 8, 4}, {64, 128, 16, 4, 8}, {128, 128, 16, 8, 8}};
   std::vector<TiledGemmTiles> out;
   for (const auto& t : all) {
-    const uint64_t shared = uint64_t(t.bk) * (t.bm + 1 + t.bn + 1) * 4;
+    const uint64_t shared = uint64_t(t.bk) * (t.bm + 4 + t.bn + 4) * 4;  // gemm_tiled.comp's tiles
     if (t.invocations() <= int(caps.maxWorkGroupInvocations) && shared <= caps.maxSharedMemory) out.push_back(t);
   }
   return out;

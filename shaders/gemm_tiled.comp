@@ -75,8 +75,14 @@ layout(push_constant) uniform Push {
 #endif
 
 const int WG = (BM / TM) * (BN / TN);
-// One float of padding per k row keeps the copy's transposed stores off a single bank.
-const int AS = BM + 1, WS = BN + 1;
+// Padding per k row: the copy's transposed stores do not all hit one bank, and rows stay
+// 16-byte aligned, so the compute loop's TM (TN) consecutive reads can be one vector load.
+#if FP16_MATH
+const int PAD = 8;
+#else
+const int PAD = 4;
+#endif
+const int AS = BM + PAD, WS = BN + PAD;
 shared TILE_T tileA[BK * AS];
 shared TILE_T tileW[BK * WS];
 
