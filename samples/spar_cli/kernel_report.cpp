@@ -27,7 +27,9 @@ nlohmann::ordered_json kernelReport(const Engine& engine) {
     }
     list.push_back(e);
   }
-  return {{"pipelines", t.pipelines},
+  Engine& e = const_cast<Engine&>(engine);
+  return {{"plan", describePlan(e.plan(), e.caps())},  // the kernel family per op and why (--list-kernels)
+          {"pipelines", t.pipelines},
           {"create_ms", t.createMs},  // summed over pipelines (they are created several at a time)
           {"builds", t.builds},       // driver builds at dispatch: compiles, or reloads from its cache
           {"compiles", t.compiles},   // builds long enough to be compiles (an estimate, see pipeline_stats.h)
