@@ -60,7 +60,7 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
                                : "forced: the CPU family");
     return plan;
   }
-  plan.gemm = plan.gemmF16 = plan.attention = plan.conv = KernelFamily::Tiled;
+  plan.gemm = plan.gemmF16 = plan.attention = plan.attentionF16 = plan.conv = KernelFamily::Tiled;
   plan.cpuShapes = false;
   plan.reasons.push_back(forced.empty() ? std::string(caps.isCpu() ? "CPU" : "GPU") +
                                               " device: workgroup tiles in shared memory (" +
@@ -110,7 +110,9 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
     plan.coop.m = int(cm.m);
     plan.coop.n = int(cm.n);
     plan.coop.k = int(cm.k);
+    plan.attentionF16 = KernelFamily::CoopMat;
     plan.reasons.push_back("fp16 weights: VK_KHR_cooperative_matrix " + plan.coop.text() + ", fp32 accumulation");
+    plan.reasons.push_back("attention of fp16 layers: q k^T and p v on cooperative matrices, softmax in fp32");
   } else if (forced == "gpu-fp16" || (forced.empty() && caps.shaderFloat16)) {
     plan.fp16Math = true;
     plan.reasons.push_back("fp16 weights: fp16 arithmetic (shaderFloat16) in runs of 4 k, fp32 accumulation" +
@@ -151,6 +153,9 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
                     ? "attention: attention.comp (cpu register blocks)"
                     : "attention: attention_tiled.comp (" + std::to_string(plan.attentionQueries) + " queries, " +
                           std::to_string(plan.attentionKeys) + "-key blocks)");
+  if (plan.attentionF16 == KernelFamily::CoopMat)
+    out.push_back("attention, fp16 layers: attention_coopmat.comp (" + std::to_string(plan.coop.m) + "x" +
+                  std::to_string(plan.coop.n) + "x" + std::to_string(plan.coop.k) + " MMA)");
   out.push_back(plan.conv == KernelFamily::CpuBlocks ? "conv2d: conv2d.comp (cpu register blocks)"
                                                      : "conv2d: gemm_tiled.comp, CONV (implicit GEMM)");
   out.push_back(std::string("reductions: ") + (plan.subgroupReductions ? "subgroup operations" : "shared memory") +

@@ -43,6 +43,9 @@ struct KernelPlan {
   KernelFamily gemmF16 = KernelFamily::CpuBlocks;  // linear layers with fp16 weights
   bool fp16Math = false;  // Tiled GEMM of fp16 weights computes in fp16 (gemm_tiled.comp, FP16_MATH)
   KernelFamily attention = KernelFamily::CpuBlocks;
+  // attention of fp16 inputs or of layers with fp16 weights: CoopMat (attention_coopmat.comp)
+  // where the device has cooperative matrices, else the attention family
+  KernelFamily attentionF16 = KernelFamily::CpuBlocks;
   KernelFamily conv = KernelFamily::CpuBlocks;     // conv2d (Tiled: an implicit GEMM)
   bool cpuShapes = true;            // workgroup shapes of the other ops: a CPU's SIMD lanes or a GPU's
   bool subgroupReductions = false;  // norms and softmax combine partial results with subgroup ops

@@ -201,7 +201,9 @@ void TransformerBlock::forward(Recorder& rec, const Tensor& x, const Transformer
     rmsNormHeads(rec, rows, D, rows, D, heads, kNormW_, o_.qkNormEps);
   }
   if (rope) rope(rec, qkv, heads, dh);
-  attention(rec, {qkv, 0}, {qkv, D}, {qkv, 2 * D}, {attn, 0}, int(heads), int(dh), o_.causal);
+  // a block with fp16 weights (--precision fp16) may round q, k, v to fp16 for cooperative matrices
+  attention(rec, {qkv, 0}, {qkv, D}, {qkv, 2 * D}, {attn, 0}, int(heads), int(dh), o_.causal, 0.0f,
+            qkvW_.dtype() == DType::F16);
   linear(rec, attn, fcW_, fcB_, norm);  // norm1's output is dead: reuse its buffer
   if (o_.layerScale) mul(rec, norm, ls1_, norm);
   add(rec, x, norm, x);

@@ -221,4 +221,32 @@ VideoInfo probeVideo(const std::filesystem::path& video, const std::filesystem::
   return v;
 }
 
+std::vector<double> attentionRef(const std::vector<float>& q, int64_t qCols, int64_t qOff, const std::vector<float>& k,
+                                 int64_t kCols, int64_t kOff, const std::vector<float>& v, int64_t vCols, int64_t vOff,
+                                 int64_t B, int64_t Nq, int64_t Nk, int heads, int dh, bool causal, double scale) {
+  std::vector<double> out(B * Nq * heads * dh);
+  std::vector<double> s(Nk);
+  for (int64_t b = 0; b < B; ++b)
+    for (int h = 0; h < heads; ++h)
+      for (int64_t i = 0; i < Nq; ++i) {
+        double mx = -INFINITY;
+        for (int64_t j = 0; j < Nk; ++j) {
+          if (causal && j > i) { s[j] = -INFINITY; continue; }
+          double d = 0;
+          for (int c = 0; c < dh; ++c)
+            d += double(q[(b * Nq + i) * qCols + qOff + h * dh + c]) * k[(b * Nk + j) * kCols + kOff + h * dh + c];
+          s[j] = d * scale;
+          mx = std::max(mx, s[j]);
+        }
+        double sum = 0;
+        for (int64_t j = 0; j < Nk; ++j) sum += (s[j] = s[j] == -INFINITY ? 0.0 : std::exp(s[j] - mx));
+        for (int c = 0; c < dh; ++c) {
+          double acc = 0;
+          for (int64_t j = 0; j < Nk; ++j) acc += s[j] * v[(b * Nk + j) * vCols + vOff + h * dh + c];
+          out[((b * Nq + i) * heads + h) * dh + c] = acc / sum;
+        }
+      }
+  return out;
+}
+
 }  // namespace spar::test

@@ -70,6 +70,12 @@ std::vector<double> toDouble(const std::vector<float>& v);
 // Values as an fp16 tensor would hold them (for references of fp16-storage paths).
 std::vector<float> roundToHalf(const std::vector<float>& v);
 
+// Multi-head attention in float64 over tensors [B, N, C] with heads at column offsets
+// (PyTorch "(nh dh)"): softmax(q k^T * scale, causal mask) v, output [B, Nq, heads * dh].
+std::vector<double> attentionRef(const std::vector<float>& q, int64_t qCols, int64_t qOff, const std::vector<float>& k,
+                                 int64_t kCols, int64_t kOff, const std::vector<float>& v, int64_t vCols, int64_t vOff,
+                                 int64_t B, int64_t Nq, int64_t Nk, int heads, int dh, bool causal, double scale);
+
 // The fused activations (shaders/common.glsl) in float64.
 double activateRef(double x, Activation act);
 

@@ -34,10 +34,35 @@ Geometry geometryOf(const HeadsView& h, const char* what, int heads, int headDim
   return g;
 }
 
+// shaders/attention_coopmat.comp for this head size, or null where the head size is not a
+// multiple of the multiply-add's or its shared memory does not fit: 4 subgroups of the
+// multiply-add's rows, blocks of twice its columns of keys, fewer subgroups where needed.
+const Kernel* coopMatKernel(Engine& engine, const KernelPlan& plan, int headDim, bool causal, bool f16Out) {
+  const DeviceCaps& caps = engine.caps();
+  const CoopMatTiles& c = plan.coop;
+  if (headDim % c.k || headDim % c.n) return nullptr;
+  const uint64_t dh = uint64_t(headDim), keys = 2 * uint64_t(std::max(c.n, c.k));
+  for (uint64_t groups = 4; groups >= 1; groups /= 2) {
+    const uint64_t rows = groups * uint64_t(c.m), ld = dh + 8;
+    const uint64_t shared = std::max(rows, keys) * ld * 2 + keys * ld * 2 + rows * keys * 4 + rows * (keys + 8) * 2 +
+                            rows * dh * 4 + 2 * rows * 4;
+    if (shared > caps.maxSharedMemory) continue;
+    std::vector<int32_t> constants = {int(caps.maxSubgroupSize * groups), 1, 1, headDim, int(groups), int(keys), causal};
+    constants.resize(20, 0);  // ids 7-19 unused; 20-22 the multiply-add shape
+    constants.insert(constants.end(), {c.m, c.n, c.k});
+    return &engine.kernel({f16Out ? "attention_coopmat_f16out" : "attention_coopmat_f32",
+                           {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                           sizeof(AttentionPush),
+                           constants,
+                           caps.maxSubgroupSize});
+  }
+  return nullptr;
+}
+
 }  // namespace
 
 void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const HeadsView& v, const HeadsView& out,
-               int heads, int headDim, bool causal, float scale) {
+               int heads, int headDim, bool causal, float scale, bool fp16Layer) {
   Engine& engine = rec.engine();
   if (heads <= 0 || headDim <= 0 || headDim % 4 != 0)
     throw Error("attention: head dimension must be a positive multiple of 4, got " + std::to_string(headDim));
@@ -65,6 +90,16 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   const bool f16Out = out.tensor.dtype() == DType::F16;
 
   const KernelPlan& plan = engine.plan();
+  const bool halfInputs = q.tensor.dtype() == DType::F16 && k.tensor.dtype() == DType::F16 &&
+                          v.tensor.dtype() == DType::F16;
+  if (plan.attentionF16 == KernelFamily::CoopMat && (fp16Layer || halfInputs)) {
+    if (const Kernel* kernel = coopMatKernel(engine, plan, headDim, causal, f16Out)) {
+      const uint32_t queries = uint32_t(kernel->spec.constants[4]) * uint32_t(plan.coop.m);
+      rec.dispatch(*kernel, args, push, static_cast<uint32_t>((gq.rows + queries - 1) / queries),
+                   static_cast<uint32_t>(heads), static_cast<uint32_t>(gq.batch));
+      return;
+    }
+  }
   if (plan.attention == KernelFamily::Tiled) {
     // GPU family (shaders/attention_tiled.comp): a workgroup per block of queries of a head;
     // keys per block bounded by the shared memory their k and v rows take.

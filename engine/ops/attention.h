@@ -13,7 +13,10 @@ struct HeadsView {
 
 // out = softmax(q k^T * scale) v per head (scale 0 means 1/sqrt(headDim)); causal masks
 // keys after the query's own position. q, k, v may be f32 or f16; out f32 or f16.
+// fp16Layer: the caller's layer computes in fp16 (its weights are fp16): where the device has
+// cooperative matrices (KernelPlan::attentionF16) q, k and v are then rounded to fp16 for
+// them, as fp16 inputs always may be; otherwise the arithmetic is fp32.
 void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const HeadsView& v, const HeadsView& out,
-               int heads, int headDim, bool causal = false, float scale = 0.0f);
+               int heads, int headDim, bool causal = false, float scale = 0.0f, bool fp16Layer = false);
 
 }  // namespace spar

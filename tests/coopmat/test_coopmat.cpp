@@ -1,5 +1,5 @@
-// The cooperative-matrix GEMM (shaders/gemm_coopmat.comp, VK_KHR_cooperative_matrix) against
-// float64, on a device that has the extension: CTest runs this program on lavapipe 26.1
+// The cooperative-matrix GEMM (shaders/gemm_coopmat.comp, VK_KHR_cooperative_matrix) and
+// attention (shaders/attention_coopmat.comp) against float64, on a device that has the extension: CTest runs this program on lavapipe 26.1
 // (scripts/coopmat-lavapipe.sh) with SPAR_KERNELS=coopmat, and scripts/gpu-check.sh on a GPU.
 // It fails, not skips, on a device without cooperative matrices. No image I/O: it runs where
 // only the Vulkan loader is (scripts/gpu-check.sh); the whole model on cooperative matrices is
@@ -9,6 +9,7 @@
 // accumulated in fp32. So against float64 on the rounded inputs the error is fp32 accumulation
 // only (thresholds of the fp32 GEMM tests); against the unrounded inputs it is fp16 rounding.
 #include "engine/kernel_plan.h"
+#include "engine/ops/attention.h"
 #include "engine/ops/linear.h"
 #include "tests/test_support.h"
 
@@ -105,6 +106,63 @@ TEST_F(CoopMatTest, ActivationsBeyondFp16Saturate) {
   const auto out = y.read();
   for (int64_t m = 0; m < M; ++m)
     for (int64_t n = 0; n < N; ++n) EXPECT_EQ(out[m * N + n], (m % 2 ? -1.0f : 1.0f) * 65504.0f / 1024) << m << "," << n;
+}
+
+// Attention of fp16 layers (shaders/attention_coopmat.comp): q, k, v rounded to fp16, scores and
+// output in fp32, the probabilities rounded to fp16 before they multiply v. Against float64 on
+// the rounded inputs the error is that last rounding (relative 2^-11 per probability: measured
+// NMSE 1.3e-8 .. 3.1e-8 on lavapipe 26.1, max abs 3.5e-4); thresholds 1e-6.
+struct AttentionCase {
+  int64_t B, Nq, Nk;
+  int heads, dh;
+  bool causal;
+};
+
+class CoopMatAttention : public EngineTest, public ::testing::WithParamInterface<AttentionCase> {};
+
+TEST_P(CoopMatAttention, MatchesFloat64OnFp16Inputs) {
+  const AttentionCase c = GetParam();
+  const int64_t D = int64_t(c.heads) * c.dh;
+  auto q = randomNormal(c.B * c.Nq * D, 0, 1, 41), kv = randomNormal(c.B * c.Nk * 2 * D, 0, 1, 42);
+  Tensor tq = eng().fromFloats({c.B, c.Nq, D}, q), tkv = eng().fromFloats({c.B, c.Nk, 2 * D}, kv);
+  GuardedOutput out(eng(), {c.B, c.Nq, D});
+  Recorder rec(eng());
+  attention(rec, {tq, 0}, {tkv, 0}, {tkv, D}, {out.tensor(), 0}, c.heads, c.dh, c.causal, 0.0f, /*fp16Layer=*/true);
+  rec.run();
+  const auto rq = roundToHalf(q), rkv = roundToHalf(kv);
+  const double scale = 1.0 / std::sqrt(double(c.dh));
+  expectClose(out.read(), attentionRef(rq, D, 0, rkv, 2 * D, 0, rkv, 2 * D, D, c.B, c.Nq, c.Nk, c.heads, c.dh, c.causal, scale),
+              1e-6, 2e-2, "coopmat attention");
+  out.expectAllWritten();
+}
+
+// Odd query and key counts (tails of the query block and of the key block), causal masks, heads
+// of 32 and 64, one key.
+INSTANTIATE_TEST_SUITE_P(Shapes, CoopMatAttention,
+                         ::testing::Values(AttentionCase{1, 61, 61, 2, 32, false}, AttentionCase{2, 7, 45, 3, 64, false},
+                                           AttentionCase{1, 257, 257, 2, 64, false}, AttentionCase{2, 61, 61, 2, 32, true},
+                                           AttentionCase{1, 130, 130, 1, 64, true}, AttentionCase{1, 5, 1, 1, 32, false}));
+
+// Stiff: logits of +-1e4 (q, k of 100 in fp16) and one dominant key per query stay finite and
+// pick the right value row.
+TEST_F(CoopMatTest, AttentionOneKeyDominates) {
+  const int64_t N = 37;
+  const int dh = 32;
+  std::vector<float> q(N * dh, 0.0f), kv(N * 2 * dh, 0.0f);
+  for (int64_t i = 0; i < N; ++i) {
+    q[i * dh + (i % dh)] = 100.0f;                       // query i points along axis i % dh
+    kv[i * 2 * dh + (i % dh)] = i < dh ? 100.0f : -100.0f;  // key i (< dh) matches query i
+    for (int c = 0; c < dh; ++c) kv[i * 2 * dh + dh + c] = float(i);  // value row i is i
+  }
+  Tensor tq = eng().fromFloats({1, N, dh}, q), tkv = eng().fromFloats({1, N, 2 * dh}, kv);
+  GuardedOutput out(eng(), {1, N, dh});
+  Recorder rec(eng());
+  attention(rec, {tq, 0}, {tkv, 0}, {tkv, dh}, {out.tensor(), 0}, 1, dh, false, 0.0f, true);
+  rec.run();
+  const auto o = out.read();
+  for (int64_t i = 0; i < dh; ++i)
+    for (int c = 0; c < dh; ++c) ASSERT_NEAR(o[i * dh + c], float(i), 1e-2f) << "query " << i;
+  for (float x : o) ASSERT_TRUE(std::isfinite(x));
 }
 
 }  // namespace
