@@ -46,25 +46,24 @@ class Timer:
     def __init__(self, torch, device):
         self.torch, self.cuda = torch, device.startswith("cuda")
 
-    def __call__(self, fn, repeat):
+    def once(self, fn):
+        """ms of one call of fn, its work finished."""
         torch = self.torch
-        fn()  # warm-up: kernels chosen, caches filled
         if self.cuda:
+            a, b = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
+            a.record()
+            fn()
+            b.record()
             torch.cuda.synchronize()
-        ms = []
-        for _ in range(repeat):
-            if self.cuda:
-                a, b = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
-                a.record()
-                fn()
-                b.record()
-                torch.cuda.synchronize()
-                ms.append(a.elapsed_time(b))
-            else:
-                t = time.perf_counter()
-                fn()
-                ms.append((time.perf_counter() - t) * 1e3)
-        return float(np.median(ms))
+            return a.elapsed_time(b)
+        t = time.perf_counter()
+        fn()
+        return (time.perf_counter() - t) * 1e3
+
+    def __call__(self, fn, repeat):
+        """Median ms of repeat calls after a warm-up call (kernels chosen, caches filled)."""
+        self.once(fn)
+        return float(np.median([self.once(fn) for _ in range(repeat)]))
 
 
 def measured(run, entry, flops):
@@ -122,6 +121,7 @@ def bench_model(args, torch):
     x = torch.from_numpy(synthetic_images(v, h, w))[None].to(dev)
     inputs, targets = list(range(args.views)), list(range(args.views, v))
     cuda = dev.startswith("cuda")
+    timer = Timer(torch, dev)
 
     # Per stage: CUDA events around every hooked module call, summed after the run.
     events = {}
@@ -188,17 +188,7 @@ def bench_model(args, torch):
         totals, stages = [], {}
         for _ in range(args.repeat):
             events.clear()
-            if cuda:
-                a, b = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
-                a.record()
-                once()
-                b.record()
-                torch.cuda.synchronize()
-                totals.append(a.elapsed_time(b))
-            else:
-                t = time.perf_counter()
-                once()
-                totals.append((time.perf_counter() - t) * 1e3)
+            totals.append(timer.once(once))
             for s, ms in stage_ms().items():
                 stages.setdefault(s, []).append(ms)
         results[mode] = {"first_run_ms": first, "total_ms": float(np.median(totals)),

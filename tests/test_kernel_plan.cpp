@@ -168,19 +168,7 @@ TEST(KernelTuner, MeasuresOnceThenReadsTheCacheFile) {
 // K = 384, 2.0e-7 at K = 61 through R texels; thresholds 1e-6), and saturation instead of inf.
 class Fp16MathTest : public EngineTest {
  protected:
-  void SetUp() override {
-    EngineTest::SetUp();
-    saved_ = eng().options().tuning;
-    KernelTuning t = saved_;
-    t.kernels = "gpu-fp16";
-    t.gpuGemmTiles.reset();
-    eng().setTuning(t);
-  }
-  void TearDown() override {
-    eng().setTuning(saved_);
-    EngineTest::TearDown();
-  }
-  KernelTuning saved_;
+  ScopedKernels family_{eng(), "gpu-fp16"};
 };
 
 std::vector<double> productRef(const std::vector<float>& x, const std::vector<float>& w, const std::vector<float>& b,

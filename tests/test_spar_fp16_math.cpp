@@ -19,24 +19,13 @@ constexpr double kScale = 4;
 
 class SparFp16MathTest : public EngineTest {
  protected:
-  void SetUp() override {
-    EngineTest::SetUp();
-    saved_ = eng().options().tuning;
-    KernelTuning t = saved_;
-    t.kernels = "gpu-fp16";
-    eng().setTuning(t);
-  }
-  void TearDown() override {
-    eng().setTuning(saved_);
-    EngineTest::TearDown();
-  }
-  CaseOptions fp16Math(CaseOptions o) {
+  static CaseOptions fp16Math(CaseOptions o) {
     o.weightType = DType::F16;
     o.thresholds = fp16WeightThresholds();
     o.scale = kScale;
     return o;
   }
-  KernelTuning saved_;
+  ScopedKernels family_{eng(), "gpu-fp16"};
 };
 
 TEST_F(SparFp16MathTest, Interleaved) {

@@ -108,6 +108,24 @@ class GuardedOutput {
   std::vector<float> body_;
 };
 
+// Forces a kernel family (KernelTuning::kernels: "cpu", "gpu", "gpu-fp16", "coopmat") on the
+// engine for one scope, restoring its tuning after.
+class ScopedKernels {
+ public:
+  ScopedKernels(Engine& engine, const std::string& family) : engine_(engine), saved_(engine.options().tuning) {
+    KernelTuning t = saved_;
+    t.kernels = family;
+    engine.setTuning(t);
+  }
+  ~ScopedKernels() { engine_.setTuning(saved_); }
+  ScopedKernels(const ScopedKernels&) = delete;
+  ScopedKernels& operator=(const ScopedKernels&) = delete;
+
+ private:
+  Engine& engine_;
+  KernelTuning saved_;
+};
+
 // Sets an environment variable for one scope (e.g. a tile override such as SPAR_CONV_TILES,
 // to test the GPU path on a CPU device), restoring the previous value or absence after.
 class ScopedEnv {
