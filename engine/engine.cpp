@@ -39,16 +39,15 @@ void Engine::setTuning(const KernelTuning& tuning) {
 
 const KernelPlan& Engine::plan() {
   if (plan_.measureGemm && !planning_) {
-    planning_ = true;
-    try {
-      chooseGemmTilesByMeasurement(*this, plan_);
-    } catch (...) {
-      planning_ = false;
-      plan_.measureGemm = false;
-      throw;
-    }
-    planning_ = false;
+    // Measured once, whether or not it succeeds; meanwhile the tuner's own GEMMs see the plan
+    // as it stands.
     plan_.measureGemm = false;
+    planning_ = true;
+    struct Done {
+      bool& flag;
+      ~Done() { flag = false; }
+    } done{planning_};
+    chooseGemmTilesByMeasurement(*this, plan_);
   }
   return plan_;
 }

@@ -125,6 +125,9 @@ const Kernel& PipelineCache::get(const KernelSpec& spec) {
 
 VkPipeline PipelineCache::build(const Kernel& kernel, double* ms) {
   VkDevice dev = device_.handle();
+  const DeviceCaps& caps = device_.caps();
+  if (kernel.spec.subgroupSize && !caps.fullSubgroups)
+    throw Error("kernel " + kernel.name + " needs full subgroups (VK_EXT_subgroup_size_control)");
   auto words = findShader(kernel.spec.shader);
   VkShaderModuleCreateInfo moduleInfo{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
   moduleInfo.codeSize = words.size() * sizeof(uint32_t);
@@ -151,8 +154,6 @@ VkPipeline PipelineCache::build(const Kernel& kernel, double* ms) {
   VkPipelineShaderStageRequiredSubgroupSizeCreateInfoEXT requiredSize{
       VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_REQUIRED_SUBGROUP_SIZE_CREATE_INFO_EXT};
   if (kernel.spec.subgroupSize) {
-    const DeviceCaps& caps = device_.caps();
-    if (!caps.fullSubgroups) throw Error("kernel " + kernel.name + " needs full subgroups (VK_EXT_subgroup_size_control)");
     info.stage.flags = VK_PIPELINE_SHADER_STAGE_CREATE_REQUIRE_FULL_SUBGROUPS_BIT_EXT;
     if (caps.requiredSubgroupSize && caps.minSubgroupSize != caps.maxSubgroupSize) {
       requiredSize.requiredSubgroupSize = kernel.spec.subgroupSize;

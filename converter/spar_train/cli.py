@@ -30,6 +30,9 @@ def main(argv=None) -> int:
     p.add_argument("--bpe", default=default_bpe(), help="CLIP BPE merges table")
     p.add_argument("--log-every", type=int, default=10)
     p.add_argument("--save-every", type=int, default=250)
+    p.add_argument("--keep-checkpoints", action="store_true",
+                   help="also keep each --save-every checkpoint as checkpoint_stepNNNNNN.pt (learning curves: "
+                        "scripts/learning-curve.sh)")
     p.add_argument("--pose-loss", type=float, default=0.0, metavar="W",
                    help="weight of a camera loss against the generator's true cameras (not in the "
                         "paper's self-supervised recipe; 0, the default, leaves it out)")

@@ -139,6 +139,9 @@ class Run:
                 acc = {}
             if a.save_every and (step + 1) % a.save_every == 0 and step + 1 < a.steps:
                 self.checkpoint(model, opt, sched, step + 1, os.path.join(a.out, "checkpoint.pt"))
+                if a.keep_checkpoints:  # for learning curves (scripts/learning-curve.sh)
+                    self.checkpoint(model, opt, sched, step + 1,
+                                    os.path.join(a.out, f"checkpoint_step{step + 1:06d}.pt"))
         model.eval()
         ck = os.path.join(a.out, "checkpoint.pt")
         self.checkpoint(model, opt, sched, a.steps, ck)
