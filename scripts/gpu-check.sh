@@ -40,8 +40,9 @@ model_tests=(test_dino_v3 test_cv_drp)
 
 if [ "$mode" = pack ]; then
   build=${SPAR_BUILD:-build}
+  export DIR=${DIR:-$build/mesa-trixie}  # where scripts/coopmat-lavapipe.sh keeps Debian 13's files
   bash scripts/coopmat-lavapipe.sh >/dev/null || exit 1
-  trixie="$build/mesa-trixie/root/usr/lib/x86_64-linux-gnu"
+  trixie="$DIR/root/usr/lib/x86_64-linux-gnu"
   stage=$(mktemp -d)
   mkdir -p "$stage/bin" "$stage/runtime" "$stage/layers"
   for b in "${bins[@]}"; do
@@ -58,7 +59,7 @@ if [ "$mode" = pack ]; then
   cp -L "$trixie/libVkLayer_khronos_validation.so" "$stage/layers/"
   # the manifest's relative library path is relative to the manifest
   sed 's#"library_path": *"[^"]*"#"library_path": "./libVkLayer_khronos_validation.so"#' \
-    "$build/mesa-trixie/root/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json" \
+    "$DIR/root/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json" \
     > "$stage/layers/VkLayer_khronos_validation.json"
   mkdir -p .gpucheck
   grep -qxF '/.gpucheck/' .git/info/exclude 2>/dev/null || echo '/.gpucheck/' >> .git/info/exclude
