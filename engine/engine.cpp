@@ -38,16 +38,16 @@ void Engine::setTuning(const KernelTuning& tuning) {
 }
 
 const KernelPlan& Engine::plan() {
-  if (plan_.measureGemm && !planning_) {
+  if (plan_.measureTiles && !planning_) {
     // Measured once, whether or not it succeeds; meanwhile the tuner's own GEMMs see the plan
     // as it stands.
-    plan_.measureGemm = false;
+    plan_.measureTiles = false;
     planning_ = true;
     struct Done {
       bool& flag;
       ~Done() { flag = false; }
     } done{planning_};
-    chooseGemmTilesByMeasurement(*this, plan_);
+    measureKernelChoice(*this, plan_);
   }
   return plan_;
 }

@@ -82,10 +82,10 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
     plan.gemmTiles = plan.gemmSmallTiles = {t[0], t[1], t[2], t[3], t[4]};
     plan.reasons.push_back("GEMM tiles forced: " + plan.gemmTiles.text());
   } else {
-    plan.measureGemm = tuning.measureKernels.value_or(!caps.isCpu());
+    plan.measureTiles = !tuning.gpuAttentionTiles && tuning.measureKernels.value_or(!caps.isCpu());
     plan.reasons.push_back("GEMM tiles " + plan.gemmTiles.text() + " (" + plan.gemmSmallTiles.text() +
                            " below 256 workgroups)" +
-                           (plan.measureGemm ? ", to be measured against other candidates at first use" : ""));
+                           (plan.measureTiles ? ", to be measured against other candidates at first use" : ""));
   }
   if (plan.gemmTiles.invocations() > int(caps.maxWorkGroupInvocations))
     throw Error("GPU GEMM tiles " + plan.gemmTiles.text() + " need more invocations than the device allows");

@@ -53,7 +53,7 @@ struct KernelPlan {
   TiledGemmTiles gemmSmallTiles{32, 32, 16, 2, 2};   // products with few output tiles
   CoopMatTiles coop;
   int attentionQueries = 64, attentionKeys = 32;     // attention_tiled.comp: per workgroup / block
-  bool measureGemm = false;  // the GEMM tiles are still to be measured (kernel_tuner.h)
+  bool measureTiles = false;  // GEMM tiles and attention blocks still to be measured (kernel_tuner.h)
   std::string source;        // "device properties", "SPAR_KERNELS=gpu", "measured ...", "cache ..."
   std::vector<std::string> reasons;  // one line per decision, for --list-kernels
 

@@ -6,10 +6,12 @@
 #include <ctime>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <nlohmann/json.hpp>
 #include <vector>
 
 #include "engine/engine.h"
+#include "engine/ops/attention.h"
 #include "engine/ops/linear.h"
 #include "engine/recorder.h"
 #include "engine/shader_registry.h"
@@ -20,13 +22,14 @@ namespace {
 namespace fs = std::filesystem;
 using nlohmann::json;
 
-// FNV-1a of the GEMM shader's words: a changed kernel is measured again.
+// FNV-1a of the measured shaders' words: a changed kernel is measured again.
 std::string shaderHash() {
   uint64_t h = 1469598103934665603ull;
-  for (uint32_t w : findShader("gemm_tiled_f32")) {
-    h ^= w;
-    h *= 1099511628211ull;
-  }
+  for (const char* name : {"gemm_tiled_f32", "attention_tiled_f32"})
+    for (uint32_t w : findShader(name)) {
+      h ^= w;
+      h *= 1099511628211ull;
+    }
   char b[20];
   std::snprintf(b, sizeof(b), "%016llx", static_cast<unsigned long long>(h));
   return b;
@@ -35,7 +38,7 @@ std::string shaderHash() {
 std::string deviceKey(const DeviceCaps& caps) {
   char b[64];
   std::snprintf(b, sizeof(b), "%04x:%04x driver %u ", caps.vendorId, caps.deviceId, caps.driverVersion);
-  return b + caps.name + " (" + caps.driverInfo + ") gemm " + shaderHash();
+  return b + caps.name + " (" + caps.driverInfo + ") kernels " + shaderHash();
 }
 
 json readChoices(const std::string& file) {
@@ -45,7 +48,7 @@ json readChoices(const std::string& file) {
   return j.is_object() ? j : json::object();
 }
 
-std::vector<TiledGemmTiles> candidates(const DeviceCaps& caps) {
+std::vector<TiledGemmTiles> gemmCandidates(const DeviceCaps& caps) {
   // Common GPU shapes: a small tile of 256 invocations, the classic 128 x 128 / 8 x 8 SGEMM
   // tile, and rectangular ones between them.
   const std::vector<TiledGemmTiles> all = {
@@ -58,19 +61,58 @@ std::vector<TiledGemmTiles> candidates(const DeviceCaps& caps) {
   return out;
 }
 
-// Median compute time of `repeat` runs of one fp32 product with these tiles.
-double timeTiles(Engine& engine, KernelPlan& plan, const TiledGemmTiles& tiles, const Tensor& x, const Tensor& w,
-                 const Tensor& y, int repeat) {
-  plan.gemmTiles = plan.gemmSmallTiles = tiles;
-  std::vector<double> ms;
-  for (int r = 0; r <= repeat; ++r) {  // the first run builds the pipeline
-    Recorder rec(engine, true);
-    linear(rec, x, w, Tensor(), y);
-    rec.run();
-    if (r > 0) ms.push_back(rec.totalMs());
+// attention_tiled.comp: (queries a workgroup, keys a block) for 64-wide heads.
+std::vector<std::array<int, 2>> attentionCandidates(const DeviceCaps& caps) {
+  const std::vector<std::array<int, 2>> all = {{64, 32}, {128, 32}, {64, 64}, {32, 32}, {128, 16}};
+  std::vector<std::array<int, 2>> out;
+  for (const auto& c : all)
+    if (c[0] <= int(caps.maxWorkGroupInvocations) && uint64_t(c[1]) * 64 * 8 <= caps.maxSharedMemory) out.push_back(c);
+  return out;
+}
+
+// The fastest of `count` candidates: apply(i) puts candidate i into the plan, record(rec)
+// records the measured work; each is run once to build its pipeline, then `repeat` times.
+struct Fastest {
+  size_t index = 0;
+  double ms = 0;
+  json tried = json::array();
+};
+Fastest fastest(Engine& engine, size_t count, const std::function<json(size_t)>& apply,
+                const std::function<void(Recorder&)>& record, int repeat) {
+  Fastest f;
+  for (size_t i = 0; i < count; ++i) {
+    const json label = apply(i);
+    std::vector<double> ms;
+    for (int r = 0; r <= repeat; ++r) {
+      Recorder rec(engine, true);
+      record(rec);
+      rec.run();
+      if (r > 0) ms.push_back(rec.totalMs());
+    }
+    std::sort(ms.begin(), ms.end());
+    const double median = ms[ms.size() / 2];
+    f.tried.push_back({{"tiles", label}, {"ms", median}});
+    if (i == 0 || median < f.ms) f.index = i, f.ms = median;
   }
-  std::sort(ms.begin(), ms.end());
-  return ms[ms.size() / 2];
+  return f;
+}
+
+std::vector<float> pattern(size_t n) {
+  std::vector<float> v(n);
+  for (size_t i = 0; i < n; ++i) v[i] = float((i * 7919) % 1000) / 1000.0f - 0.5f;
+  return v;
+}
+
+void applyCached(KernelPlan& plan, const json& e, const std::string& file) {
+  const auto g = e.at("gemm").value("tiles", std::vector<int>{});
+  const auto a = e.at("attention").value("tiles", std::vector<int>{});
+  if (g.size() != 5 || a.size() != 2) throw std::runtime_error("malformed entry");
+  plan.gemmTiles = {g[0], g[1], g[2], g[3], g[4]};
+  plan.attentionQueries = a[0];
+  plan.attentionKeys = a[1];
+  plan.source += ", tiles from " + file + " (measured " + e.value("date", std::string("?")) + ")";
+  plan.reasons.push_back("GEMM tiles " + plan.gemmTiles.text() + ", attention " + std::to_string(a[0]) + " queries / " +
+                         std::to_string(a[1]) + " keys: the fastest measured candidates (" + file + ")");
 }
 
 }  // namespace
@@ -80,63 +122,77 @@ std::string kernelChoiceFile(const std::string& pipelineCacheFile) {
   return (fs::path(pipelineCacheFile).parent_path() / "kernel-choice.json").string();
 }
 
-void chooseGemmTilesByMeasurement(Engine& engine, KernelPlan& plan) {
+void measureKernelChoice(Engine& engine, KernelPlan& plan) {
   const DeviceCaps& caps = engine.caps();
   const std::string file = kernelChoiceFile(engine.options().pipelineCacheFile);
   const std::string key = deviceKey(caps);
   json all = file.empty() ? json::object() : readChoices(file);
   if (all.contains(key)) {
-    const json& e = all[key];
-    const auto t = e.value("tiles", std::vector<int>{});
-    if (t.size() == 5) {
-      plan.gemmTiles = {t[0], t[1], t[2], t[3], t[4]};
-      plan.source += ", GEMM tiles from " + file + " (measured " + e.value("date", std::string("?")) + ")";
-      plan.reasons.push_back("GEMM tiles " + plan.gemmTiles.text() + ": the fastest of " +
-                             std::to_string(e.value("candidates", json::array()).size()) + " measured candidates (" + file + ")");
+    try {
+      applyCached(plan, all[key], file);
       return;
+    } catch (const std::exception&) {  // an entry of another layout: measured again
     }
   }
-  const TiledGemmTiles small = plan.gemmSmallTiles;
-  // A product big enough to fill a GPU (2048^3: 17 GFLOP, about a millisecond on a large one);
-  // a CPU device forced onto the GPU family (tests) measures a small one.
-  const int64_t n = caps.isCpu() ? 128 : 2048;
-  std::vector<float> values(size_t(n * n));
-  for (size_t i = 0; i < values.size(); ++i) values[i] = float((i * 7919) % 1000) / 1000.0f - 0.5f;
-  const Tensor x = engine.fromFloats({n, n}, values), w = engine.fromFloats({n, n}, values);
-  const Tensor y = engine.tensor({n, n});
-  json tried = json::array();
-  TiledGemmTiles best = plan.gemmTiles;
-  double bestMs = 0;
   const auto t0 = std::chrono::steady_clock::now();
-  for (const auto& t : candidates(caps)) {
-    const double ms = timeTiles(engine, plan, t, x, w, y, 3);
-    tried.push_back({{"tiles", {t.bm, t.bn, t.bk, t.tm, t.tn}}, {"ms", ms}});
-    if (bestMs == 0 || ms < bestMs) {
-      best = t;
-      bestMs = ms;
-    }
-  }
-  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  plan.gemmTiles = best;
+  // Work big enough to fill a GPU (a 2048^3 product: 17 GFLOP, about a millisecond on a large
+  // one; 8 heads of 64 over 2048 tokens); a CPU device forced onto the GPU family (tests)
+  // measures small ones.
+  const int64_t n = caps.isCpu() ? 128 : 2048;
+  const Tensor x = engine.fromFloats({n, n}, pattern(size_t(n * n))), w = engine.fromFloats({n, n}, pattern(size_t(n * n)));
+  const Tensor y = engine.tensor({n, n});
+  const TiledGemmTiles small = plan.gemmSmallTiles;
+  const auto gemms = gemmCandidates(caps);
+  const Fastest g = fastest(
+      engine, gemms.size(),
+      [&](size_t i) {
+        plan.gemmTiles = plan.gemmSmallTiles = gemms[i];
+        const auto& t = gemms[i];
+        return json{t.bm, t.bn, t.bk, t.tm, t.tn};
+      },
+      [&](Recorder& rec) { linear(rec, x, w, Tensor(), y); }, 3);
+  plan.gemmTiles = gemms[g.index];
   plan.gemmSmallTiles = small;
+
+  const int heads = 8, dh = 64;
+  const int64_t tokens = caps.isCpu() ? 64 : 2048;
+  const Tensor qkv = engine.fromFloats({tokens, 3 * heads * dh}, pattern(size_t(tokens * 3 * heads * dh)));
+  const Tensor out = engine.tensor({tokens, heads * dh});
+  const auto atts = attentionCandidates(caps);
+  const Fastest a = fastest(
+      engine, atts.size(),
+      [&](size_t i) {
+        plan.attentionQueries = atts[i][0];
+        plan.attentionKeys = atts[i][1];
+        return json{atts[i][0], atts[i][1]};
+      },
+      [&](Recorder& rec) { attention(rec, {qkv, 0}, {qkv, heads * dh}, {qkv, 2 * heads * dh}, {out, 0}, heads, dh); }, 3);
+  plan.attentionQueries = atts[a.index][0];
+  plan.attentionKeys = atts[a.index][1];
+
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  char line[200];
+  std::snprintf(line, sizeof(line),
+                "GEMM tiles %s (%.3f ms on %lld^3), attention %d queries / %d keys (%.3f ms, %d heads x %d over %lld "
+                "tokens): the fastest of %zu and %zu candidates, measured in %.1f s",
+                plan.gemmTiles.text().c_str(), g.ms, static_cast<long long>(n), plan.attentionQueries,
+                plan.attentionKeys, a.ms, heads, dh, static_cast<long long>(tokens), gemms.size(), atts.size(), seconds);
+  plan.reasons.push_back(line);
+  plan.source += ", tiles measured now";
+  if (file.empty()) return;
   char date[32];
   const std::time_t now = std::time(nullptr);
   std::strftime(date, sizeof(date), "%Y-%m-%d %H:%M", std::localtime(&now));
-  char line[160];
-  std::snprintf(line, sizeof(line), "GEMM tiles %s: the fastest of %zu candidates on %lldx%lldx%lld (%.3f ms; measured in %.1f s)",
-                best.text().c_str(), tried.size(), static_cast<long long>(n), static_cast<long long>(n),
-                static_cast<long long>(n), bestMs, seconds);
-  plan.reasons.push_back(line);
-  plan.source += ", GEMM tiles measured now";
-  if (file.empty()) return;
-  all[key] = {{"tiles", {best.bm, best.bn, best.bk, best.tm, best.tn}}, {"date", date}, {"product", n}, {"candidates", tried}};
+  all[key] = {{"date", date},
+              {"gemm", {{"tiles", g.tried[g.index]["tiles"]}, {"product", n}, {"candidates", g.tried}}},
+              {"attention", {{"tiles", a.tried[a.index]["tiles"]}, {"tokens", tokens}, {"candidates", a.tried}}}};
   std::error_code ec;
   fs::create_directories(fs::path(file).parent_path(), ec);
   const std::string tmp = file + ".tmp";
   {
-    std::ofstream out(tmp);
-    out << all.dump(1) << "\n";
-    if (!out) return;  // an unwritable cache costs a measurement next time, nothing else
+    std::ofstream o(tmp);
+    o << all.dump(1) << "\n";
+    if (!o) return;  // an unwritable cache costs a measurement next time, nothing else
   }
   fs::rename(tmp, file, ec);
 }

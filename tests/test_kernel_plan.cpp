@@ -44,7 +44,7 @@ TEST(KernelPlan, CpuDeviceGetsRegisterBlocks) {
   EXPECT_EQ(p.conv, KernelFamily::CpuBlocks);
   EXPECT_TRUE(p.cpuShapes);
   EXPECT_FALSE(p.subgroupReductions);
-  EXPECT_FALSE(p.measureGemm);
+  EXPECT_FALSE(p.measureTiles);
 }
 
 TEST(KernelPlan, GpuGetsTilesSubgroupsAndMeasuredGemm) {
@@ -56,7 +56,7 @@ TEST(KernelPlan, GpuGetsTilesSubgroupsAndMeasuredGemm) {
   EXPECT_EQ(p.conv, KernelFamily::Tiled);
   EXPECT_FALSE(p.cpuShapes);
   EXPECT_TRUE(p.subgroupReductions);
-  EXPECT_TRUE(p.measureGemm);
+  EXPECT_TRUE(p.measureTiles);
   DeviceCaps noSubgroups = gpuCaps();
   noSubgroups.subgroupArithmetic = false;
   EXPECT_FALSE(planKernels(noSubgroups, {}).subgroupReductions);
@@ -90,7 +90,7 @@ TEST(KernelPlan, ForcedFamilies) {
   const KernelPlan g = planKernels(cpuCaps(), t);
   EXPECT_EQ(g.gemm, KernelFamily::Tiled);
   EXPECT_FALSE(g.cpuShapes);
-  EXPECT_FALSE(g.measureGemm);  // a CPU device measures only when asked
+  EXPECT_FALSE(g.measureTiles);  // a CPU device measures only when asked
   t.kernels = "coopmat";
   EXPECT_THROW(planKernels(gpuCaps(), t), Error);
   t.kernels = "gpu-fp16";
@@ -104,7 +104,7 @@ TEST(KernelPlan, ForcedFamilies) {
   t.gpuGemmTiles = std::array<int, 5>{64, 32, 8, 4, 2};
   const KernelPlan forced = planKernels(gpuCaps(), t);
   EXPECT_EQ(forced.gemmTiles, (TiledGemmTiles{64, 32, 8, 4, 2}));
-  EXPECT_FALSE(forced.measureGemm);
+  EXPECT_FALSE(forced.measureTiles);
   t.gpuGemmTiles = std::array<int, 5>{64, 32, 6, 4, 2};  // BK not a multiple of 4
   EXPECT_THROW(t.validate(), Error);
 }
@@ -128,7 +128,8 @@ TEST(KernelPlan, SmallProductsGetSmallTiles) {
   EXPECT_EQ(p.tilesFor(64, 768, 1), p.gemmSmallTiles);
 }
 
-// On a CPU device forced onto the GPU family and asked to measure: the tiles are measured once,
+// On a CPU device forced onto the GPU family and asked to measure: GEMM tiles and attention
+// blocks are measured once,
 // written beside the pipeline cache, and read back by the next engine without measuring.
 TEST(KernelTuner, MeasuresOnceThenReadsTheCacheFile) {
   const fs::path dir = scratchDir("kernel_tuner");
@@ -152,13 +153,16 @@ TEST(KernelTuner, MeasuresOnceThenReadsTheCacheFile) {
   const auto j = nlohmann::json::parse(in);
   ASSERT_EQ(j.size(), 1u);
   const auto& entry = j.begin().value();
-  EXPECT_GE(entry["candidates"].size(), 3u);
-  for (const auto& c : entry["candidates"]) EXPECT_GT(c["ms"].get<double>(), 0.0);
+  for (const char* what : {"gemm", "attention"}) {
+    EXPECT_GE(entry[what]["candidates"].size(), 3u) << what;
+    for (const auto& c : entry[what]["candidates"]) EXPECT_GT(c["ms"].get<double>(), 0.0) << what;
+  }
   {
     Engine e(o);
     const KernelPlan& p = e.plan();
     EXPECT_NE(p.source.find("kernel-choice.json"), std::string::npos) << p.source;
     EXPECT_EQ(p.gemmTiles.text(), first);
+    EXPECT_EQ(std::vector<int>({p.attentionQueries, p.attentionKeys}), entry["attention"]["tiles"].get<std::vector<int>>());
   }
 }
 
