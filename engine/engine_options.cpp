@@ -76,6 +76,7 @@ void KernelTuning::validate() const {
       throw Error("GPU GEMM tiles (SPAR_GPU_GEMM_TILES): BM, BN multiples of TM, TN, BK of 4, at most 1024 invocations");
   }
   positive(gpuAttentionTiles, "GPU attention tiles (SPAR_GPU_ATTENTION_TILES: QUERIES,KEYS)");
+  positive(coopMatTiles, "cooperative-matrix GEMM tiles (SPAR_COOPMAT_TILES: WM,WN,SGM,SGN,KSTEPS)");
   if (gpuAttentionTiles && ((*gpuAttentionTiles)[0] > 1024 || (*gpuAttentionTiles)[1] % 4))
     throw Error("GPU attention tiles (SPAR_GPU_ATTENTION_TILES): at most 1024 queries, keys a multiple of 4");
   if (!kernels.empty() && kernels != "cpu" && kernels != "gpu" && kernels != "gpu-fp16" && kernels != "coopmat")
@@ -108,6 +109,7 @@ EngineOptions EngineOptions::fromEnvironment(EngineOptions base) {
     if (const char* k = env("SPAR_KERNELS")) t.kernels = k;
   if (!t.gpuGemmTiles) t.gpuGemmTiles = ints<5>("SPAR_GPU_GEMM_TILES", "BM,BN,BK,TM,TN");
   if (!t.gpuAttentionTiles) t.gpuAttentionTiles = ints<2>("SPAR_GPU_ATTENTION_TILES", "QUERIES,KEYS");
+  if (!t.coopMatTiles) t.coopMatTiles = ints<5>("SPAR_COOPMAT_TILES", "WM,WN,SGM,SGN,KSTEPS");
   if (!t.measureKernels)
     if (const char* m = env("SPAR_MEASURE_KERNELS")) t.measureKernels = std::string(m) != "0";
   t.validate();

@@ -110,6 +110,11 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
     plan.coop.m = int(cm.m);
     plan.coop.n = int(cm.n);
     plan.coop.k = int(cm.k);
+    if (const auto& t = tuning.coopMatTiles) {
+      plan.coop.wm = (*t)[0], plan.coop.wn = (*t)[1], plan.coop.sgM = (*t)[2], plan.coop.sgN = (*t)[3];
+      plan.coop.kSteps = (*t)[4];
+      plan.measureTiles = false;
+    }
     plan.attentionF16 = KernelFamily::CoopMat;
     plan.reasons.push_back("fp16 weights: VK_KHR_cooperative_matrix " + plan.coop.text() + ", fp32 accumulation");
     plan.reasons.push_back("attention of fp16 layers: q k^T and p v on cooperative matrices, softmax in fp32");

@@ -48,28 +48,6 @@ json readChoices(const std::string& file) {
   return j.is_object() ? j : json::object();
 }
 
-std::vector<TiledGemmTiles> gemmCandidates(const DeviceCaps& caps) {
-  // Common GPU shapes: a small tile of 256 invocations, the classic 128 x 128 / 8 x 8 SGEMM
-  // tile, and rectangular ones between them.
-  const std::vector<TiledGemmTiles> all = {
-      {64, 64, 16, 4, 4}, {128, 128, 8, 8, 8}, {128, 64, 16, 8, 4}, {64, 128, 16, 4, 8}, {128, 128, 16, 8, 8}};
-  std::vector<TiledGemmTiles> out;
-  for (const auto& t : all) {
-    const uint64_t shared = uint64_t(t.bk) * (t.bm + 4 + t.bn + 4) * 4;  // gemm_tiled.comp's tiles
-    if (t.invocations() <= int(caps.maxWorkGroupInvocations) && shared <= caps.maxSharedMemory) out.push_back(t);
-  }
-  return out;
-}
-
-// attention_tiled.comp: (queries a workgroup, keys a block) for 64-wide heads.
-std::vector<std::array<int, 2>> attentionCandidates(const DeviceCaps& caps) {
-  const std::vector<std::array<int, 2>> all = {{64, 32}, {128, 32}, {64, 64}, {32, 32}, {128, 16}};
-  std::vector<std::array<int, 2>> out;
-  for (const auto& c : all)
-    if (c[0] <= int(caps.maxWorkGroupInvocations) && uint64_t(c[1]) * 64 * 8 <= caps.maxSharedMemory) out.push_back(c);
-  return out;
-}
-
 // The fastest of `count` candidates: apply(i) puts candidate i into the plan, record(rec)
 // records the measured work; each is run once to build its pipeline, then `repeat` times.
 struct Fastest {
@@ -107,6 +85,11 @@ void applyCached(KernelPlan& plan, const json& e, const std::string& file) {
   const auto g = e.at("gemm").value("tiles", std::vector<int>{});
   const auto a = e.at("attention").value("tiles", std::vector<int>{});
   if (g.size() != 5 || a.size() != 2) throw std::runtime_error("malformed entry");
+  if (plan.gemmF16 == KernelFamily::CoopMat) {
+    const auto c = e.at("coopmat").value("tiles", std::vector<int>{});
+    if (c.size() != 5) throw std::runtime_error("malformed entry");
+    plan.coop.wm = c[0], plan.coop.wn = c[1], plan.coop.sgM = c[2], plan.coop.sgN = c[3], plan.coop.kSteps = c[4];
+  }
   plan.gemmTiles = {g[0], g[1], g[2], g[3], g[4]};
   plan.attentionQueries = a[0];
   plan.attentionKeys = a[1];
@@ -116,6 +99,45 @@ void applyCached(KernelPlan& plan, const json& e, const std::string& file) {
 }
 
 }  // namespace
+
+std::vector<TiledGemmTiles> gemmTileCandidates(const DeviceCaps& caps) {
+  // Common GPU shapes: a small tile of 256 invocations, the classic 128 x 128 / 8 x 8 SGEMM
+  // tile, and rectangular ones between them.
+  const std::vector<TiledGemmTiles> all = {
+      {64, 64, 16, 4, 4}, {128, 128, 8, 8, 8}, {128, 64, 16, 8, 4}, {64, 128, 16, 4, 8}, {128, 128, 16, 8, 8}};
+  std::vector<TiledGemmTiles> out;
+  for (const auto& t : all) {
+    const uint64_t shared = uint64_t(t.bk) * (t.bm + 4 + t.bn + 4) * 4;  // gemm_tiled.comp's tiles
+    if (t.invocations() <= int(caps.maxWorkGroupInvocations) && shared <= caps.maxSharedMemory) out.push_back(t);
+  }
+  return out;
+}
+
+// attention_tiled.comp: (queries a workgroup, keys a block) for 64-wide heads.
+std::vector<std::array<int, 2>> attentionBlockCandidates(const DeviceCaps& caps) {
+  const std::vector<std::array<int, 2>> all = {{64, 32}, {128, 32}, {64, 64}, {32, 32}, {128, 16}};
+  std::vector<std::array<int, 2>> out;
+  for (const auto& c : all)
+    if (c[0] <= int(caps.maxWorkGroupInvocations) && uint64_t(c[1]) * 64 * 8 <= caps.maxSharedMemory) out.push_back(c);
+  return out;
+}
+
+// gemm_coopmat.comp's workgroup shapes (MMAs per subgroup WM x WN, subgroups SG_M x SG_N, K
+// blocks a step) whose staged slices fit the device's shared memory.
+std::vector<CoopMatTiles> coopMatTileCandidates(const DeviceCaps& caps, const CoopMatTiles& base) {
+  const std::vector<std::array<int, 5>> all = {{2, 2, 2, 2, 2}, {4, 2, 2, 2, 2}, {2, 4, 2, 2, 2}, {4, 4, 2, 2, 1},
+                                               {2, 2, 4, 2, 2}};
+  std::vector<CoopMatTiles> out;
+  for (const auto& a : all) {
+    CoopMatTiles t = base;
+    t.wm = a[0], t.wn = a[1], t.sgM = a[2], t.sgN = a[3], t.kSteps = a[4];
+    const uint64_t ld = uint64_t(t.k) * t.kSteps + 8;
+    const uint64_t shared = (uint64_t(t.rows()) + t.cols()) * ld * 2 + uint64_t(t.sgM) * t.sgN * t.m * t.n * 4;
+    const uint64_t invocations = uint64_t(caps.maxSubgroupSize) * t.sgM * t.sgN;
+    if (shared <= caps.maxSharedMemory && invocations <= caps.maxWorkGroupInvocations) out.push_back(t);
+  }
+  return out;
+}
 
 std::string kernelChoiceFile(const std::string& pipelineCacheFile) {
   if (pipelineCacheFile.empty()) return "";
@@ -142,7 +164,7 @@ void measureKernelChoice(Engine& engine, KernelPlan& plan) {
   const Tensor x = engine.fromFloats({n, n}, pattern(size_t(n * n))), w = engine.fromFloats({n, n}, pattern(size_t(n * n)));
   const Tensor y = engine.tensor({n, n});
   const TiledGemmTiles small = plan.gemmSmallTiles;
-  const auto gemms = gemmCandidates(caps);
+  const auto gemms = gemmTileCandidates(caps);
   const Fastest g = fastest(
       engine, gemms.size(),
       [&](size_t i) {
@@ -158,7 +180,7 @@ void measureKernelChoice(Engine& engine, KernelPlan& plan) {
   const int64_t tokens = caps.isCpu() ? 64 : 2048;
   const Tensor qkv = engine.fromFloats({tokens, 3 * heads * dh}, pattern(size_t(tokens * 3 * heads * dh)));
   const Tensor out = engine.tensor({tokens, heads * dh});
-  const auto atts = attentionCandidates(caps);
+  const auto atts = attentionBlockCandidates(caps);
   const Fastest a = fastest(
       engine, atts.size(),
       [&](size_t i) {
@@ -170,6 +192,23 @@ void measureKernelChoice(Engine& engine, KernelPlan& plan) {
   plan.attentionQueries = atts[a.index][0];
   plan.attentionKeys = atts[a.index][1];
 
+  // fp16 weights on cooperative matrices: the workgroup shape, on an fp16 product.
+  Fastest c;
+  std::vector<CoopMatTiles> coops;
+  if (plan.gemmF16 == KernelFamily::CoopMat) {
+    const Tensor x16 = engine.fromFloats({n, n}, pattern(size_t(n * n)), DType::F16);
+    const Tensor w16 = engine.fromFloats({n, n}, pattern(size_t(n * n)), DType::F16);
+    coops = coopMatTileCandidates(caps, plan.coop);
+    c = fastest(
+        engine, coops.size(),
+        [&](size_t i) {
+          plan.coop = coops[i];
+          return json{coops[i].wm, coops[i].wn, coops[i].sgM, coops[i].sgN, coops[i].kSteps};
+        },
+        [&](Recorder& rec) { linear(rec, x16, w16, Tensor(), y); }, 3);
+    plan.coop = coops[c.index];
+  }
+
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   char line[200];
   std::snprintf(line, sizeof(line),
@@ -178,6 +217,9 @@ void measureKernelChoice(Engine& engine, KernelPlan& plan) {
                 plan.gemmTiles.text().c_str(), g.ms, static_cast<long long>(n), plan.attentionQueries,
                 plan.attentionKeys, a.ms, heads, dh, static_cast<long long>(tokens), gemms.size(), atts.size(), seconds);
   plan.reasons.push_back(line);
+  if (!coops.empty())
+    plan.reasons.push_back("cooperative-matrix GEMM " + plan.coop.text() + ": the fastest of " +
+                           std::to_string(coops.size()) + " workgroup shapes on an fp16 " + std::to_string(n) + "^3 product");
   plan.source += ", tiles measured now";
   if (file.empty()) return;
   char date[32];
@@ -186,6 +228,7 @@ void measureKernelChoice(Engine& engine, KernelPlan& plan) {
   all[key] = {{"date", date},
               {"gemm", {{"tiles", g.tried[g.index]["tiles"]}, {"product", n}, {"candidates", g.tried}}},
               {"attention", {{"tiles", a.tried[a.index]["tiles"]}, {"tokens", tokens}, {"candidates", a.tried}}}};
+  if (!coops.empty()) all[key]["coopmat"] = {{"tiles", c.tried[c.index]["tiles"]}, {"candidates", c.tried}};
   std::error_code ec;
   fs::create_directories(fs::path(file).parent_path(), ec);
   const std::string tmp = file + ".tmp";

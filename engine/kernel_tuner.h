@@ -5,7 +5,9 @@
 // the pipeline cache file (EngineOptions::pipelineCacheFile), keyed by device, driver and the
 // shaders' SPIR-V, so later processes only read it.
 #pragma once
+#include <array>
 #include <string>
+#include <vector>
 
 #include "engine/kernel_plan.h"
 
@@ -13,9 +15,16 @@ namespace spar {
 
 class Engine;
 
-// Sets plan.gemmTiles, attentionQueries and attentionKeys (and plan.source, a reason) from the
-// cache file or by measuring.
+// Sets plan.gemmTiles, attentionQueries and attentionKeys, and where the plan has cooperative
+// matrices the GEMM's workgroup shape (plan.coop), from the cache file or by measuring; adds to
+// plan.source and plan.reasons.
 void measureKernelChoice(Engine& engine, KernelPlan& plan);
+
+// The candidates measured (those the device's shared memory and workgroup size allow), for
+// tests that check every one computes correctly.
+std::vector<TiledGemmTiles> gemmTileCandidates(const DeviceCaps& caps);
+std::vector<std::array<int, 2>> attentionBlockCandidates(const DeviceCaps& caps);  // queries, keys
+std::vector<CoopMatTiles> coopMatTileCandidates(const DeviceCaps& caps, const CoopMatTiles& base);
 
 // Where the choice is kept: beside the pipeline cache file, "" when there is none.
 std::string kernelChoiceFile(const std::string& pipelineCacheFile);

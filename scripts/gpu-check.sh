@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The GPU check (issue 15), prepared here and run in one call on a machine with a GPU (the
 # NVIDIA H200 the device tool lends: PyTorch + CUDA, an NVIDIA Vulkan driver, no package
-# registries), in under 8 minutes, ending in one report ($OUT/report.json and report.md):
+# registries), in under 8 minutes, ending in one report: $OUT/report.md, report.json, steps.log
+# and gpu-check-all.tar.xz (every step's log and JSON; the device tool brings back 8 files):
 #
 #   bash scripts/gpu-check.sh pack        # here, after the build: .gpucheck/bundle.tar.xz
 #   bash scripts/gpu-check.sh run         # there, in the repository root, .gpucheck carried
@@ -77,10 +78,12 @@ if [ "$mode" != run ]; then
 fi
 cpu=0
 [ "${1:-}" = --cpu ] && cpu=1
-out=${OUT:-$root/build/gpu-check-out}
-mkdir -p "$out"
+final=${OUT:-$root/build/gpu-check-out}
+mkdir -p "$final"
 work=${GPU_CHECK_WORK:-/tmp/spar-gpu-check}
 rm -rf "$work" && mkdir -p "$work"
+out="$work/out"  # every step's files; the report and an archive of them go to $final
+mkdir -p "$out"
 log="$out/steps.log"
 : > "$log"
 t_start=$(date +%s)
@@ -118,8 +121,16 @@ exec "$rt/ld-linux-x86-64.so.2" --library-path "$libpath" "$work/bin/\$b" "\$@"
 EOS
 chmod +x "$work/bin.sh"
 bin="$work/bin.sh"
+deadline=${GPU_CHECK_SECONDS:-480}  # steps not started by then are skipped (the call's limit is 600 s)
 step() {  # step NAME SECONDS COMMAND... : runs it with a limit, its output in $out/NAME.log
   local name=$1 limit=$2; shift 2
+  local left=$(( deadline - ($(date +%s) - t_start) ))
+  if [ "$name" != report ] && [ $left -le 10 ]; then
+    say "$name: skipped (the run's $deadline s are used up)"
+    echo "$name skipped" >> "$out/steps.rc"
+    return 1
+  fi
+  [ "$name" != report ] && [ "$limit" -gt $left ] && limit=$left
   say "$name ..."
   timeout "$limit" "$@" > "$out/$name.log" 2>&1
   local rc=$?
@@ -134,11 +145,15 @@ step kernels 120 $bin spar-bench --list-kernels --json
 cp "$out/kernels.log" "$out/kernels.json" 2>/dev/null
 
 mkdir -p "$out/tests"
+# The tests keep the plan's default tiles (measuring them in every test process would cost
+# seconds each); spar-bench below measures, and its choice is what the timings use.
+export SPAR_MEASURE_KERNELS=0
 for t in "${op_tests[@]}" test_coopmat; do
   [ $cpu = 1 ] && [ $t = test_coopmat ] && continue   # lavapipe 22.3 has no cooperative matrices
   step "test-$t" 300 $bin "$t" --gtest_output="json:$out/tests/$t.json"
 done
 
+unset SPAR_MEASURE_KERNELS
 large=()
 [ $cpu = 1 ] && large=(--only _f32)
 step bench-ops 300 $bin spar-bench --json --repeat 10 "${large[@]}"
@@ -167,10 +182,13 @@ step reference-model 420 "$py" scripts/gpu_reference_bench.py --checkpoint "$wor
 # Goldens made there (PyTorch on the CPU), then the model-level tests on them.
 step goldens 300 "$py" tests/python/make_spar_goldens.py "$work/goldens"
 export SPAR_GOLDENS_DIR="$work/goldens" SPAR_CLIP_BPE="$root/text/data/clip/bpe_simple_vocab_16e6.txt.gz"
+export SPAR_MEASURE_KERNELS=0
 for t in "${model_tests[@]}"; do
   step "test-$t" 300 $bin "$t" --gtest_output="json:$out/tests/$t.json"
 done
 
 step report 60 "$py" scripts/gpu_check_report.py "$out"
-say "done in $(( $(date +%s) - t_start )) s: $out/report.md"
+say "done in $(( $(date +%s) - t_start )) s: $final/report.md"
+cp "$out/report.md" "$out/report.json" "$out/steps.log" "$final/" 2>/dev/null
+tar -C "$work" -cf - out | xz -T2 > "$final/gpu-check-all.tar.xz"
 cat "$out/report.md" 2>/dev/null

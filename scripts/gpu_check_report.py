@@ -65,7 +65,7 @@ def main(argv):
     if os.path.exists(os.path.join(out, "steps.rc")):
         for line in open(os.path.join(out, "steps.rc")):
             name, rc = line.split()
-            steps[name] = int(rc)
+            steps[name] = int(rc) if rc.lstrip("-").isdigit() else rc  # or "skipped"
     kernels = load_json(os.path.join(out, "kernels.log")) or {}
     bench = load_json(os.path.join(out, "bench-ops.log")) or {}
     ref_ops = load_json(os.path.join(out, "reference_ops.json")) or {}
@@ -74,7 +74,8 @@ def main(argv):
     test_rows = tests(out)
 
     md = [f"# GPU check: {kernels.get('device', '?')}", ""]
-    md.append("Steps: " + ", ".join(f"{k} {'ok' if v == 0 else f'exit {v}'}" for k, v in steps.items()))
+    md.append("Steps: " + ", ".join(f"{k} {'ok' if v == 0 else v if isinstance(v, str) else f'exit {v}'}"
+                                    for k, v in steps.items()))
     md += ["", "## Kernel plan", ""] + [f"    {line}" for line in kernels.get("kernels", [])]
     md += ["", "## Tests (validation layer on: a test fails on any message it did not provoke on purpose)", "",
            "| program | tests | failed |", "|---|---|---|"]

@@ -7,7 +7,7 @@
 // (its DH-wide q and output accumulator in registers). Per block of BKEYS keys the workgroup
 // copies the keys' k and v rows into shared memory once; every invocation then reads them
 // all (the same address across the workgroup: a broadcast), scores its query against the
-// block, and folds the block into its output with an online softmax. Same numerics as
+// block, and folds it into its output with an online softmax, KC keys at a time. Same numerics as
 // attention.comp: running max from -FLT_MAX/2 (never -inf), masked keys contribute exactly
 // 0, guarded final division. Bindings and push constants are attention.comp's.
 //! variant attention_tiled_f32 OUT_F16=0
@@ -17,7 +17,7 @@
 
 layout(local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in;  // BQ x 1 x 1
 layout(constant_id = 3) const int DH = 64;      // head dimension (multiple of 4)
-layout(constant_id = 4) const int BKEYS = 32;   // keys per shared-memory block
+layout(constant_id = 4) const int BKEYS = 32;   // keys per shared-memory block (a multiple of 4)
 layout(constant_id = 5) const bool CAUSAL = false;
 
 layout(binding = 0) uniform samplerBuffer Q;
@@ -35,6 +35,7 @@ layout(push_constant) uniform Push {
 
 const float kNegLarge = -3.4028235e38 / 2.0;
 const int D4 = DH / 4;
+const int KC = BKEYS % 8 == 0 ? 8 : 4;  // keys per unrolled chunk (divides BKEYS)
 shared vec4 blockK[BKEYS * D4];
 shared vec4 blockV[BKEYS * D4];
 
@@ -66,32 +67,40 @@ void main() {
       blockV[i] = inside ? texelFetch(V, vBase + key * vRow + d) : vec4(0.0);
     }
     barrier();
-    float s[BKEYS];
-    float blockMax = runMax;
-    [[unroll]] for (int j = 0; j < BKEYS; ++j) {
-      float dotv = 0.0;
-      [[unroll]] for (int d = 0; d < D4; ++d) {
-        const vec4 kv = blockK[j * D4 + d];
-        dotv = fma(qv[d].w, kv.w, fma(qv[d].z, kv.z, fma(qv[d].y, kv.y, fma(qv[d].x, kv.x, dotv))));
+    // The block in chunks of KC keys: scores in registers, then one online-softmax step per
+    // chunk. Only a chunk is unrolled, so the code (and a driver's compile time: llvmpipe took
+    // 30 s for a 32-key block unrolled whole) stays that of KC keys whatever BKEYS is; the
+    // extra rescale of acc per chunk costs DH/4 multiplies per KC keys (a sixteenth of the
+    // block's multiply-adds at KC = 8).
+    const int chunkEnd = min(BKEYS, kEnd - kb);
+    [[dont_unroll]] for (int j0 = 0; j0 < chunkEnd; j0 += KC) {
+      float s[KC];
+      float chunkMax = runMax;
+      [[unroll]] for (int j = 0; j < KC; ++j) {
+        float dotv = 0.0;
+        [[unroll]] for (int d = 0; d < D4; ++d) {
+          const vec4 kv = blockK[(j0 + j) * D4 + d];
+          dotv = fma(qv[d].w, kv.w, fma(qv[d].z, kv.z, fma(qv[d].y, kv.y, fma(qv[d].x, kv.x, dotv))));
+        }
+        const int key = kb + j0 + j;
+        const bool valid = key < p.Nk && (!CAUSAL || key <= q);
+        s[j] = valid ? dotv * p.scaleLog2 : kNegLarge;
+        chunkMax = max(chunkMax, s[j]);
       }
-      const int key = kb + j;
-      const bool valid = key < p.Nk && (!CAUSAL || key <= q);
-      s[j] = valid ? dotv * p.scaleLog2 : kNegLarge;
-      blockMax = max(blockMax, s[j]);
+      const float correction = exp2(runMax - chunkMax);
+      runMax = chunkMax;
+      float sum = runSum * correction;
+      [[unroll]] for (int j = 0; j < KC; ++j) {
+        const int key = kb + j0 + j;
+        const bool valid = key < p.Nk && (!CAUSAL || key <= q);
+        s[j] = valid ? exp2(s[j] - chunkMax) : 0.0;
+        sum += s[j];
+      }
+      runSum = sum;
+      [[unroll]] for (int d = 0; d < D4; ++d) acc[d] *= correction;
+      [[unroll]] for (int j = 0; j < KC; ++j)
+        [[unroll]] for (int d = 0; d < D4; ++d) acc[d] = fma(vec4(s[j]), blockV[(j0 + j) * D4 + d], acc[d]);
     }
-    const float correction = exp2(runMax - blockMax);
-    runMax = blockMax;
-    float sum = runSum * correction;
-    [[unroll]] for (int j = 0; j < BKEYS; ++j) {
-      const int key = kb + j;
-      const bool valid = key < p.Nk && (!CAUSAL || key <= q);
-      s[j] = valid ? exp2(s[j] - blockMax) : 0.0;
-      sum += s[j];
-    }
-    runSum = sum;
-    [[unroll]] for (int d = 0; d < D4; ++d) acc[d] *= correction;
-    [[unroll]] for (int j = 0; j < BKEYS; ++j)
-      [[unroll]] for (int d = 0; d < D4; ++d) acc[d] = fma(vec4(s[j]), blockV[j * D4 + d], acc[d]);
     barrier();
   }
 

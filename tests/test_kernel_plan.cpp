@@ -9,6 +9,7 @@
 
 #include "engine/kernel_plan.h"
 #include "engine/kernel_tuner.h"
+#include "engine/ops/attention.h"
 #include "engine/ops/linear.h"
 #include "tests/test_support.h"
 
@@ -164,6 +165,52 @@ TEST(KernelTuner, MeasuresOnceThenReadsTheCacheFile) {
     EXPECT_EQ(p.gemmTiles.text(), first);
     EXPECT_EQ(std::vector<int>({p.attentionQueries, p.attentionKeys}), entry["attention"]["tiles"].get<std::vector<int>>());
   }
+}
+
+// Every GEMM tile and attention block the tuner tries (engine/kernel_tuner.h), forced in turn
+// on the GPU family, computes the same results (odd sizes: every tile has edges).
+TEST_F(EngineTest, EveryMeasuredCandidateComputesTheSame) {
+  ScopedKernels family(eng(), "gpu");
+  const KernelTuning saved = eng().options().tuning;
+  const int64_t M = 77, N = 150, K = 72;
+  auto x = randomUniform(M * K, -1, 1, 61), w = randomUniform(N * K, -1, 1, 62);
+  Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w);
+  std::vector<double> ref(size_t(M * N));
+  for (int64_t m = 0; m < M; ++m)
+    for (int64_t n = 0; n < N; ++n)
+      for (int64_t k = 0; k < K; ++k) ref[m * N + n] += double(x[m * K + k]) * w[n * K + k];
+  const auto gemms = gemmTileCandidates(eng().caps());
+  ASSERT_GE(gemms.size(), 3u);
+  for (const TiledGemmTiles& c : gemms) {
+    KernelTuning t = saved;
+    t.gpuGemmTiles = std::array<int, 5>{c.bm, c.bn, c.bk, c.tm, c.tn};
+    eng().setTuning(t);
+    GuardedOutput y(eng(), {M, N});
+    Recorder rec(eng());
+    linear(rec, tx, tw, Tensor(), y.tensor());
+    rec.run();
+    expectClose(y.read(), ref, 1e-10, 1e-4, "gemm " + c.text());
+    y.expectAllWritten();
+  }
+  const int heads = 2, dh = 64;
+  const int64_t T = 93, D = heads * dh;
+  auto qkv = randomNormal(T * 3 * D, 0, 1, 63);
+  Tensor tq = eng().fromFloats({1, T, 3 * D}, qkv);
+  const auto aref = attentionRef(qkv, 3 * D, 0, qkv, 3 * D, D, qkv, 3 * D, 2 * D, 1, T, T, heads, dh, false, 0.125);
+  const auto blocks = attentionBlockCandidates(eng().caps());
+  ASSERT_GE(blocks.size(), 3u);
+  for (const auto& b : blocks) {
+    KernelTuning t = saved;
+    t.gpuAttentionTiles = b;
+    eng().setTuning(t);
+    GuardedOutput o(eng(), {1, T, D});
+    Recorder rec(eng());
+    attention(rec, {tq, 0}, {tq, D}, {tq, 2 * D}, {o.tensor(), 0}, heads, dh);
+    rec.run();
+    expectClose(o.read(), aref, 1e-9, 1e-4, "attention " + std::to_string(b[0]) + "/" + std::to_string(b[1]));
+    o.expectAllWritten();
+  }
+  eng().setTuning(saved);
 }
 
 // gemm_tiled.comp with FP16_MATH (SPAR_KERNELS=gpu-fp16 on any device with shaderFloat16):

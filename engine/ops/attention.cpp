@@ -105,7 +105,8 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
     // keys per block bounded by the shared memory their k and v rows take.
     const int queries = std::min<int>(plan.attentionQueries, int(engine.caps().maxWorkGroupInvocations));
     int keys = plan.attentionKeys;
-    while (keys > 4 && uint64_t(keys) * headDim * 8 > engine.caps().maxSharedMemory) keys /= 2;
+    // (a multiple of 4: the shader's chunks of 4 or 8 keys divide the block)
+    while (keys > 4 && uint64_t(keys) * headDim * 8 > engine.caps().maxSharedMemory) keys = std::max(4, keys / 8 * 4);
     const Kernel& kernel = engine.kernel({f16Out ? "attention_tiled_f16out" : "attention_tiled_f32",
                                           {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
                                           sizeof(AttentionPush),

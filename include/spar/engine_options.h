@@ -27,6 +27,9 @@ struct SPAR_API KernelTuning {
   std::string kernels;
   std::optional<std::array<int, 5>> gpuGemmTiles;       // BM, BN, BK, TM, TN (SPAR_GPU_GEMM_TILES)
   std::optional<std::array<int, 2>> gpuAttentionTiles;  // queries per workgroup, keys per block
+  // gemm_coopmat.comp: MMAs per subgroup WM x WN, subgroups SG_M x SG_N, K blocks a step
+  // (SPAR_COOPMAT_TILES=WM,WN,SGM,SGN,KSTEPS)
+  std::optional<std::array<int, 5>> coopMatTiles;
   // Measure the GPU GEMM tile candidates at first use (SPAR_MEASURE_KERNELS=1 / 0); unset: on
   // GPUs only. The choice is kept in kernel-choice.json beside the pipeline cache file.
   std::optional<bool> measureKernels;
@@ -69,7 +72,8 @@ struct SPAR_API EngineOptions {
   // SPAR_PROFILE=1, SPAR_GEMM_TILES=RM,RN,LX,LY,KU, SPAR_ATTENTION_TILES=QPI,KB,LX,
   // SPAR_CONV_TILES / SPAR_CONVT_TILES=RC,RY,RX,LX,LY, SPAR_LINE_GROUP=SPLIT,LX,LY,
   // SPAR_KERNELS=cpu|gpu|gpu-fp16|coopmat, SPAR_GPU_GEMM_TILES=BM,BN,BK,TM,TN,
-  // SPAR_GPU_ATTENTION_TILES=QUERIES,KEYS, SPAR_MEASURE_KERNELS=0|1,
+  // SPAR_GPU_ATTENTION_TILES=QUERIES,KEYS, SPAR_COOPMAT_TILES=WM,WN,SGM,SGN,KSTEPS,
+  // SPAR_MEASURE_KERNELS=0|1,
   // SPAR_SUBMIT_TIMEOUT_MS, SPAR_MEMORY_LIMIT_MB, SPAR_FAULT_ALLOCATION=N, SPAR_FAULT_SUBMISSION=N. A field
   // already set in `base` (device non-empty) wins over the environment. Throws Error for a
   // malformed value, naming the variable.

@@ -8,7 +8,12 @@
 // What the kernel computes: x and w rounded to fp16 (values beyond +-65504 saturate), products
 // accumulated in fp32. So against float64 on the rounded inputs the error is fp32 accumulation
 // only (thresholds of the fp32 GEMM tests); against the unrounded inputs it is fp16 rounding.
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
 #include "engine/kernel_plan.h"
+#include "engine/kernel_tuner.h"
 #include "engine/ops/attention.h"
 #include "engine/ops/linear.h"
 #include "tests/test_support.h"
@@ -163,6 +168,56 @@ TEST_F(CoopMatTest, AttentionOneKeyDominates) {
   for (int64_t i = 0; i < dh; ++i)
     for (int c = 0; c < dh; ++c) ASSERT_NEAR(o[i * dh + c], float(i), 1e-2f) << "query " << i;
   for (float x : o) ASSERT_TRUE(std::isfinite(x));
+}
+
+// Every workgroup shape the tuner tries (engine/kernel_tuner.h), and the smallest one, forced in
+// turn (KernelTuning::coopMatTiles), computes the same product.
+TEST_F(CoopMatTest, EveryWorkgroupShapeMatchesFloat64) {
+  const int64_t M = 77, N = 150, K = 72;
+  auto x = randomUniform(M * K, -1, 1, 51), w = randomUniform(N * K, -1, 1, 52), b = randomUniform(N, -1, 1, 53);
+  Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w, DType::F16), tb = eng().fromFloats({N}, b);
+  const auto ref = productRef(roundToHalf(x), roundToHalf(w), b, 1, M, N, K, false, Activation::Gelu);
+  const KernelTuning saved = eng().options().tuning;
+  std::vector<std::array<int, 5>> shapes = {{1, 1, 1, 1, 1}};
+  for (const CoopMatTiles& c : coopMatTileCandidates(eng().caps(), eng().plan().coop))
+    shapes.push_back({c.wm, c.wn, c.sgM, c.sgN, c.kSteps});
+  ASSERT_GE(shapes.size(), 4u);
+  for (const auto& shape : shapes) {
+    KernelTuning t = saved;
+    t.coopMatTiles = shape;
+    eng().setTuning(t);
+    GuardedOutput y(eng(), {M, N});
+    Recorder rec(eng());
+    linear(rec, tx, tw, tb, y.tensor(), Activation::Gelu);
+    rec.run();
+    expectClose(y.read(), ref, 1e-10, 1e-4, "coopmat " + eng().plan().coop.text());
+    y.expectAllWritten();
+  }
+  eng().setTuning(saved);
+}
+
+// Measured at first use (SPAR_MEASURE_KERNELS=1 on this CPU device): the cooperative-matrix
+// workgroup shape is chosen among the candidates, kept in kernel-choice.json and read back.
+TEST_F(CoopMatTest, WorkgroupShapeMeasuredAndCached) {
+  const std::filesystem::path dir = scratchDir("coopmat_tuner");
+  EngineOptions o;
+  o.validation = true;
+  o.tuning.kernels = "coopmat";
+  o.tuning.measureKernels = true;
+  o.pipelineCacheFile = (dir / "pipelines.bin").string();
+  std::string chosen;
+  {
+    Engine e(o);
+    EXPECT_NE(e.plan().source.find("measured now"), std::string::npos) << e.plan().source;
+    chosen = e.plan().coop.text();
+    EXPECT_EQ(e.device().validationMessageCount(), 0u);
+  }
+  std::ifstream in(kernelChoiceFile(o.pipelineCacheFile));
+  const auto j = nlohmann::json::parse(in);
+  EXPECT_GE(j.begin().value()["coopmat"]["candidates"].size(), 3u);
+  Engine e(o);
+  EXPECT_NE(e.plan().source.find("kernel-choice.json"), std::string::npos) << e.plan().source;
+  EXPECT_EQ(e.plan().coop.text(), chosen);
 }
 
 }  // namespace
