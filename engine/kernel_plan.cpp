@@ -82,7 +82,8 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
     plan.gemmTiles = plan.gemmSmallTiles = {t[0], t[1], t[2], t[3], t[4]};
     plan.reasons.push_back("GEMM tiles forced: " + plan.gemmTiles.text());
   } else {
-    plan.measureTiles = !tuning.gpuAttentionTiles && tuning.measureKernels.value_or(!caps.isCpu());
+    // Any tile forced by the user means no measuring: the plan is what they asked for.
+    plan.measureTiles = !tuning.gpuAttentionTiles && !tuning.coopMatTiles && tuning.measureKernels.value_or(!caps.isCpu());
     plan.reasons.push_back("GEMM tiles " + plan.gemmTiles.text() + " (" + plan.gemmSmallTiles.text() +
                            " below 256 workgroups)" +
                            (plan.measureTiles ? ", to be measured against other candidates at first use" : ""));
@@ -94,7 +95,8 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
     plan.attentionKeys = (*tuning.gpuAttentionTiles)[1];
   }
   plan.reasons.push_back("attention: " + std::to_string(plan.attentionQueries) + " queries a workgroup, keys in blocks of " +
-                         std::to_string(plan.attentionKeys) + " through shared memory, online softmax");
+                         std::to_string(plan.attentionKeys) + " through shared memory, online softmax" +
+                         (plan.measureTiles ? ", to be measured against other blocks at first use" : ""));
   plan.reasons.push_back("conv2d: implicit GEMM on the GEMM tiles (im2col while loading a tile)");
 
   // fp16 weights (the fp16 precision): cooperative matrices where the device multiplies fp16
@@ -113,10 +115,10 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
     if (const auto& t = tuning.coopMatTiles) {
       plan.coop.wm = (*t)[0], plan.coop.wn = (*t)[1], plan.coop.sgM = (*t)[2], plan.coop.sgN = (*t)[3];
       plan.coop.kSteps = (*t)[4];
-      plan.measureTiles = false;
     }
     plan.attentionF16 = KernelFamily::CoopMat;
-    plan.reasons.push_back("fp16 weights: VK_KHR_cooperative_matrix " + plan.coop.text() + ", fp32 accumulation");
+    plan.reasons.push_back("fp16 weights: VK_KHR_cooperative_matrix " + plan.coop.text() + ", fp32 accumulation" +
+                           (plan.measureTiles ? ", the workgroup shape to be measured at first use" : ""));
     plan.reasons.push_back("attention of fp16 layers: q k^T and p v on cooperative matrices, softmax in fp32");
   } else if (forced == "gpu-fp16" || (forced.empty() && caps.shaderFloat16)) {
     plan.fp16Math = true;

@@ -7,6 +7,9 @@
 #   bash scripts/gpu-check.sh pack        # here, after the build: .gpucheck/bundle.tar.xz
 #   bash scripts/gpu-check.sh run         # there, in the repository root, .gpucheck carried
 #   bash scripts/gpu-check.sh run --cpu   # here: the same steps on lavapipe, small shapes
+#   bash scripts/gpu-check.sh run --cpu-coopmat   # the same on lavapipe 26.1 (DIR of
+#                                         # scripts/coopmat-lavapipe.sh): the cooperative-matrix
+#                                         # plan, its tuner and test_coopmat, as the GPU takes them
 #
 # The bundle holds the programs that need no image library (spar-bench, the op tests, the
 # model-level tests on goldens, the cooperative-matrix tests: they link libvulkan and the C++
@@ -73,11 +76,12 @@ if [ "$mode" = pack ]; then
 fi
 
 if [ "$mode" != run ]; then
-  echo "usage: bash scripts/gpu-check.sh pack | run [--cpu]" >&2
+  echo "usage: bash scripts/gpu-check.sh pack | run [--cpu | --cpu-coopmat]" >&2
   exit 2
 fi
-cpu=0
+cpu=0 coopcpu=0
 [ "${1:-}" = --cpu ] && cpu=1
+[ "${1:-}" = --cpu-coopmat ] && cpu=1 coopcpu=1
 final=${OUT:-$root/build/gpu-check-out}
 mkdir -p "$final"
 work=${GPU_CHECK_WORK:-/tmp/spar-gpu-check}
@@ -105,6 +109,12 @@ if [ $cpu = 0 ]; then
     [ -d "$d" ] && libpath="$libpath:$d"
   done
 else
+  if [ $coopcpu = 1 ]; then  # Debian 13's lavapipe and its libraries, unpacked beside the build
+    drv=$(cd "${DIR:-build/mesa-trixie}" 2>/dev/null && pwd)
+    [ -f "$drv/lvp_icd.json" ] || { echo "gpu-check: no lavapipe 26.1 in ${DIR:-build/mesa-trixie} (bash scripts/coopmat-lavapipe.sh)" >&2; exit 1; }
+    export VK_ICD_FILENAMES="$drv/lvp_icd.json" VK_DRIVER_FILES="$drv/lvp_icd.json"
+    libpath="$libpath:$drv/root/usr/lib/x86_64-linux-gnu"
+  fi
   libpath="$libpath:/usr/lib/x86_64-linux-gnu:/lib/x86_64-linux-gnu"
 fi
 export VK_LAYER_PATH="$work/layers"
@@ -140,8 +150,12 @@ step() {  # step NAME SECONDS COMMAND... : runs it with a limit, its output in $
 }
 : > "$out/steps.rc"
 
+# --cpu-coopmat: spar-bench takes the GPU's path on this CPU device (the plan with cooperative
+# matrices, its tiles measured); the tests keep their own choices.
+plan=()
+[ $coopcpu = 1 ] && plan=(env SPAR_KERNELS=coopmat SPAR_MEASURE_KERNELS=1)
 say "device check: $($bin spar-bench --list-devices 2>&1 | tr '\n' ' ')"
-step kernels 120 $bin spar-bench --list-kernels --json
+step kernels 120 "${plan[@]}" $bin spar-bench --list-kernels --json
 cp "$out/kernels.log" "$out/kernels.json" 2>/dev/null
 
 mkdir -p "$out/tests"
@@ -149,14 +163,16 @@ mkdir -p "$out/tests"
 # seconds each); spar-bench below measures, and its choice is what the timings use.
 export SPAR_MEASURE_KERNELS=0
 for t in "${op_tests[@]}" test_coopmat; do
-  [ $cpu = 1 ] && [ $t = test_coopmat ] && continue   # lavapipe 22.3 has no cooperative matrices
-  step "test-$t" 300 $bin "$t" --gtest_output="json:$out/tests/$t.json"
+  [ $cpu = 1 ] && [ $coopcpu = 0 ] && [ $t = test_coopmat ] && continue   # lavapipe 22.3 has none
+  force=()  # a CPU device takes cooperative matrices only when told (a GPU by its plan)
+  [ $coopcpu = 1 ] && [ $t = test_coopmat ] && force=(env SPAR_KERNELS=coopmat)
+  step "test-$t" 300 "${force[@]}" $bin "$t" --gtest_output="json:$out/tests/$t.json"
 done
 
 unset SPAR_MEASURE_KERNELS
 large=()
 [ $cpu = 1 ] && large=(--only _f32)
-step bench-ops 300 $bin spar-bench --json --repeat 10 "${large[@]}"
+step bench-ops 300 "${plan[@]}" $bin spar-bench --json --repeat 10 "${large[@]}"
 small=()
 [ $cpu = 1 ] && small=(--small --repeat 3)
 step reference-ops 240 "$py" scripts/gpu_reference_bench.py --ops --out "$out/reference_ops.json" "${small[@]}"
@@ -173,7 +189,7 @@ json.dump($cfg().to_dict(), open(sys.argv[1], \"w\"))' '$work/model.json' && \
 sizearg=()
 [ -n "$size" ] && sizearg=(--size "$size")
 for p in fp32 fp16; do
-  step "bench-model-$p" 300 $bin spar-bench --model "$work/model.spar" --views 4 --targets 4 "${sizearg[@]}" \
+  step "bench-model-$p" 300 "${plan[@]}" $bin spar-bench --model "$work/model.spar" --views 4 --targets 4 "${sizearg[@]}" \
     --precision $p --repeat 5 --json
 done
 step reference-model 420 "$py" scripts/gpu_reference_bench.py --checkpoint "$work/model.pt" --config "$work/model.json" \
