@@ -21,6 +21,11 @@ std::string TiledGemmTiles::text() const {
   return b;
 }
 
+bool CoopMatTiles::fits(const DeviceCaps& caps) const {
+  return sharedBytes() <= caps.maxSharedMemory &&
+         uint64_t(caps.maxSubgroupSize) * sgM * sgN <= caps.maxWorkGroupInvocations;
+}
+
 std::string CoopMatTiles::text() const {
   char b[96];
   std::snprintf(b, sizeof(b), "%dx%dx%d MMA, %dx%d per subgroup, %dx%d subgroups, k step %d", m, n, k, wm, wn,
@@ -115,6 +120,11 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
     if (const auto& t = tuning.coopMatTiles) {
       plan.coop.wm = (*t)[0], plan.coop.wn = (*t)[1], plan.coop.sgM = (*t)[2], plan.coop.sgN = (*t)[3];
       plan.coop.kSteps = (*t)[4];
+      if (!plan.coop.fits(caps))
+        throw Error("SPAR_COOPMAT_TILES " + plan.coop.text() + ": needs " + std::to_string(plan.coop.sharedBytes()) +
+                    " bytes of shared memory and " + std::to_string(caps.maxSubgroupSize * plan.coop.sgM * plan.coop.sgN) +
+                    " invocations; " + caps.name + " has " + std::to_string(caps.maxSharedMemory) + " and " +
+                    std::to_string(caps.maxWorkGroupInvocations));
     }
     plan.attentionF16 = KernelFamily::CoopMat;
     plan.reasons.push_back("fp16 weights: VK_KHR_cooperative_matrix " + plan.coop.text() + ", fp32 accumulation" +

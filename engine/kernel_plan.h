@@ -35,6 +35,15 @@ struct CoopMatTiles {
   int kSteps = 2;            // K blocks per shared-memory step
   int rows() const { return m * wm * sgM; }
   int cols() const { return n * wn * sgN; }
+  // gemm_coopmat.comp's shared memory: the fp16 x and w slices of a step (rows padded by 8)
+  // and the fp32 staging of one MMA result per subgroup.
+  uint64_t sharedBytes() const {
+    const uint64_t ld = uint64_t(k) * kSteps + 8;
+    return (uint64_t(rows()) + cols()) * ld * 2 + uint64_t(sgM) * sgN * m * n * 4;
+  }
+  // Whether a workgroup of this shape fits the device (shared memory, invocations at its
+  // largest subgroup size: full subgroups).
+  bool fits(const DeviceCaps& caps) const;
   std::string text() const;
 };
 

@@ -25,7 +25,7 @@ using nlohmann::json;
 // FNV-1a of the measured shaders' words: a changed kernel is measured again.
 std::string shaderHash() {
   uint64_t h = 1469598103934665603ull;
-  for (const char* name : {"gemm_tiled_f32", "attention_tiled_f32"})
+  for (const char* name : {"gemm_tiled_f32", "attention_tiled_f32", "gemm_coopmat_f32"})
     for (uint32_t w : findShader(name)) {
       h ^= w;
       h *= 1099511628211ull;
@@ -123,7 +123,7 @@ std::vector<std::array<int, 2>> attentionBlockCandidates(const DeviceCaps& caps)
 }
 
 // gemm_coopmat.comp's workgroup shapes (MMAs per subgroup WM x WN, subgroups SG_M x SG_N, K
-// blocks a step) whose staged slices fit the device's shared memory.
+// blocks a step) that fit the device.
 std::vector<CoopMatTiles> coopMatTileCandidates(const DeviceCaps& caps, const CoopMatTiles& base) {
   const std::vector<std::array<int, 5>> all = {{2, 2, 2, 2, 2}, {4, 2, 2, 2, 2}, {2, 4, 2, 2, 2}, {4, 4, 2, 2, 1},
                                                {2, 2, 4, 2, 2}};
@@ -131,10 +131,7 @@ std::vector<CoopMatTiles> coopMatTileCandidates(const DeviceCaps& caps, const Co
   for (const auto& a : all) {
     CoopMatTiles t = base;
     t.wm = a[0], t.wn = a[1], t.sgM = a[2], t.sgN = a[3], t.kSteps = a[4];
-    const uint64_t ld = uint64_t(t.k) * t.kSteps + 8;
-    const uint64_t shared = (uint64_t(t.rows()) + t.cols()) * ld * 2 + uint64_t(t.sgM) * t.sgN * t.m * t.n * 4;
-    const uint64_t invocations = uint64_t(caps.maxSubgroupSize) * t.sgM * t.sgN;
-    if (shared <= caps.maxSharedMemory && invocations <= caps.maxWorkGroupInvocations) out.push_back(t);
+    if (t.fits(caps)) out.push_back(t);
   }
   return out;
 }
@@ -161,7 +158,8 @@ void measureKernelChoice(Engine& engine, KernelPlan& plan) {
   // one; 8 heads of 64 over 2048 tokens); a CPU device forced onto the GPU family (tests)
   // measures small ones.
   const int64_t n = caps.isCpu() ? 128 : 2048;
-  const Tensor x = engine.fromFloats({n, n}, pattern(size_t(n * n))), w = engine.fromFloats({n, n}, pattern(size_t(n * n)));
+  const std::vector<float> square = pattern(size_t(n * n));
+  const Tensor x = engine.fromFloats({n, n}, square), w = engine.fromFloats({n, n}, square);
   const Tensor y = engine.tensor({n, n});
   const TiledGemmTiles small = plan.gemmSmallTiles;
   const auto gemms = gemmTileCandidates(caps);
@@ -196,8 +194,7 @@ void measureKernelChoice(Engine& engine, KernelPlan& plan) {
   Fastest c;
   std::vector<CoopMatTiles> coops;
   if (plan.gemmF16 == KernelFamily::CoopMat) {
-    const Tensor x16 = engine.fromFloats({n, n}, pattern(size_t(n * n)), DType::F16);
-    const Tensor w16 = engine.fromFloats({n, n}, pattern(size_t(n * n)), DType::F16);
+    const Tensor x16 = engine.fromFloats({n, n}, square, DType::F16), w16 = engine.fromFloats({n, n}, square, DType::F16);
     coops = coopMatTileCandidates(caps, plan.coop);
     c = fastest(
         engine, coops.size(),

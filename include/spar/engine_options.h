@@ -30,8 +30,8 @@ struct SPAR_API KernelTuning {
   // gemm_coopmat.comp: MMAs per subgroup WM x WN, subgroups SG_M x SG_N, K blocks a step
   // (SPAR_COOPMAT_TILES=WM,WN,SGM,SGN,KSTEPS)
   std::optional<std::array<int, 5>> coopMatTiles;
-  // Measure the GPU GEMM tile candidates at first use (SPAR_MEASURE_KERNELS=1 / 0); unset: on
-  // GPUs only. The choice is kept in kernel-choice.json beside the pipeline cache file.
+  // Measure the GPU tile candidates (GEMM, attention, cooperative matrices) at first use
+  // (SPAR_MEASURE_KERNELS=1 / 0); unset: on GPUs only; off when any tile above is forced. The choice is kept in kernel-choice.json beside the pipeline cache file.
   std::optional<bool> measureKernels;
 
   // Throws Error (one line, naming the field) for a value no kernel can take.
