@@ -141,8 +141,8 @@ TEST(KernelPlan, SmallProductsGetSmallTiles) {
 }
 
 // On a CPU device forced onto the GPU family and asked to measure: GEMM tiles and attention
-// blocks are measured once,
-// written beside the pipeline cache, and read back by the next engine without measuring.
+// blocks are measured once, written beside the pipeline cache, and read back by the next
+// engine without measuring.
 TEST(KernelTuner, MeasuresOnceThenReadsTheCacheFile) {
   const fs::path dir = scratchDir("kernel_tuner");
   EngineOptions o;
@@ -186,10 +186,7 @@ TEST_F(EngineTest, EveryMeasuredCandidateComputesTheSame) {
   const int64_t M = 77, N = 150, K = 72;
   auto x = randomUniform(M * K, -1, 1, 61), w = randomUniform(N * K, -1, 1, 62);
   Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w);
-  std::vector<double> ref(size_t(M * N));
-  for (int64_t m = 0; m < M; ++m)
-    for (int64_t n = 0; n < N; ++n)
-      for (int64_t k = 0; k < K; ++k) ref[m * N + n] += double(x[m * K + k]) * w[n * K + k];
+  const auto ref = linearRef(x, w, {}, 1, M, N, K, false, Activation::None);
   const auto gemms = gemmTileCandidates(eng().caps());
   ASSERT_GE(gemms.size(), 3u);
   for (const TiledGemmTiles& c : gemms) {
@@ -233,18 +230,6 @@ class Fp16MathTest : public EngineTest {
   ScopedKernels family_{eng(), "gpu-fp16"};
 };
 
-std::vector<double> productRef(const std::vector<float>& x, const std::vector<float>& w, const std::vector<float>& b,
-                               int64_t M, int64_t N, int64_t K) {
-  std::vector<double> y(size_t(M * N));
-  for (int64_t m = 0; m < M; ++m)
-    for (int64_t n = 0; n < N; ++n) {
-      double s = b.empty() ? 0.0 : b[n];
-      for (int64_t k = 0; k < K; ++k) s += double(x[m * K + k]) * w[n * K + k];
-      y[m * N + n] = s;
-    }
-  return y;
-}
-
 TEST_F(Fp16MathTest, MatchesFloat64WithinFp16Partials) {
   ASSERT_TRUE(eng().plan().fp16Math);
   for (const auto [M, N, K] : {std::array<int64_t, 3>{45, 70, 384}, {33, 17, 61}, {1, 1, 4}}) {
@@ -255,7 +240,7 @@ TEST_F(Fp16MathTest, MatchesFloat64WithinFp16Partials) {
     Recorder rec(eng());
     linear(rec, tx, tw, tb, y.tensor());
     rec.run();
-    expectClose(y.read(), productRef(roundToHalf(x), roundToHalf(w), b, M, N, K), 1e-6, 2e-2, "fp16 math");
+    expectClose(y.read(), linearRef(roundToHalf(x), roundToHalf(w), b, 1, M, N, K, false, Activation::None), 1e-6, 2e-2, "fp16 math");
     y.expectAllWritten();
   }
 }

@@ -6,22 +6,6 @@
 namespace spar::test {
 namespace {
 
-// y[b][m][n] = act(sum_k x[b][m][k] w[b or 0][n][k] + bias[n])
-std::vector<double> linearRef(const std::vector<float>& x, const std::vector<float>& w, const std::vector<float>& bias,
-                              int64_t B, int64_t M, int64_t N, int64_t K, bool batchedW, Activation act) {
-  std::vector<double> y(B * M * N);
-  for (int64_t b = 0; b < B; ++b)
-    for (int64_t m = 0; m < M; ++m)
-      for (int64_t n = 0; n < N; ++n) {
-        const float* xr = &x[(b * M + m) * K];
-        const float* wr = &w[((batchedW ? b * N : 0) + n) * K];
-        double s = bias.empty() ? 0.0 : bias[n];
-        for (int64_t k = 0; k < K; ++k) s += double(xr[k]) * wr[k];
-        y[(b * M + m) * N + n] = activateRef(s, act);
-      }
-  return y;
-}
-
 struct LinearCase {
   int64_t M, N, K;
   bool bias;

@@ -221,6 +221,21 @@ VideoInfo probeVideo(const std::filesystem::path& video, const std::filesystem::
   return v;
 }
 
+std::vector<double> linearRef(const std::vector<float>& x, const std::vector<float>& w, const std::vector<float>& bias,
+                              int64_t B, int64_t M, int64_t N, int64_t K, bool batchedW, Activation act) {
+  std::vector<double> y(size_t(B * M * N));
+  for (int64_t b = 0; b < B; ++b)
+    for (int64_t m = 0; m < M; ++m)
+      for (int64_t n = 0; n < N; ++n) {
+        const float* xr = &x[(b * M + m) * K];
+        const float* wr = &w[((batchedW ? b * N : 0) + n) * K];
+        double s = bias.empty() ? 0.0 : bias[n];
+        for (int64_t k = 0; k < K; ++k) s += double(xr[k]) * wr[k];
+        y[(b * M + m) * N + n] = activateRef(s, act);
+      }
+  return y;
+}
+
 std::vector<double> attentionRef(const std::vector<float>& q, int64_t qCols, int64_t qOff, const std::vector<float>& k,
                                  int64_t kCols, int64_t kOff, const std::vector<float>& v, int64_t vCols, int64_t vOff,
                                  int64_t B, int64_t Nq, int64_t Nk, int heads, int dh, bool causal, double scale) {

@@ -79,6 +79,11 @@ std::vector<double> attentionRef(const std::vector<float>& q, int64_t qCols, int
 // The fused activations (shaders/common.glsl) in float64.
 double activateRef(double x, Activation act);
 
+// A linear layer in float64: y[b][m][n] = act(sum_k x[b][m][k] w[b or 0][n][k] + bias[n])
+// (bias may be empty; batchedW: one weight matrix per batch entry).
+std::vector<double> linearRef(const std::vector<float>& x, const std::vector<float>& w, const std::vector<float>& bias,
+                              int64_t B, int64_t M, int64_t N, int64_t K, bool batchedW, Activation act);
+
 struct ErrorStats {
   double nmse = 0;     // sum((a-b)^2) / sum(b^2), in double
   double maxAbs = 0;   // max |a-b|

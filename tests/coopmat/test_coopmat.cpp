@@ -21,21 +21,6 @@
 namespace spar::test {
 namespace {
 
-std::vector<double> productRef(const std::vector<float>& x, const std::vector<float>& w, const std::vector<float>& b,
-                               int64_t B, int64_t M, int64_t N, int64_t K, bool batchedW, Activation act) {
-  std::vector<double> y(size_t(B * M * N));
-  for (int64_t bi = 0; bi < B; ++bi)
-    for (int64_t m = 0; m < M; ++m)
-      for (int64_t n = 0; n < N; ++n) {
-        double s = b.empty() ? 0.0 : b[n];
-        const float* xr = &x[(bi * M + m) * K];
-        const float* wr = &w[((batchedW ? bi * N : 0) + n) * K];
-        for (int64_t k = 0; k < K; ++k) s += double(xr[k]) * wr[k];
-        y[(bi * M + m) * N + n] = activateRef(s, act);
-      }
-  return y;
-}
-
 class CoopMatTest : public EngineTest {};
 
 TEST_F(CoopMatTest, DeviceHasCooperativeMatrices) {
@@ -67,10 +52,10 @@ TEST_P(CoopMatShapes, MatchesFloat64OnFp16Inputs) {
   Recorder rec(eng());
   linear(rec, tx, tw, tb, y.tensor(), c.act);
   rec.run();
-  const auto rounded = productRef(roundToHalf(x), roundToHalf(w), b, 1, c.M, c.N, c.K, false, c.act);
+  const auto rounded = linearRef(roundToHalf(x), roundToHalf(w), b, 1, c.M, c.N, c.K, false, c.act);
   if (c.yType == DType::F32) expectClose(y.read(), rounded, 1e-10 * std::max<int64_t>(1, c.K / 16), 1e-4, "coopmat");
   else expectClose(y.read(), rounded, 2e-6, 5e-2, "coopmat, f16 out");
-  expectClose(y.read(), productRef(x, w, b, 1, c.M, c.N, c.K, false, c.act), 2e-6, 5e-2, "coopmat vs fp32 inputs");
+  expectClose(y.read(), linearRef(x, w, b, 1, c.M, c.N, c.K, false, c.act), 2e-6, 5e-2, "coopmat vs fp32 inputs");
   y.expectAllWritten();
 }
 
@@ -92,7 +77,7 @@ TEST_F(CoopMatTest, BatchedWeights) {
   Recorder rec(eng());
   linear(rec, tx, tw, Tensor(), y.tensor());
   rec.run();
-  expectClose(y.read(), productRef(roundToHalf(x), roundToHalf(w), {}, B, M, N, K, true, Activation::None), 1e-10, 1e-4,
+  expectClose(y.read(), linearRef(roundToHalf(x), roundToHalf(w), {}, B, M, N, K, true, Activation::None), 1e-10, 1e-4,
               "batched");
   y.expectAllWritten();
 }
@@ -176,7 +161,7 @@ TEST_F(CoopMatTest, EveryWorkgroupShapeMatchesFloat64) {
   const int64_t M = 77, N = 150, K = 72;
   auto x = randomUniform(M * K, -1, 1, 51), w = randomUniform(N * K, -1, 1, 52), b = randomUniform(N, -1, 1, 53);
   Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w, DType::F16), tb = eng().fromFloats({N}, b);
-  const auto ref = productRef(roundToHalf(x), roundToHalf(w), b, 1, M, N, K, false, Activation::Gelu);
+  const auto ref = linearRef(roundToHalf(x), roundToHalf(w), b, 1, M, N, K, false, Activation::Gelu);
   const KernelTuning saved = eng().options().tuning;
   std::vector<std::array<int, 5>> shapes = {{1, 1, 1, 1, 1}};
   for (const CoopMatTiles& c : coopMatTileCandidates(eng().caps(), eng().plan().coop))
