@@ -138,28 +138,31 @@ def predict(lm: LoadedModel, scene: Scene, inputs: List[int], targets: List[int]
     import torch
     from spar_reference.clip_text import label_logits
     h, w = scene.size
+    # the model's device (spar-train evaluates a model in training on its GPU); the text
+    # encoder stays on the CPU, results come back to it
+    dev = next(lm.model.parameters()).device
     x = torch.from_numpy(scene.rgb.astype(np.float64) / 255.0).permute(0, 3, 1, 2)[None]
-    x = x.to(lm.dtype).contiguous()
+    x = x.to(device=dev, dtype=lm.dtype).contiguous()
     kwargs: Dict[str, Any] = {"semantic_head": lm.semantic}
     if mode == "assume-static":
         kwargs["assume_static"] = True
     elif mode == "no-gating":
         # CV-DRP still runs (its masks are scored) but P(dynamic) = 0 gates nothing
-        kwargs["dynamic_mask"] = torch.zeros(1, len(inputs), 1, h, w, dtype=lm.dtype)
+        kwargs["dynamic_mask"] = torch.zeros(1, len(inputs), 1, h, w, dtype=lm.dtype, device=dev)
     t0 = time.perf_counter()
     with torch.no_grad():
         out = lm.model(x, inputs, targets, **kwargs)
         labels = None
         if lm.semantic:
-            txt = lm.text_embeddings(scene.class_names)
-            labels = label_logits(out["semantic_features"][0], txt).argmax(dim=1)
+            txt = lm.text_embeddings(scene.class_names).to(dev)
+            labels = label_logits(out["semantic_features"][0], txt).argmax(dim=1).cpu()
     seconds = time.perf_counter() - t0
-    rgb = out["rgb"][0].permute(0, 2, 3, 1).double().numpy()
+    rgb = out["rgb"][0].permute(0, 2, 3, 1).double().cpu().numpy()
     dynamic = None
     if out["cv_drp_input"] is not None:
         dynamic = np.zeros((scene.frames, h, w), bool)
-        dynamic[inputs] = out["cv_drp_input"]["binary"][0, :, 0].numpy()
-        dynamic[targets] = out["cv_drp_target"]["binary"][0, :, 0].numpy()
+        dynamic[inputs] = out["cv_drp_input"]["binary"][0, :, 0].cpu().numpy()
+        dynamic[targets] = out["cv_drp_target"]["binary"][0, :, 0].cpu().numpy()
     return Prediction(rgb, dynamic, None if labels is None else labels.numpy().astype(np.int64),
                       seconds)
 

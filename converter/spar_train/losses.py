@@ -47,8 +47,8 @@ def camera_loss(c2w: torch.Tensor, fxfycxcy: torch.Tensor, true_c2w: torch.Tenso
 def spar_losses(out: dict, batch: dict, teacher_features: torch.Tensor,
                 dynamic_weighting: bool = True, pose_weight: float = 0.0) -> dict:
     b, t = batch["targets"].shape
-    ar = torch.arange(b)[:, None]
     tg = batch["targets"]
+    ar = torch.arange(b, device=tg.device)[:, None]
     render = out["rgb"]                                   # [B, T, 3, H, W]
     h, w = render.shape[-2:]
     copy_paste = batch["kind"] == "copy-paste"

@@ -55,8 +55,8 @@ class ModuleTimer:
 def profile(a) -> int:
     torch.set_num_threads(a.threads)
     torch.manual_seed(a.seed)
-    cfg = small_config()
-    pool = ScenePool(a.scenes, 8, 128, os.path.join(a.out, "..", "scene-cache")
+    cfg = small_config(a.image_size)
+    pool = ScenePool(a.scenes, 8, a.image_size, os.path.join(a.out, "..", "scene-cache")
                      if a.cache is None else a.cache)
     lseg = lseg_mod.LSegEncoder(cfg.lseg, seed=a.seed + 12)
     model = SPAR(cfg, dino=dino_v3.DinoV3(cfg.dino, seed=a.seed + 11), lseg=lseg).float()

@@ -45,7 +45,7 @@ def text_encoder(cfg, bpe: str, seeds=range(64), log=print):
 
 
 def train_lseg(lseg, pool, class_emb: torch.Tensor, steps: int, batch: int, seed: int,
-               lr: float = 1e-3, log=print):
+               lr: float = 1e-3, log=print, device="cpu"):
     """Trains ``lseg`` in place on random frames of the pool (dynamic frames: people and pets
     are classes too) and returns the final pixel accuracy on a held-back batch."""
     rng = np.random.default_rng([seed, 202])
@@ -55,7 +55,7 @@ def train_lseg(lseg, pool, class_emb: torch.Tensor, steps: int, batch: int, seed
         p.requires_grad_(True)
     opt = torch.optim.AdamW(params, lr=lr, betas=(0.9, 0.95), weight_decay=0.05)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.1)
-    txt = class_emb.detach()
+    txt = class_emb.detach().to(device)
     lseg.train()
     t0 = time.time()
 
@@ -65,7 +65,8 @@ def train_lseg(lseg, pool, class_emb: torch.Tensor, steps: int, batch: int, seed
         rgb = np.where(dyn[:, None, None, None], pool.rgb[s, i], pool.static_rgb[s, i])
         cls = np.where(dyn[:, None, None], pool.classes[s, i], pool.static_classes[s, i])
         # the label of a half-resolution pixel: its 2x2 block's top-left class
-        return to_tensor(rgb), torch.as_tensor(cls[:, ::2, ::2].astype(np.int64))
+        return (to_tensor(rgb).to(device),
+                torch.as_tensor(cls[:, ::2, ::2].astype(np.int64)).to(device))
 
     for step in range(steps):
         x, y = draw()

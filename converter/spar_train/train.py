@@ -18,17 +18,48 @@ from spar_reference.spar import SPAR, _cosine_with_warmup
 
 from .config import small_config
 from .data import ScenePool, Sampler
+from .heldout import HeldOut
 from .losses import spar_losses
 from .teacher import text_encoder, train_lseg
 
+# steps timed (after the warm-up steps) to size a --minutes run
+WARMUP_STEPS, CALIBRATION_STEPS = 5, 20
 CONVERTER = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 def _round_to_fp16(sd):
     """Every float tensor rounded to the nearest float16 value (kept as float32): the packed
     model then stores F16 weight matrices exactly, and the engine in fp32 and the PyTorch
-    reference on this checkpoint compute with identical weights."""
-    return OrderedDict((k, v.half().float() if v.is_floating_point() else v) for k, v in sd.items())
+    reference on this checkpoint compute with identical weights. On the CPU: a checkpoint
+    written on a GPU loads anywhere (spar-convert reads CPU storages only)."""
+    return OrderedDict((k, (v.half().float() if v.is_floating_point() else v).detach().cpu())
+                       for k, v in sd.items())
+
+
+def _to_cpu(obj):
+    """Tensors of a nested state (the optimizer's) moved to the CPU."""
+    if torch.is_tensor(obj):
+        return obj.detach().cpu()
+    if isinstance(obj, dict):
+        return type(obj)((k, _to_cpu(v)) for k, v in obj.items())
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_to_cpu(v) for v in obj)
+    return obj
+
+
+def _to_device(batch: dict, dev) -> dict:
+    return {k: v.to(dev) if torch.is_tensor(v) else v for k, v in batch.items()}
+
+
+def pick_device(name: str):
+    """torch.device for --device (checked by the command line: cpu or an available cuda[:N])."""
+    dev = torch.device(name)
+    if dev.type == "cuda":
+        # TF32 matrix products: training tolerates them, and the checkpoint is rounded to
+        # fp16 anyway
+        torch.backends.cuda.matmul.allow_tf32 = True
+        torch.backends.cudnn.allow_tf32 = True
+    return dev
 
 
 class Run:
@@ -44,7 +75,7 @@ class Run:
         self.log_file.flush()
 
     def build(self, pool):
-        a, cfg = self.a, small_config()
+        a, cfg = self.a, small_config(self.a.image_size)
         self.cfg = cfg
         with open(os.path.join(a.out, "config.json"), "w") as f:
             json.dump(cfg.to_dict(), f, indent=1)
@@ -62,7 +93,9 @@ class Run:
             text, emb, text_seed = text_encoder(cfg, a.bpe, log=self.log)
             torch.manual_seed(a.seed + 12)
             lseg = lseg_mod.LSegEncoder(cfg.lseg, seed=a.seed + 12)
-            acc = train_lseg(lseg, pool, emb, a.lseg_steps, a.lseg_batch, a.seed, log=self.log)
+            acc = train_lseg(lseg.to(self.dev), pool, emb, a.lseg_steps, a.lseg_batch, a.seed,
+                             log=self.log, device=self.dev)
+            lseg.cpu()
             self.log(f"lseg teacher: pixel accuracy {acc:.3f} on a held-back batch")
             torch.save({"clip": text.state_dict(), "lseg": lseg.state_dict(),
                         "class_embeddings": emb, "clip_seed": text_seed, "lseg_accuracy": acc},
@@ -76,7 +109,7 @@ class Run:
         return model
 
     def checkpoint(self, model, opt, sched, step, path):
-        ck = {"model": _round_to_fp16(model.state_dict()), "optimizer": opt.state_dict(),
+        ck = {"model": _round_to_fp16(model.state_dict()), "optimizer": _to_cpu(opt.state_dict()),
               "lr_scheduler": sched.state_dict(), "fwdbwd_pass_step": step,
               "param_update_step": step}
         add_clip_text(ck, self.cfg, 0, False, encoder=self.text)
@@ -89,30 +122,78 @@ class Run:
         a = self.a
         torch.set_num_threads(a.threads)
         torch.manual_seed(a.seed)
+        self.dev = pick_device(a.device)
         t_start = time.time()
-        pool = ScenePool(a.scenes, 8, 128, os.path.join(a.out, "..", "scene-cache")
-                         if a.cache is None else a.cache, log=self.log)
-        model = self.build(pool)
+        pool = ScenePool(a.scenes, 8, a.image_size, os.path.join(a.out, "..", "scene-cache")
+                         if a.cache is None else a.cache, workers=a.workers, log=self.log)
+        model = self.build(pool).to(self.dev)
+        heldout = None
+        if a.eval_scenes:
+            heldout = HeldOut(a.eval_scenes, a.eval_views, self.cfg, self.text, a.bpe)
         sampler = Sampler(pool, a.seed, input_targets=a.input_targets)
         named = [(k, p) for k, p in model.named_parameters() if p.requires_grad]
         groups = [{"params": [p for _, p in named if p.dim() != 1], "weight_decay": 0.05},
                   {"params": [p for _, p in named if p.dim() == 1], "weight_decay": 0.0}]
         opt = torch.optim.AdamW(groups, lr=a.lr, betas=(0.9, 0.95))
+        # the schedule's length: --steps, or fewer where --minutes sets a time budget (fixed
+        # once the step rate is measured, below)
+        total = [a.steps]
         sched = torch.optim.lr_scheduler.LambdaLR(
-            opt, lambda s: _cosine_with_warmup(s, a.warmup, a.steps))
+            opt, lambda s: _cosine_with_warmup(s, a.warmup, total[0]))
         model.train()
         model._dino_v3.eval()
         model.lseg_model.eval()
-        self.log(f"training {sum(p.numel() for _, p in named) / 1e6:.2f} M parameters, "
-                 f"{a.steps} steps of {a.batch} scenes, lr {a.lr}, "
+        self.log(f"training {sum(p.numel() for _, p in named) / 1e6:.2f} M parameters on "
+                 f"{self.dev}, {a.steps} steps of {a.batch} scenes"
+                 f"{f' (at most {a.minutes} min)' if a.minutes else ''}, lr {a.lr}, "
                  f"dynamic-region-aware loss {'off' if a.no_dynamic_loss else 'on'}, "
                  f"camera loss weight {a.pose_loss}")
         t0 = time.time()
+        eval_s = [0.0]  # seconds spent on held-out metrics (not training time)
+        curve = os.path.join(a.out, "curve.jsonl")
+
+        evaluated = [-1]
+
+        def evaluate(step):
+            evaluated[0] = step
+            te = time.time()
+            m = heldout.measure(model)
+            eval_s[0] += time.time() - te
+            minutes = (time.time() - t0 - eval_s[0]) / 60.0
+            with open(curve, "a") as f:
+                f.write(json.dumps({"step": step, "minutes": minutes, "views": a.eval_views, **m})
+                        + "\n")
+            fmt = lambda v: "n/a" if v is None else f"{v:.3f}"  # noqa: E731
+            self.log(f"held-out step {step} ({minutes:.1f} min): PSNR {m['psnr']:.2f} dB "
+                     f"(copy {m['psnr_nearest_input']:.2f}, mean colour "
+                     f"{m['psnr_mean_colour']:.2f}) SSIM {fmt(m['ssim'])} semantic mIoU "
+                     f"{fmt(m['sem_miou'])} mask mIoU {fmt(m['mask_miou'])} "
+                     f"(K={a.eval_views}, {len(heldout.scenes)} scenes)")
+
+        if heldout is not None:
+            evaluate(0)
         acc = {}
-        for step in range(a.steps):
-            batch = sampler.batch(a.batch)
+        step, calibrated, t_cal = 0, not a.minutes, None
+        while step < total[0]:
+            if not calibrated and step == WARMUP_STEPS:
+                t_cal = (time.time(), eval_s[0])   # after warm-up (allocator, first kernels)
+            timed = step - WARMUP_STEPS
+            # CALIBRATION_STEPS timed steps, or fewer (at least 2) once a fifth of a short
+            # budget is gone
+            if not calibrated and t_cal and (timed >= CALIBRATION_STEPS or (
+                    timed >= 2 and time.time() - t0 > 0.2 * a.minutes * 60.0)):
+                per_step = (time.time() - t_cal[0] - (eval_s[0] - t_cal[1])) / timed
+                left = a.minutes * 60.0 - (time.time() - t0)
+                # each held-out measurement costs about what the last one did
+                per_eval = eval_s[0] / max(1, step // a.eval_every + 1) if heldout else 0.0
+                per_step_all = per_step + (per_eval / a.eval_every if heldout else 0.0)
+                total[0] = max(step + 1, min(a.steps, step + int(left / per_step_all)))
+                calibrated = True
+                self.log(f"time budget {a.minutes} min: {per_step:.3f} s a step, "
+                         f"{per_eval:.1f} s a held-out measurement -> {total[0]} steps")
+            batch = _to_device(sampler.batch(a.batch), self.dev)
             b, t = batch["targets"].shape
-            ar = torch.arange(b)[:, None]
+            ar = torch.arange(b, device=self.dev)[:, None]
             with torch.no_grad():
                 clean_targets = batch["clean"][ar, batch["targets"]].flatten(0, 1)
                 teacher = model.lseg_model(clean_targets)
@@ -125,27 +206,38 @@ class Run:
             if torch.isfinite(gnorm):
                 opt.step()
             sched.step()
+            step += 1
             for k, v in losses.items():
-                acc.setdefault(k, []).append(float(v))
-            if (step + 1) % a.log_every == 0 or step + 1 == a.steps:
-                el = time.time() - t0
-                eta = el / (step + 1) * (a.steps - step - 1)
-                avg = {k: np.mean(v) for k, v in acc.items()}
-                self.log(f"step {step + 1}/{a.steps} loss {avg['loss']:.4f} recon {avg['recon']:.4f} "
+                acc.setdefault(k, []).append(v.detach())
+            if step % a.log_every == 0 or step == total[0]:
+                el = time.time() - t0 - eval_s[0]
+                eta = el / step * (total[0] - step)
+                avg = {k: float(torch.stack(v).float().mean()) for k, v in acc.items()}
+                self.log(f"step {step}/{total[0]} loss {avg['loss']:.4f} recon {avg['recon']:.4f} "
                          f"sem {avg['sem']:.4f} bce {avg['bce']:.4f} reg {avg['reg']:.4f} "
                          f"pose {avg['pose']:.4f} "
                          f"psnr {avg['psnr']:.2f} dB lr {sched.get_last_lr()[0]:.2e} "
-                         f"{el / (step + 1):.2f} s/step, eta {eta / 60:.1f} min")
+                         f"{el / step:.2f} s/step, eta {eta / 60:.1f} min")
                 acc = {}
-            if a.save_every and (step + 1) % a.save_every == 0 and step + 1 < a.steps:
-                self.checkpoint(model, opt, sched, step + 1, os.path.join(a.out, "checkpoint.pt"))
+            if heldout is not None and (step % a.eval_every == 0 or step == total[0]):
+                evaluate(step)
+            if a.save_every and step % a.save_every == 0 and step < total[0]:
+                self.checkpoint(model, opt, sched, step, os.path.join(a.out, "checkpoint.pt"))
                 if a.keep_checkpoints:  # for learning curves (scripts/learning-curve.sh)
-                    self.checkpoint(model, opt, sched, step + 1,
-                                    os.path.join(a.out, f"checkpoint_step{step + 1:06d}.pt"))
+                    self.checkpoint(model, opt, sched, step,
+                                    os.path.join(a.out, f"checkpoint_step{step:06d}.pt"))
+            if a.minutes and time.time() - t0 > a.minutes * 60.0 * 1.1 and step < total[0]:
+                self.log(f"time budget overrun: stopping at step {step} of {total[0]} "
+                         f"(the schedule cut short)")
+                break
+        if heldout is not None and evaluated[0] != step:   # a run cut short by --minutes
+            evaluate(step)
         model.eval()
         ck = os.path.join(a.out, "checkpoint.pt")
-        self.checkpoint(model, opt, sched, a.steps, ck)
-        self.log(f"checkpoint {ck} ({time.time() - t_start:.0f} s in all)")
+        self.checkpoint(model, opt, sched, step, ck)
+        self.log(f"checkpoint {ck} after {step} steps ({time.time() - t_start:.0f} s in all)")
+        if a.no_pack:
+            return 0
         packed = os.path.join(a.out, "model.spar")
         cmd = [sys.executable, os.path.join(CONVERTER, "spar-convert"), "-q", ck, "--config",
                os.path.join(a.out, "config.json"), "--bpe", a.bpe, "--fp16", "-o", packed]
