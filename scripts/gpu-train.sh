@@ -12,15 +12,18 @@
 # `run`: (1) the scene pool (GPU_TRAIN_SCENES train seeds, rendered on every core), 12
 # validation scenes (test split, seeds after the 12 the evaluation uses: the variants are chosen
 # on these, never on the evaluation's) and (2) the text and LSeg teachers, once; (3) the recipe's
-# variants below in parallel on the one GPU (a model this small leaves it mostly idle: each
-# process is bound by its own kernel launches), each fitted to GPU_TRAIN_MINUTES by spar-train
-# --minutes and measured on the validation scenes every GPU_TRAIN_EVAL_EVERY steps (held-out
-# PSNR, copy and mean-colour baselines, mIoU against steps and minutes: curve.jsonl);
+# variants below in parallel on the one GPU (a model this small should leave it mostly idle,
+# each process bound by its own kernel launches; if not, they share it and each fits fewer
+# steps), each fitted to GPU_TRAIN_MINUTES (or what is left of GPU_TRAIN_SECONDS, 560, from
+# the start of the call) by spar-train --minutes and measured on the validation scenes every
+# GPU_TRAIN_EVAL_EVERY steps (held-out PSNR, copy and mean-colour baselines, mIoU against steps
+# and minutes: curve.jsonl);
 # (4) the variant with the best final validation PSNR written back: its weights (fp16; they are
 # fp16-rounded already, so exact) in parts under the device tool's 16 MiB a file, every
 # variant's log and curve, and summary.md. `unpack` rebuilds the official-layout checkpoint
 # (without optimizer state: the moments stay there) and packs model.spar with spar-convert;
-# then `bash scripts/learning-curve.sh`-style numbers come from `spar eval` on the 12 test scenes.
+# then `spar eval` or `bash scripts/evaluate.sh RUN` gives the numbers on the 12 test scenes.
+# On the device: run with timeout_s 600; every step appends to $OUT/steps.log.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)
@@ -97,6 +100,7 @@ $py -c "import torch, numpy; print('torch', torch.__version__, 'numpy', numpy.__
 
 # (1) the scene pool, once, on every core; validation scenes
 t0=$(date +%s)
+deadline=${GPU_TRAIN_SECONDS:-560}
 PYTHONPATH=converter $py -c "
 import sys
 from spar_train.data import ScenePool
@@ -113,7 +117,11 @@ $py converter/spar-train --out "$work/teacher" "${common[@]}" --steps 1 --lseg-s
   >>"$log" 2>&1 || { say "teacher failed"; tail -n 20 "$log"; exit 1; }
 say "teachers in $(( $(date +%s) - t0 )) s"
 
-# (3) the variants, in parallel
+# (3) the variants, in parallel, fitted to what is left of GPU_TRAIN_SECONDS (the call's limit
+# is 600 s): 60 s kept for writing back and a 10 % overrun
+left=$(( deadline - ($(date +%s) - t0) - 60 ))
+minutes=$(awk -v m="$minutes" -v l="$left" 'BEGIN { x = l / 66.0; if (x < m) m = x; if (m < 0.2) m = 0.2; printf "%.2f", m }')
+say "training $((${#variants[@]})) variants for $minutes min each"
 pids=()
 for v in "${variants[@]}"; do
   name=${v%%|*}
