@@ -65,10 +65,16 @@ class ScenePool:
         return len(self.seeds)
 
 
-def to_tensor(rgb_u8: np.ndarray) -> torch.Tensor:
-    """[..., H, W, 3] uint8 -> [..., 3, H, W] float in [0, 1]."""
-    t = torch.from_numpy(np.ascontiguousarray(rgb_u8)).float() / 255.0
-    return t.movedim(-1, -3)
+def to_tensor(rgb_u8: np.ndarray, device=None) -> torch.Tensor:
+    """[..., H, W, 3] uint8 -> [..., 3, H, W] float in [0, 1], on `device` (default the CPU).
+    The bytes travel and are converted there: a batch of 32 scenes is 12.6 MB of bytes but
+    50 MB of floats, whose conversion alone took a CPU core about 0.2 s. Same values anywhere."""
+    t = _on(torch.from_numpy(np.ascontiguousarray(rgb_u8)), device)
+    return (t.float() / 255.0).movedim(-1, -3)
+
+
+def _on(t: torch.Tensor, device) -> torch.Tensor:
+    return t if device is None else t.to(device)
 
 
 class Sampler:
@@ -77,8 +83,10 @@ class Sampler:
     augmented with probability p_copy_paste (the official copy_paste.prob)."""
 
     def __init__(self, pool: ScenePool, seed: int, p_dynamic: float = 0.5,
-                 p_copy_paste: float = 0.5, views_range=(2, 4), input_targets: int = 0):
+                 p_copy_paste: float = 0.5, views_range=(2, 4), input_targets: int = 0,
+                 device=None):
         self.pool = pool
+        self.device = device   # where the images are converted to float (to_tensor)
         # input views also rendered as targets (each scene's first `input_targets` inputs, in
         # sequence order); 0 is the paper's recipe (targets are the other views only)
         self.input_targets = input_targets
@@ -121,9 +129,9 @@ class Sampler:
         targets = torch.as_tensor(np.stack(t_idx), dtype=torch.long)
         return {
             "kind": kind,
-            "images": to_tensor(np.stack(imgs)),          # [B, F, 3, H, W] what the model sees
-            "clean": to_tensor(np.stack(clean)),          # [B, F, 3, H, W] without pasted objects
-            "paste": torch.from_numpy(np.stack(paste)).float().unsqueeze(2),  # [B, F, 1, H, W]
+            "images": to_tensor(np.stack(imgs), self.device),   # [B, F, 3, H, W] what the model sees
+            "clean": to_tensor(np.stack(clean), self.device),   # [B, F, 3, H, W] without pasted objects
+            "paste": _on(torch.from_numpy(np.stack(paste)), self.device).float().unsqueeze(2),  # [B, F, 1, H, W]
             "inputs": inputs, "targets": targets,
             # the true cameras of every frame (the pasted objects do not move the camera)
             "c2w": torch.from_numpy(pool.c2w[scenes]),            # [B, F, 4, 4]

@@ -10,7 +10,6 @@ import os
 import time
 from collections import OrderedDict
 
-import numpy as np
 import torch
 
 from spar_reference import dino_v3, lseg as lseg_mod

@@ -2,14 +2,12 @@
 losses -> official-layout checkpoint -> packed model (spar-convert). Deterministic for a seed
 (torch and numpy generators seeded; the same thread count gives the same floats)."""
 import json
-import math
 import os
 import subprocess
 import sys
 import time
 from collections import OrderedDict
 
-import numpy as np
 import torch
 
 from spar_reference import dino_v3, lseg as lseg_mod
@@ -130,7 +128,7 @@ class Run:
         heldout = None
         if a.eval_scenes:
             heldout = HeldOut(a.eval_scenes, a.eval_views, self.cfg, self.text, a.bpe)
-        sampler = Sampler(pool, a.seed, input_targets=a.input_targets)
+        sampler = Sampler(pool, a.seed, input_targets=a.input_targets, device=self.dev)
         named = [(k, p) for k, p in model.named_parameters() if p.requires_grad]
         groups = [{"params": [p for _, p in named if p.dim() != 1], "weight_decay": 0.05},
                   {"params": [p for _, p in named if p.dim() == 1], "weight_decay": 0.0}]
@@ -151,7 +149,8 @@ class Run:
         t0 = time.time()
         eval_s = [0.0]  # seconds spent on held-out metrics (not training time)
         curve = os.path.join(a.out, "curve.jsonl")
-
+        if os.path.exists(curve):
+            os.remove(curve)   # this run's curve only (the log, by contrast, accumulates)
         evaluated = [-1]
 
         def evaluate(step):
@@ -163,10 +162,10 @@ class Run:
             with open(curve, "a") as f:
                 f.write(json.dumps({"step": step, "minutes": minutes, "views": a.eval_views, **m})
                         + "\n")
-            fmt = lambda v: "n/a" if v is None else f"{v:.3f}"  # noqa: E731
-            self.log(f"held-out step {step} ({minutes:.1f} min): PSNR {m['psnr']:.2f} dB "
-                     f"(copy {m['psnr_nearest_input']:.2f}, mean colour "
-                     f"{m['psnr_mean_colour']:.2f}) SSIM {fmt(m['ssim'])} semantic mIoU "
+            fmt = lambda v, d=3: "n/a" if v is None else f"{v:.{d}f}"  # noqa: E731
+            self.log(f"held-out step {step} ({minutes:.1f} min): PSNR {fmt(m['psnr'], 2)} dB "
+                     f"(copy {fmt(m['psnr_nearest_input'], 2)}, mean colour "
+                     f"{fmt(m['psnr_mean_colour'], 2)}) SSIM {fmt(m['ssim'])} semantic mIoU "
                      f"{fmt(m['sem_miou'])} mask mIoU {fmt(m['mask_miou'])} "
                      f"(K={a.eval_views}, {len(heldout.scenes)} scenes)")
 

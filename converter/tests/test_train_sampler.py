@@ -51,3 +51,21 @@ def test_input_targets_add_the_first_inputs():
         for inp, tg, tg_plain in zip(b["inputs"].tolist(), b["targets"].tolist(), a["targets"].tolist()):
             assert sorted(tg) == tg
             assert set(tg) == set(tg_plain) | {inp[0]}
+
+
+def test_batches_converted_on_a_device_equal_the_cpu_ones():
+    """Sampler(device=...) converts the bytes to floats where the model trains (a GPU run);
+    the values and the draws are the same as converting on the CPU (here: device "cpu")."""
+    import torch
+    pool = TinyPool()
+    pool.mask[1, 2, 3:6, 4:9] = True           # something to paste
+    plain, placed = Sampler(pool, seed=5), Sampler(pool, seed=5, device=torch.device("cpu"))
+    kinds = set()
+    for _ in range(12):
+        a, b = plain.batch(2), placed.batch(2)
+        kinds.add(a["kind"])
+        assert a["kind"] == b["kind"]
+        for k in ("images", "clean", "paste", "inputs", "targets", "c2w", "fxfycxcy"):
+            assert a[k].dtype == b[k].dtype and torch.equal(a[k], b[k]), k
+        assert a["images"].dtype == torch.float32 and float(a["images"].max()) <= 1.0
+    assert kinds == {"dynamic", "static", "copy-paste"}
