@@ -86,7 +86,7 @@ class Sampler:
                  p_copy_paste: float = 0.5, views_range=(2, 4), input_targets: int = 0,
                  device=None):
         self.pool = pool
-        self.device = device   # where the images are converted to float (to_tensor)
+        self.device = device   # where the batch's tensors are made (the images converted to float)
         # input views also rendered as targets (each scene's first `input_targets` inputs, in
         # sequence order); 0 is the paper's recipe (targets are the other views only)
         self.input_targets = input_targets
@@ -132,8 +132,8 @@ class Sampler:
             "images": to_tensor(np.stack(imgs), self.device),   # [B, F, 3, H, W] what the model sees
             "clean": to_tensor(np.stack(clean), self.device),   # [B, F, 3, H, W] without pasted objects
             "paste": _on(torch.from_numpy(np.stack(paste)), self.device).float().unsqueeze(2),  # [B, F, 1, H, W]
-            "inputs": inputs, "targets": targets,
+            "inputs": _on(inputs, self.device), "targets": _on(targets, self.device),
             # the true cameras of every frame (the pasted objects do not move the camera)
-            "c2w": torch.from_numpy(pool.c2w[scenes]),            # [B, F, 4, 4]
-            "fxfycxcy": torch.from_numpy(pool.fxfycxcy[scenes]),  # [B, F, 4]
+            "c2w": _on(torch.from_numpy(pool.c2w[scenes]), self.device),            # [B, F, 4, 4]
+            "fxfycxcy": _on(torch.from_numpy(pool.fxfycxcy[scenes]), self.device),  # [B, F, 4]
         }

@@ -19,9 +19,8 @@ from .data import ScenePool, Sampler
 from .heldout import HeldOut
 from .losses import spar_losses
 from .teacher import text_encoder, train_lseg
+from .time_budget import TimeBudget
 
-# steps timed (after the warm-up steps) to size a --minutes run
-WARMUP_STEPS, CALIBRATION_STEPS = 5, 20
 CONVERTER = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
@@ -43,10 +42,6 @@ def _to_cpu(obj):
     if isinstance(obj, (list, tuple)):
         return type(obj)(_to_cpu(v) for v in obj)
     return obj
-
-
-def _to_device(batch: dict, dev) -> dict:
-    return {k: v.to(dev) if torch.is_tensor(v) else v for k, v in batch.items()}
 
 
 def pick_device(name: str):
@@ -134,7 +129,7 @@ class Run:
                   {"params": [p for _, p in named if p.dim() == 1], "weight_decay": 0.0}]
         opt = torch.optim.AdamW(groups, lr=a.lr, betas=(0.9, 0.95))
         # the schedule's length: --steps, or fewer where --minutes sets a time budget (fixed
-        # once the step rate is measured, below)
+        # by `budget` once the step rate is measured)
         total = [a.steps]
         sched = torch.optim.lr_scheduler.LambdaLR(
             opt, lambda s: _cosine_with_warmup(s, a.warmup, total[0]))
@@ -147,18 +142,20 @@ class Run:
                  f"dynamic-region-aware loss {'off' if a.no_dynamic_loss else 'on'}, "
                  f"camera loss weight {a.pose_loss}")
         t0 = time.time()
-        eval_s = [0.0]  # seconds spent on held-out metrics (not training time)
+        budget = TimeBudget(a.minutes, a.steps, a.eval_every, log=self.log)
+        evals = []   # (step, seconds) of each held-out measurement (not training time)
         curve = os.path.join(a.out, "curve.jsonl")
         if os.path.exists(curve):
             os.remove(curve)   # this run's curve only (the log, by contrast, accumulates)
-        evaluated = [-1]
+
+        def eval_seconds():
+            return sum(sec for _, sec in evals)
 
         def evaluate(step):
-            evaluated[0] = step
             te = time.time()
             m = heldout.measure(model)
-            eval_s[0] += time.time() - te
-            minutes = (time.time() - t0 - eval_s[0]) / 60.0
+            evals.append((step, time.time() - te))
+            minutes = (time.time() - t0 - eval_seconds()) / 60.0
             with open(curve, "a") as f:
                 f.write(json.dumps({"step": step, "minutes": minutes, "views": a.eval_views, **m})
                         + "\n")
@@ -172,25 +169,10 @@ class Run:
         if heldout is not None:
             evaluate(0)
         acc = {}
-        step, calibrated, t_cal = 0, not a.minutes, None
+        step = 0
         while step < total[0]:
-            if not calibrated and step == WARMUP_STEPS:
-                t_cal = (time.time(), eval_s[0])   # after warm-up (allocator, first kernels)
-            timed = step - WARMUP_STEPS
-            # CALIBRATION_STEPS timed steps, or fewer (at least 2) once a fifth of a short
-            # budget is gone
-            if not calibrated and t_cal and (timed >= CALIBRATION_STEPS or (
-                    timed >= 2 and time.time() - t0 > 0.2 * a.minutes * 60.0)):
-                per_step = (time.time() - t_cal[0] - (eval_s[0] - t_cal[1])) / timed
-                left = a.minutes * 60.0 - (time.time() - t0)
-                # each held-out measurement costs about what the last one did
-                per_eval = eval_s[0] / max(1, step // a.eval_every + 1) if heldout else 0.0
-                per_step_all = per_step + (per_eval / a.eval_every if heldout else 0.0)
-                total[0] = max(step + 1, min(a.steps, step + int(left / per_step_all)))
-                calibrated = True
-                self.log(f"time budget {a.minutes} min: {per_step:.3f} s a step, "
-                         f"{per_eval:.1f} s a held-out measurement -> {total[0]} steps")
-            batch = _to_device(sampler.batch(a.batch), self.dev)
+            total[0] = budget.steps(step, total[0], eval_seconds(), len(evals))
+            batch = sampler.batch(a.batch)
             b, t = batch["targets"].shape
             ar = torch.arange(b, device=self.dev)[:, None]
             with torch.no_grad():
@@ -209,7 +191,7 @@ class Run:
             for k, v in losses.items():
                 acc.setdefault(k, []).append(v.detach())
             if step % a.log_every == 0 or step == total[0]:
-                el = time.time() - t0 - eval_s[0]
+                el = time.time() - t0 - eval_seconds()
                 eta = el / step * (total[0] - step)
                 avg = {k: float(torch.stack(v).float().mean()) for k, v in acc.items()}
                 self.log(f"step {step}/{total[0]} loss {avg['loss']:.4f} recon {avg['recon']:.4f} "
@@ -225,11 +207,11 @@ class Run:
                 if a.keep_checkpoints:  # for learning curves (scripts/learning-curve.sh)
                     self.checkpoint(model, opt, sched, step,
                                     os.path.join(a.out, f"checkpoint_step{step:06d}.pt"))
-            if a.minutes and time.time() - t0 > a.minutes * 60.0 * 1.1 and step < total[0]:
+            if budget.overrun() and step < total[0]:
                 self.log(f"time budget overrun: stopping at step {step} of {total[0]} "
                          f"(the schedule cut short)")
                 break
-        if heldout is not None and evaluated[0] != step:   # a run cut short by --minutes
+        if heldout is not None and evals[-1][0] != step:   # a run cut short by --minutes
             evaluate(step)
         model.eval()
         ck = os.path.join(a.out, "checkpoint.pt")
