@@ -10,6 +10,7 @@
 #   bash scripts/gpu-check.sh run --cpu-coopmat   # the same on lavapipe 26.1 (DIR of
 #                                         # scripts/coopmat-lavapipe.sh): the cooperative-matrix
 #                                         # plan, its tuner and test_coopmat, as the GPU takes them
+# scripts/gpu-session.sh runs `run` and issue 14's training call in one device call.
 #
 # The bundle holds the programs that need no image library (spar-bench, the op tests, the
 # model-level tests on goldens, the cooperative-matrix tests: they link libvulkan and the C++
@@ -103,9 +104,18 @@ if [ $cpu = 0 ]; then
              /etc/vulkan/icd.d/nvidia_icd.json; do
     [ -n "$icd" ] && [ -f "$icd" ] && break
   done
-  [ -f "$icd" ] || { say "no NVIDIA Vulkan driver manifest found"; exit 1; }
+  nvlibs=(/usr/local/nvidia/lib64 /usr/local/nvidia/lib /usr/lib/x86_64-linux-gnu /lib/x86_64-linux-gnu)
+  if [ ! -f "$icd" ]; then
+    # No manifest, but the driver's Vulkan library may be there (it is libGLX_nvidia): name it in
+    # a manifest of our own.
+    lib=$(for d in "${nvlibs[@]}"; do ls "$d"/libGLX_nvidia.so.0 2>/dev/null; done | head -n 1)
+    [ -n "$lib" ] || { say "no NVIDIA Vulkan driver manifest and no libGLX_nvidia.so.0 found"; exit 1; }
+    icd="$work/nvidia_icd.json"
+    printf '{"file_format_version": "1.0.1", "ICD": {"library_path": "%s", "api_version": "1.3.0"}}\n' "$lib" > "$icd"
+    say "no NVIDIA Vulkan driver manifest found: using $lib"
+  fi
   export VK_DRIVER_FILES="$icd" VK_ICD_FILENAMES="$icd"
-  for d in /usr/local/nvidia/lib64 /usr/local/nvidia/lib /usr/lib/x86_64-linux-gnu /lib/x86_64-linux-gnu; do
+  for d in "${nvlibs[@]}"; do
     [ -d "$d" ] && libpath="$libpath:$d"
   done
 else
@@ -162,17 +172,21 @@ mkdir -p "$out/tests"
 # The tests keep the plan's default tiles (measuring them in every test process would cost
 # seconds each); spar-bench below measures, and its choice is what the timings use.
 export SPAR_MEASURE_KERNELS=0
+# --cpu: a quarter of each program's tests (GoogleTest's sharding: every program still runs, at
+# least its first test); the CTest suite runs all of them on this device anyway.
+shard=()
+[ $cpu = 1 ] && shard=(GTEST_TOTAL_SHARDS=${GPU_CHECK_CPU_SHARDS:-4} GTEST_SHARD_INDEX=0)
 for t in "${op_tests[@]}" test_coopmat; do
   [ $cpu = 1 ] && [ $coopcpu = 0 ] && [ $t = test_coopmat ] && continue   # lavapipe 22.3 has none
   force=()  # a CPU device takes cooperative matrices only when told (a GPU by its plan)
-  [ $coopcpu = 1 ] && [ $t = test_coopmat ] && force=(env SPAR_KERNELS=coopmat)
-  step "test-$t" 300 "${force[@]}" $bin "$t" --gtest_output="json:$out/tests/$t.json"
+  [ $coopcpu = 1 ] && [ $t = test_coopmat ] && force=(SPAR_KERNELS=coopmat)
+  step "test-$t" 300 env "${force[@]}" "${shard[@]}" $bin "$t" --gtest_output="json:$out/tests/$t.json"
 done
 
 unset SPAR_MEASURE_KERNELS
-large=()
-[ $cpu = 1 ] && large=(--only _f32)
-step bench-ops 300 "${plan[@]}" $bin spar-bench --json --repeat 10 "${large[@]}"
+large=(--repeat 10)
+[ $cpu = 1 ] && large=(--repeat 2 --only _f32)
+step bench-ops 300 "${plan[@]}" $bin spar-bench --json "${large[@]}"
 small=()
 [ $cpu = 1 ] && small=(--small --repeat 3)
 step reference-ops 240 "$py" scripts/gpu_reference_bench.py --ops --out "$out/reference_ops.json" "${small[@]}"
@@ -188,12 +202,14 @@ json.dump($cfg().to_dict(), open(sys.argv[1], \"w\"))' '$work/model.json' && \
   --bpe text/data/clip/bpe_simple_vocab_16e6.txt.gz"
 sizearg=()
 [ -n "$size" ] && sizearg=(--size "$size")
+reps=5
+[ $cpu = 1 ] && reps=2
 for p in fp32 fp16; do
   step "bench-model-$p" 300 "${plan[@]}" $bin spar-bench --model "$work/model.spar" --views 4 --targets 4 "${sizearg[@]}" \
-    --precision $p --repeat 5 --json
+    --precision $p --repeat $reps --json
 done
 step reference-model 420 "$py" scripts/gpu_reference_bench.py --checkpoint "$work/model.pt" --config "$work/model.json" \
-  --views 4 --targets 4 "${sizearg[@]}" --repeat 5 --out "$out/reference_model.json"
+  --views 4 --targets 4 "${sizearg[@]}" --repeat $reps --out "$out/reference_model.json"
 
 # Goldens made there (PyTorch on the CPU), then the model-level tests on them.
 step goldens 300 "$py" tests/python/make_spar_goldens.py "$work/goldens"

@@ -6,6 +6,8 @@
 #
 #   bash scripts/gpu-train.sh run            # there, in the repository root: writes $OUT
 #   bash scripts/gpu-train.sh run --cpu      # here: the same steps on the CPU, tiny sizes
+#   bash scripts/gpu-train.sh pool [--cpu]   # step (1) alone, for a caller that renders the pool
+#                                            # while the GPU does other work; `run` then reuses it
 #   bash scripts/gpu-train.sh unpack DIR RUN # here: DIR = what came back; RUN gets checkpoint.pt
 #                                            # (official layout), config.json, model.spar, logs
 #
@@ -24,6 +26,8 @@
 # (without optimizer state: the moments stay there) and packs model.spar with spar-convert;
 # then `spar eval` or `bash scripts/evaluate.sh RUN` gives the numbers on the 12 test scenes.
 # On the device: run with timeout_s 600; every step appends to $OUT/steps.log.
+# GPU_TRAIN_TEACHER=FILE: a teacher.pt made beforehand (scripts/gpu-session.sh pack makes the CPU
+# recipe's own) instead of step (2).
 set -uo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)
@@ -66,8 +70,8 @@ PY
   exit 0
 fi
 
-if [ "$mode" != run ]; then
-  echo "usage: bash scripts/gpu-train.sh run [--cpu] | unpack DIR RUN" >&2
+if [ "$mode" != run ] && [ "$mode" != pool ]; then
+  echo "usage: bash scripts/gpu-train.sh run [--cpu] | pool [--cpu] | unpack DIR RUN" >&2
   exit 2
 fi
 
@@ -76,10 +80,13 @@ cpu=0
 out=${OUT:-$root/build/gpu-train-out}
 mkdir -p "$out"
 work=${GPU_TRAIN_WORK:-/tmp/spar-gpu-train}
-rm -rf "$work"
-mkdir -p "$work"
 log=$out/steps.log
-: > "$log"
+# `run` after `pool` keeps the pool (and the log so far); anything else starts afresh.
+if [ "$mode" = pool ] || [ ! -f "$work/pool-ready" ]; then
+  rm -rf "$work"
+  : > "$log"
+fi
+mkdir -p "$work"
 say() { echo "[$(date +%H:%M:%S)] $*" | tee -a "$log"; }
 py=python3                                      # there: the python3 that holds PyTorch
 [ $cpu = 1 ] && py=/usr/bin/python3
@@ -98,24 +105,35 @@ fi
 $py -c "import torch, numpy; print('torch', torch.__version__, 'numpy', numpy.__version__, 'cuda', torch.cuda.is_available())" \
   2>&1 | tee -a "$log"
 
-# (1) the scene pool, once, on every core; validation scenes
+# (1) the scene pool, once, on every core (every core this process may use); validation scenes
 t0=$(date +%s)
 deadline=${GPU_TRAIN_SECONDS:-560}
-PYTHONPATH=converter $py -c "
+if [ ! -f "$work/pool-ready" ]; then
+  PYTHONPATH=converter $py -c "
 import sys
 from spar_train.data import ScenePool
 ScenePool($scenes, 8, 128, '$work/scene-cache', workers=$cores, log=print)
 " >>"$log" 2>&1 || { say "scene pool failed"; tail -n 20 "$log"; exit 1; }
-$py converter/spar-scenes split --split test --count $val --start 12 --out "$work/val" >>"$log" 2>&1 \
-  || { say "validation scenes failed"; exit 1; }
-say "scene pool of $scenes and $val validation scenes in $(( $(date +%s) - t0 )) s"
+  $py converter/spar-scenes split --split test --count $val --start 12 --out "$work/val" >>"$log" 2>&1 \
+    || { say "validation scenes failed"; exit 1; }
+  say "scene pool of $scenes and $val validation scenes in $(( $(date +%s) - t0 )) s on $cores cores"
+  echo "$scenes" > "$work/pool-ready"
+fi
+[ "$mode" = pool ] && exit 0
+[ "$(cat "$work/pool-ready")" = "$scenes" ] || { say "the pool in $work is not of $scenes scenes"; exit 1; }
 
-# (2) the teachers, once (a one-step run that keeps its teacher.pt)
+# (2) the teachers, once (a one-step run that keeps its teacher.pt), unless one is given
 common=(--scenes "$scenes" --cache "$work/scene-cache" --device "$device" --threads "$threads"
         --no-pack --save-every 0 --log-every 25)
-$py converter/spar-train --out "$work/teacher" "${common[@]}" --steps 1 --lseg-steps $lseg \
-  >>"$log" 2>&1 || { say "teacher failed"; tail -n 20 "$log"; exit 1; }
-say "teachers in $(( $(date +%s) - t0 )) s"
+mkdir -p "$work/teacher"
+if [ -n "${GPU_TRAIN_TEACHER:-}" ]; then
+  cp "$GPU_TRAIN_TEACHER" "$work/teacher/teacher.pt" || { say "no teacher at $GPU_TRAIN_TEACHER"; exit 1; }
+  say "teachers from $GPU_TRAIN_TEACHER"
+else
+  $py converter/spar-train --out "$work/teacher" "${common[@]}" --steps 1 --lseg-steps $lseg \
+    >>"$log" 2>&1 || { say "teacher failed"; tail -n 20 "$log"; exit 1; }
+  say "teachers in $(( $(date +%s) - t0 )) s"
+fi
 
 # (3) the variants, in parallel, fitted to what is left of GPU_TRAIN_SECONDS (the call's limit
 # is 600 s): 60 s kept for writing back and a 10 % overrun
