@@ -36,6 +36,9 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--image-size", type=int, default=128, metavar="N",
                    help="square image size of the scenes and the model, a multiple of 16 (128)")
+    p.add_argument("--scene-tokens", type=int, default=64, metavar="N",
+                   help="the scene encoder's latent tokens (64: one view's patches at 128x128; the "
+                        "official model keeps three views' worth, 768 at 256x256)")
     p.add_argument("--scenes", type=int, default=400, help="train scenes in the pool")
     p.add_argument("--cache", help="scene pool cache directory (default: OUT/../scene-cache)")
     p.add_argument("--lseg-steps", type=int, default=300)
@@ -98,6 +101,10 @@ def main(argv=None) -> int:
         return 2
     if a.image_size < 32 or a.image_size % 16:
         print(f"spar-train: error: --image-size {a.image_size} must be a multiple of 16, at least 32",
+              file=sys.stderr)
+        return 2
+    if not 1 <= a.scene_tokens <= 1024:
+        print(f"spar-train: error: --scene-tokens {a.scene_tokens} must be between 1 and 1024",
               file=sys.stderr)
         return 2
     if a.profile:

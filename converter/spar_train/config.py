@@ -6,9 +6,10 @@ import copy
 from spar_convert.model_config import SparConfig, backbone_config
 
 
-def small_config(image_size: int = 128) -> SparConfig:
+def small_config(image_size: int = 128, scene_tokens: int = 64) -> SparConfig:
     """image_size: square input/render size, a multiple of the patch size 16 (the CV-DRP
-    decoder upsamples by exactly 16); 128 for the shipped model."""
+    decoder upsamples by exactly 16); 128 for the shipped model. scene_tokens: the latent the
+    scene encoder fills, 64 for the shipped model (one view's patches at 128x128)."""
     if image_size < 32 or image_size % 16:
         raise ValueError(f"image size {image_size} must be a multiple of 16, at least 32")
     dino = dict(backbone_config("dino", "tiny"), arch="small-random", embed_dim=128, depth=2,
@@ -23,7 +24,7 @@ def small_config(image_size: int = 128) -> SparConfig:
         d=128, d_head=32,
         encoder_n_layer=3, encoder_geom_n_layer=3, decoder_n_layer=3,
         cv_drp_n_layer=2, cv_drp_n_heads=4,
-        scene_tokens=64,
+        scene_tokens=scene_tokens,
         image_height=image_size, image_width=image_size, patch_size=16,
         num_views=8, num_input_views=2,
         use_lseg=True, semantic_dim=32,

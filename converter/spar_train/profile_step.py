@@ -54,7 +54,7 @@ class ModuleTimer:
 def profile(a) -> int:
     torch.set_num_threads(a.threads)
     torch.manual_seed(a.seed)
-    cfg = small_config(a.image_size)
+    cfg = small_config(a.image_size, a.scene_tokens)
     pool = ScenePool(a.scenes, 8, a.image_size, os.path.join(a.out, "..", "scene-cache")
                      if a.cache is None else a.cache)
     lseg = lseg_mod.LSegEncoder(cfg.lseg, seed=a.seed + 12)

@@ -68,7 +68,7 @@ class Run:
         self.log_file.flush()
 
     def build(self, pool):
-        a, cfg = self.a, small_config(self.a.image_size)
+        a, cfg = self.a, small_config(self.a.image_size, self.a.scene_tokens)
         self.cfg = cfg
         with open(os.path.join(a.out, "config.json"), "w") as f:
             json.dump(cfg.to_dict(), f, indent=1)

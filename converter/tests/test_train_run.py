@@ -84,11 +84,26 @@ def test_time_budget_fits_the_schedule(tmp_path, val_scenes):
     assert all(v.device.type == "cpu" for v in ck["model"].values())
 
 
+def test_scene_tokens_size_the_latent(tmp_path):
+    """--scene-tokens N: the scene latent (scene_code) has N rows, config.json says so, and the
+    converter packs it against that config (the GPU variant with 192 tokens goes this way)."""
+    p = train(tmp_path / "run", "--steps", "1", "--scene-tokens", "24", cache=tmp_path / "cache")
+    assert p.returncode == 0, p.stderr
+    assert tuple(weights(tmp_path / "run")["scene_code"].shape) == (24, 128)
+    assert json.load(open(tmp_path / "run" / "config.json"))["scene_tokens"] == 24
+    conv = subprocess.run([sys.executable, os.path.join(HERE, "..", "spar-convert"), "-q",
+                           str(tmp_path / "run" / "checkpoint.pt"), "--config",
+                           str(tmp_path / "run" / "config.json"), "-o", str(tmp_path / "m.spar")],
+                          capture_output=True, text=True, timeout=300)
+    assert conv.returncode == 0 and (tmp_path / "m.spar").stat().st_size > 0, conv.stderr
+
+
 @pytest.mark.parametrize("args, message", [
     (["--device", "cuda:99"], "CUDA device"),   # no CUDA here; on a GPU machine: no 100th GPU
     (["--device", "tpu"], "--device tpu"),
     (["--image-size", "40"], "multiple of 16"),
     (["--minutes", "-1"], "--minutes"),
+    (["--scene-tokens", "0"], "--scene-tokens"),
     (["--eval-scenes", "/nonexistent/scenes"], "not a directory"),
 ])
 def test_bad_options_are_one_line_errors(tmp_path, args, message):
