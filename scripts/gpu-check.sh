@@ -184,9 +184,9 @@ for t in "${op_tests[@]}" test_coopmat; do
 done
 
 unset SPAR_MEASURE_KERNELS
-large=(--repeat 10)
-[ $cpu = 1 ] && large=(--repeat 2 --only _f32)
-step bench-ops 300 "${plan[@]}" $bin spar-bench --json "${large[@]}"
+ops_args=(--repeat 10)                          # every case, 4096^3 GEMMs among them
+[ $cpu = 1 ] && ops_args=(--repeat 2 --only _f32)
+step bench-ops 300 "${plan[@]}" $bin spar-bench --json "${ops_args[@]}"
 small=()
 [ $cpu = 1 ] && small=(--small --repeat 3)
 step reference-ops 240 "$py" scripts/gpu_reference_bench.py --ops --out "$out/reference_ops.json" "${small[@]}"
