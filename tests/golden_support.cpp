@@ -28,6 +28,9 @@ std::string fullGoldenPath(const std::string& rel) {
 std::string semanticGoldenPath(const std::string& rel) {
   return goldenDir("SPAR_SEMANTIC_GOLDENS_DIR", SPAR_SEMANTIC_GOLDENS_DIR) + "/" + rel;
 }
+std::string opGoldenPath(const std::string& rel) {
+  return goldenDir("SPAR_OP_GOLDENS_DIR", SPAR_OP_GOLDENS_DIR) + "/" + rel;
+}
 std::string clipBpePath() {
   const std::string path = goldenDir("SPAR_CLIP_BPE", SPAR_CLIP_BPE);
   if (!std::filesystem::exists(path)) throw std::runtime_error("CLIP BPE merges table not found: " + path);

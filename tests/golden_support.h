@@ -21,6 +21,10 @@ std::string fullGoldenPath(const std::string& rel);
 // The semantic branch's goldens (fixture spar_goldens_semantic): SPAR_SEMANTIC_GOLDENS_DIR/<rel>
 // (tiny_semantic.spar, labels.json, case dirs "semantic" and "semantic_path").
 std::string semanticGoldenPath(const std::string& rel);
+// The goldens of op- and host-level tests that need no model (fixture op_goldens,
+// tests/python/make_op_goldens.py): SPAR_OP_GOLDENS_DIR/<rel> ("image", "path", "camera",
+// "block/<case>", "size").
+std::string opGoldenPath(const std::string& rel);
 // The CLIP BPE merges table the fixtures packed: the repository's copy (text/data/clip/) unless
 // the build names another (-DSPAR_CLIP_BPE). Throws when the file is missing: text-side tests
 // fail rather than skip.

@@ -35,7 +35,7 @@ TEST_F(BpeTokenizerTest, VocabularyAndSpecialTokens) {
 }
 
 TEST_F(BpeTokenizerTest, MatchesReferenceIds) {
-  const std::string dir = textGoldenDir(false);
+  const std::string dir = textGoldenDir();
   const std::vector<std::string>& prompts = textPrompts();
   const int64_t P = static_cast<int64_t>(prompts.size()), L = BpeTokenizer::kContextLength;
   const std::vector<int64_t> want = readNpy(dir + "/tokens.npy", {P, L}).toInt64s();
@@ -64,7 +64,7 @@ TEST_F(BpeTokenizerTest, MatchesReferenceIds) {
 // 4000 random prompts (make_text_golden.py random_prompts: the tricky pieces of every rule,
 // and random code points of every plane, some assigned after the reference's Unicode version).
 TEST_F(BpeTokenizerTest, RandomPromptsMatchReference) {
-  const std::string dir = randomTextGoldenDir(4000, 11);
+  const std::string dir = randomTextGoldenDir();
   std::ifstream pf(dir + "/prompts.json");
   const std::vector<std::string> prompts = nlohmann::json::parse(pf).get<std::vector<std::string>>();
   std::ifstream tf(dir + "/text.json");

@@ -6,16 +6,13 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <string>
-#include <system_error>
-
-#include <unistd.h>
 
 #include "engine/error.h"
 #include "formats/cameras.h"
+#include "tests/golden_support.h"
 
 namespace spar {
 namespace {
@@ -24,30 +21,15 @@ namespace fs = std::filesystem;
 using json = nlohmann::ordered_json;  // keeps the reference's key order
 constexpr double kTol = 1e-12;
 
-// Runs the golden maker once per process into a directory of its own, removed at exit.
-struct GoldenDir {
-  std::string path;
-  json golden;
-  GoldenDir() {
-    const fs::path d = fs::path(SPAR_TEST_OUT_DIR) / ("path_golden_" + std::to_string(::getpid()));
-    fs::remove_all(d);
-    const std::string cmd = std::string("\"") + SPAR_PYTHON + "\" \"" + SPAR_SOURCE_DIR +
-                            "/tests/python/make_path_golden.py\" --out \"" + d.string() + "\"";
-    const int rc = std::system(cmd.c_str());
-    if (rc != 0) throw Error("golden maker failed (" + std::to_string(rc) + "): " + cmd);
-    path = d.string();
-    std::ifstream in(d / "golden.json");
-    golden = json::parse(in);
-  }
-  ~GoldenDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
-
+// tests/python/make_path_golden.py's cases (fixture op_goldens, made once per build).
 const json& golden(const char* section) {
-  static const GoldenDir dir;
-  return dir.golden.at(section);
+  static const json all = [] {
+    const std::string path = test::opGoldenPath("path/golden.json");
+    std::ifstream in(path);
+    if (!in) throw Error(path + ": cannot open (did the op_goldens fixture run?)");
+    return json::parse(in);
+  }();
+  return all.at(section);
 }
 
 Mat4d mat4(const json& m) {

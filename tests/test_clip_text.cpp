@@ -55,7 +55,7 @@ class ClipTextTest : public EngineTest {
 };
 
 TEST_F(ClipTextTest, PromptListMatchesFloat64Reference) {
-  const std::string dir = textGoldenDir(true);
+  const std::string dir = textGoldenDir();
   const int64_t P = int64_t(textPrompts().size());
   const std::vector<double> want = readNpy(dir + "/embeddings.npy", {P, config_.embedDim}).toDoubles();
   expectClose(embed(textPrompts()), want, 1e-10, 1e-5, "CLIP text, " + std::to_string(P) + " prompts");
@@ -80,7 +80,7 @@ TEST_F(ClipTextTest, BatchCompositionDoesNotMatter) {
 
 // fp16 weight matrices (the --fp16 pack): documented error, not a requirement of equality.
 TEST_F(ClipTextTest, Fp16MatricesStayClose) {
-  const std::string dir = textGoldenDir(true);
+  const std::string dir = textGoldenDir();
   const int64_t P = int64_t(textPrompts().size());
   const std::vector<double> want = readNpy(dir + "/embeddings.npy", {P, config_.embedDim}).toDoubles();
   expectClose(embed(textPrompts(), DType::F16), want, 1e-5, 1e-2, "CLIP text, fp16 matrices");

@@ -1,7 +1,7 @@
 // model/cv_drp (CV-DRP) against the PyTorch reference in float64: the model-level goldens of
 // tests/python/make_spar_goldens.py (fixture spar_goldens: tiny perturbed model, cases
 // interleaved / odd_targets, and the models whose head bias is +40 / -40), plus goldens made
-// here by tests/python/make_cv_drp_golden.py (the official pairs, all views identical).
+// by tests/python/make_cv_drp_golden.py within that fixture (the official pairs, all views identical).
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -29,17 +29,8 @@ using Pairs = std::vector<std::pair<int64_t, int64_t>>;
 constexpr double kMaxNmse = 1e-12;
 constexpr double kMaxProbNmse = 1e-10;
 
-// Runs tests/python/make_cv_drp_golden.py with `args`; returns its output path under the build tree.
-std::string makeGolden(const std::string& what, const std::string& args) {
-  const fs::path out = fs::path(SPAR_TEST_OUT_DIR) / "cv_drp_golden" / what;
-  fs::remove_all(out);
-  fs::create_directories(out.parent_path());
-  const std::string cmd = std::string("\"") + SPAR_PYTHON + "\" \"" + SPAR_SOURCE_DIR +
-                          "/tests/python/make_cv_drp_golden.py\" " + args + " \"" + out.string() + "\"";
-  const int rc = std::system(cmd.c_str());
-  if (rc != 0) throw Error("golden maker failed (" + std::to_string(rc) + "): " + cmd);
-  return out.string();
-}
+// make_cv_drp_golden.py's view pairs and all-identical case (fixture spar_goldens: cv_drp/).
+std::string cvDrpGolden(const std::string& what) { return goldenPath("cv_drp/" + what); }
 
 // The model, its weights and the stage, built once per test.
 struct Stage {
@@ -97,7 +88,7 @@ void expectSameMask(Engine& engine, const Tensor& prob, const std::vector<double
 // ---------------------------------------------------------------------------------------------
 
 TEST(CvDrpPairs, MatchReferenceFunction) {
-  const std::string path = makeGolden("pairs.json", "pairs");
+  const std::string path = cvDrpGolden("pairs.json");
   const nlohmann::json table = nlohmann::json::parse(std::ifstream(path));
   for (const auto& [name, mode] : {std::pair{"input", CvDrpMode::Input}, std::pair{"target", CvDrpMode::Target}})
     for (int64_t v = 1; v <= 6; ++v) {
@@ -178,7 +169,7 @@ class CvDrpTest : public EngineTest {};
 // then sees two copies of one view, so every view's logits equal the single view's; against the
 // float64 reference as well.
 TEST_F(CvDrpTest, IdenticalViewsMatchReference) {
-  const std::string dir = makeGolden("identical", std::string("identical \"") + goldenPath("") + "\"");
+  const std::string dir = cvDrpGolden("identical");
   const auto npy = [&](const std::string& name) { return readNpy(dir + "/" + name + ".npy"); };
   const auto ref = [&](const std::string& name) { return npy(name).toDoubles(); };
   Stage st(eng());

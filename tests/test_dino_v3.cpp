@@ -1,16 +1,13 @@
 // model/dino_v3 (the DINOv3 backbone on the engine, fp32) against the PyTorch reference
 // (converter/spar_reference/dino_v3.py) run in float64 with the tiny checkpoint's weights:
 // the spar_goldens fixture's "dino" golden of five 128x128 frames, and extra cases made at
-// test time by tests/python/make_dino_golden.py (constant black and white images, a
+// once per build within that fixture by tests/python/make_dino_golden.py (constant black and white images, a
 // non-square image whose patch rows and columns differ).
 #include <chrono>
-#include <cstdlib>
 #include <filesystem>
 #include <functional>
 #include <memory>
 #include <system_error>
-
-#include <unistd.h>
 
 #include "model/dino_v3.h"
 #include "model/packed_model.h"
@@ -22,31 +19,8 @@
 namespace spar::test {
 namespace {
 
-namespace fs = std::filesystem;
-
-// Runs make_dino_golden.py once per process into a directory of its own (CTest runs every
-// test as a process), removed when the process ends.
-struct DinoGoldenDir {
-  std::string path;
-  DinoGoldenDir() {
-    const fs::path d = fs::path(SPAR_TEST_OUT_DIR) / ("dino_golden_" + std::to_string(::getpid()));
-    fs::remove_all(d);
-    const std::string cmd = std::string("\"") + SPAR_PYTHON + "\" \"" + SPAR_SOURCE_DIR +
-                            "/tests/python/make_dino_golden.py\" --checkpoint \"" + goldenPath("tiny.pt") +
-                            "\" --config \"" + goldenPath("tiny_photometric.json") + "\" --out \"" + d.string() + "\"";
-    const int rc = std::system(cmd.c_str());
-    if (rc != 0) throw Error("golden maker failed (" + std::to_string(rc) + "): " + cmd);
-    path = d.string();
-  }
-  ~DinoGoldenDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
-const std::string& dinoGoldenDir() {
-  static const DinoGoldenDir dir;
-  return dir.path;
-}
+// make_dino_golden.py's cases (fixture spar_goldens: dino/, made once per build).
+std::string dinoGoldenDir() { return goldenPath("dino"); }
 
 class DinoV3Test : public EngineTest {
  protected:

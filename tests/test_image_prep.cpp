@@ -14,25 +14,15 @@
 #include "engine/error.h"
 #include "imaging/image_prep.h"
 #include "formats/npy.h"
+#include "tests/golden_support.h"
 
 namespace spar::test {
 namespace {
 
 namespace fs = std::filesystem;
 
-// Runs the golden maker once per process into the build tree; returns the directory.
-const std::string& goldenDir() {
-  static const std::string dir = [] {
-    const fs::path d = fs::path(SPAR_TEST_OUT_DIR) / "image_golden";
-    fs::remove_all(d);
-    const std::string cmd = std::string("\"") + SPAR_PYTHON + "\" \"" + SPAR_SOURCE_DIR +
-                            "/tests/python/make_image_golden.py\" --out \"" + d.string() + "\"";
-    const int rc = std::system(cmd.c_str());
-    if (rc != 0) throw Error("golden maker failed (" + std::to_string(rc) + "): " + cmd);
-    return d.string();
-  }();
-  return dir;
-}
+// tests/python/make_image_golden.py's images and goldens (fixture op_goldens, made once per build).
+std::string goldenDir() { return opGoldenPath("image"); }
 
 struct GoldenCase {
   std::string name, image;

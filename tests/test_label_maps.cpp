@@ -145,30 +145,9 @@ TEST_F(LabelMapsOpTest, OnePromptAndBadShapes) {
 // ---------------------------------------------------------------------------------------------
 // labels_XX.png / .json against spar-reference render --labels on the fixture.
 
-struct ReferenceRender {
-  std::string dir;
-  ReferenceRender() {
-    const fs::path d = fs::path(SPAR_TEST_OUT_DIR) / ("label_render_" + std::to_string(::getpid()));
-    fs::remove_all(d);
-    std::ifstream lf(semanticGoldenPath("labels.json"));
-    const std::vector<std::string> labels = nlohmann::json::parse(lf).get<std::vector<std::string>>();
-    std::string joined;
-    for (const std::string& l : labels) joined += (joined.empty() ? "" : ",") + l;
-    std::string cmd = "PYTHONPATH=\"" + std::string(SPAR_SOURCE_DIR) + "/converter\" \"" + SPAR_PYTHON + "\" \"" +
-                      SPAR_SOURCE_DIR + "/converter/spar-reference\" render --checkpoint \"" +
-                      semanticGoldenPath("tiny_semantic.pt") + "\" --config \"" +
-                      semanticGoldenPath("tiny_semantic.json") + "\" --frames";
-    for (int i = 0; i < 5; ++i) cmd += " \"" + semanticGoldenPath("frame_" + std::to_string(i) + ".png") + "\"";
-    cmd += " --inputs 0,2,4 --labels '" + joined + "' --bpe \"" + clipBpePath() + "\" --out \"" + d.string() + "\"";
-    const int rc = std::system(cmd.c_str());
-    if (rc != 0) throw Error("spar-reference render failed (" + std::to_string(rc) + "): " + cmd);
-    dir = d.string();
-  }
-  ~ReferenceRender() {
-    std::error_code ec;
-    fs::remove_all(dir, ec);
-  }
-};
+// spar-reference render --labels of the fixture's semantic case (frames 0..4, inputs 0,2,4, the
+// labels of labels.json), made once per build in the spar_goldens_semantic fixture.
+std::string referenceRenderDir() { return semanticGoldenPath("label_render"); }
 
 // <dir>/labels_XX, the stem write_render uses.
 std::string labelStem(const std::string& dir, int view) {
@@ -179,7 +158,7 @@ std::string labelStem(const std::string& dir, int view) {
 
 
 TEST_F(LabelMapsTest, WritersMatchReferenceRender) {
-  static const ReferenceRender ref;
+  const std::string refDir = referenceRenderDir();
   std::ifstream lf(semanticGoldenPath("labels.json"));
   const std::vector<std::string> labels = nlohmann::json::parse(lf).get<std::vector<std::string>>();
   // The PNGs are at the model's H x W (the configuration's image size), the maps at h x w.
@@ -187,8 +166,8 @@ TEST_F(LabelMapsTest, WritersMatchReferenceRender) {
   const int H = cfg.at("image_height").get<int>(), W = cfg.at("image_width").get<int>();
   int views = 0, h0 = 0, w0 = 0;
   std::vector<int32_t> allMaps;
-  for (; fs::exists(labelStem(ref.dir, views) + ".png"); ++views) {
-    const std::string stem = labelStem(ref.dir, views);
+  for (; fs::exists(labelStem(refDir, views) + ".png"); ++views) {
+    const std::string stem = labelStem(refDir, views);
     const RgbImage png = loadImageRGB(stem + ".png");
     const nlohmann::json doc = nlohmann::json::parse(readText(stem + ".json"));
     const int h = doc.at("resolution")[0].get<int>(), w = doc.at("resolution")[1].get<int>();
@@ -239,7 +218,7 @@ TEST_F(LabelMapsTest, WritersMatchReferenceRender) {
   for (int v = 0; v < views; ++v) {
     const std::vector<int32_t> map(allMaps.begin() + v * h0 * w0, allMaps.begin() + (v + 1) * h0 * w0);
     EXPECT_EQ(loadImageRGB(labelStem(out.string(), v) + ".png").pixels, labelImage(map, h0, w0, labels, H, W).pixels);
-    EXPECT_EQ(readText(labelStem(out.string(), v) + ".json"), readText(labelStem(ref.dir, v) + ".json"));
+    EXPECT_EQ(readText(labelStem(out.string(), v) + ".json"), readText(labelStem(refDir, v) + ".json"));
   }
   fs::remove_all(out);
 }

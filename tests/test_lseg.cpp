@@ -1,19 +1,16 @@
 // model/lseg (the LSeg image encoder on the engine, fp32) against the PyTorch reference
 // (converter/spar_reference/lseg.py) run in float64 with the tiny semantic checkpoint's weights:
-// the spar_goldens_semantic fixture's LSeg features of the input views, and extra cases made at
-// test time by tests/python/make_lseg_golden.py (black and white images, a non-square size,
+// the spar_goldens_semantic fixture's LSeg features of the input views, and extra cases made
+// there by tests/python/make_lseg_golden.py (black and white images, a non-square size,
 // input_norm "lseg"). LSeg at the official ViT-L/16 sizes is compared, within the whole model,
 // by test_spar_full (label full; measured there: lseg_features NMSE 4.1e-12).
 #include <chrono>
 #include <cstdio>
-#include <cstdlib>
 #include <filesystem>
 #include <functional>
 #include <map>
 #include <memory>
 #include <system_error>
-
-#include <unistd.h>
 
 #include "model/lseg.h"
 #include "model/packed_model.h"
@@ -24,36 +21,8 @@
 namespace spar::test {
 namespace {
 
-namespace fs = std::filesystem;
-
-std::string runPython(const std::string& args) {
-  const std::string cmd = std::string("\"") + SPAR_PYTHON + "\" \"" + SPAR_SOURCE_DIR +
-                          "/tests/python/make_lseg_golden.py\" " + args;
-  const int rc = std::system(cmd.c_str());
-  if (rc != 0) throw Error("golden maker failed (" + std::to_string(rc) + "): " + cmd);
-  return cmd;
-}
-
-// Runs make_lseg_golden.py once per process into a directory of its own (CTest runs every
-// test as a process), removed when the process ends.
-struct LSegGoldenDir {
-  std::string path;
-  LSegGoldenDir() {
-    const fs::path d = fs::path(SPAR_TEST_OUT_DIR) / ("lseg_golden_" + std::to_string(::getpid()));
-    fs::remove_all(d);
-    runPython("--checkpoint \"" + semanticGoldenPath("tiny_semantic.pt") + "\" --config \"" +
-              semanticGoldenPath("tiny_semantic.json") + "\" --out \"" + d.string() + "\"");
-    path = d.string();
-  }
-  ~LSegGoldenDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
-const std::string& lsegGoldenDir() {
-  static const LSegGoldenDir dir;
-  return dir.path;
-}
+// make_lseg_golden.py's cases (fixture spar_goldens_semantic: lseg/, made once per build).
+std::string lsegGoldenDir() { return semanticGoldenPath("lseg"); }
 
 std::string errorOf(const std::function<void()>& f) {
   try {

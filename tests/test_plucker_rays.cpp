@@ -5,13 +5,11 @@
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
-#include <system_error>
-
-#include <unistd.h>
 
 #include "formats/npy.h"
 #include "model/plucker_rays.h"
 #include "model/pose_head.h"
+#include "tests/golden_support.h"
 #include "tests/test_support.h"
 
 namespace spar::test {
@@ -20,29 +18,8 @@ namespace {
 namespace fs = std::filesystem;
 constexpr int64_t kH = 37, kW = 61;
 
-// Runs the golden maker once per process into a directory of its own (CTest runs every test
-// as a process; several may run at once with ctest -j), removed when the process ends.
-struct GoldenDir {
-  std::string path;
-  GoldenDir() {
-    const fs::path d = fs::path(SPAR_TEST_OUT_DIR) / ("camera_golden_" + std::to_string(::getpid()));
-    fs::remove_all(d);
-    const std::string cmd = std::string("\"") + SPAR_PYTHON + "\" \"" + SPAR_SOURCE_DIR +
-                            "/tests/python/make_camera_golden.py\" --out \"" + d.string() + "\"";
-    const int rc = std::system(cmd.c_str());
-    if (rc != 0) throw Error("golden maker failed (" + std::to_string(rc) + "): " + cmd);
-    path = d.string();
-  }
-  ~GoldenDir() {
-    std::error_code ec;
-    fs::remove_all(path, ec);
-  }
-};
-
-const std::string& goldenDir() {
-  static const GoldenDir dir;
-  return dir.path;
-}
+// tests/python/make_camera_golden.py's cases (fixture op_goldens, made once per build).
+std::string goldenDir() { return opGoldenPath("camera"); }
 
 struct RayResult {
   std::vector<float> rays;

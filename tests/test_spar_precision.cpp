@@ -42,18 +42,8 @@ CaseOptions fp16Case(CaseOptions o) {
 
 const fs::path& scratch() { return scratchDir("spar_precision"); }
 
-// The fixture's checkpoint packed with --fp16 (made once per process).
-const std::string& fp16Pack() {
-  static const std::string path = [] {
-    const std::string out = (scratch() / "tiny16.spar").string();
-    const std::string cmd = shellQuote(SPAR_PYTHON) + " " + shellQuote(std::string(SPAR_SOURCE_DIR) + "/converter/spar-convert") +
-                            " -q --fp16 " + shellQuote(goldenPath("tiny.pt")) + " --config " +
-                            shellQuote(goldenPath("tiny_photometric.json")) + " -o " + shellQuote(out);
-    if (std::system(cmd.c_str()) != 0) throw Error("spar-convert --fp16 failed: " + cmd);
-    return out;
-  }();
-  return path;
-}
+// The fixture's checkpoint packed with --fp16 (tiny16.spar, made in the spar_goldens fixture).
+std::string fp16Pack() { return goldenPath("tiny16.spar"); }
 
 class SparPrecisionTest : public EngineTest {};
 

@@ -27,6 +27,7 @@
 #include "imaging/image_prep.h"
 #include "model/spar_pipeline.h"
 #include "tests/cli_test_support.h"
+#include "tests/golden_support.h"
 #include "tests/test_support.h"
 
 namespace spar::test {
@@ -49,16 +50,9 @@ CommandResult spar(const std::string& command, std::vector<std::string> args) {
   return runValidated(args, scratch());
 }
 
-// The fixture, made once per test process: spar.yaml, size128.pt, size128.spar, frame_0..2.png.
-const fs::path& fixture() {
-  static const fs::path dir = [] {
-    const fs::path d = scratch() / "model";
-    const CommandResult r = python({std::string(SPAR_SOURCE_DIR) + "/tests/python/make_size_model.py", d.string()});
-    EXPECT_EQ(r.code, 0) << r.out << r.err;
-    return d;
-  }();
-  return dir;
-}
+// make_size_model.py's model (fixture op_goldens: size/, made once per build): spar.yaml,
+// size128.pt, size128.spar, frame_0..2.png.
+fs::path fixture() { return opGoldenPath("size"); }
 std::string model() { return (fixture() / "size128.spar").string(); }
 std::string frame(int i) { return (fixture() / ("frame_" + std::to_string(i) + ".png")).string(); }
 std::vector<std::string> views() { return {"--images", frame(0), frame(1), "--targets", frame(2)}; }

@@ -9,6 +9,7 @@
 
 #include "formats/npy.h"
 #include "model/transformer_block.h"
+#include "tests/golden_support.h"
 #include "tests/test_support.h"
 
 namespace spar::test {
@@ -18,16 +19,8 @@ namespace fs = std::filesystem;
 
 constexpr int64_t kD = 64, kHeadDim = 32, kN = 37, kB = 2, kLayers = 2;
 
-// Runs the golden maker for one case into the build tree; returns the directory.
-std::string makeGolden(const std::string& caseName) {
-  const fs::path dir = fs::path(SPAR_TEST_OUT_DIR) / "block_golden" / caseName;
-  fs::remove_all(dir);
-  const std::string cmd = std::string("\"") + SPAR_PYTHON + "\" \"" + SPAR_SOURCE_DIR +
-                          "/tests/python/make_block_golden.py\" --case " + caseName + " --out \"" + dir.string() + "\"";
-  const int rc = std::system(cmd.c_str());
-  if (rc != 0) throw Error("golden maker failed (" + std::to_string(rc) + "): " + cmd);
-  return dir.string();
-}
+// make_block_golden.py's case (fixture op_goldens, every case made once per build).
+std::string goldenDir(const std::string& caseName) { return opGoldenPath("block/" + caseName); }
 
 // Weights straight from the golden directory: <dir>/<key>.npy, uploaded as f32, or with
 // fp16Matrices the tensors of 2 dimensions as f16 (as spar-convert --fp16 stores them).
@@ -66,7 +59,7 @@ class TransformerBlockTest : public EngineTest, public ::testing::WithParamInter
 // below that mistake) and max abs 1e-5.
 TEST_P(TransformerBlockTest, TwoBlocksMatchFloat64Reference) {
   const BlockCase c = GetParam();
-  const std::string dir = makeGolden(c.name);
+  const std::string dir = goldenDir(c.name);
 
   // The reference's state_dict keys are exactly the ones the options ask for.
   const auto keys = readLines(dir + "/keys.txt");

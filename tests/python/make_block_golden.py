@@ -57,12 +57,12 @@ def perturb(block: Block, gen: torch.Generator, fp16_matrices: bool) -> None:
             p.copy_(p.to(storage).to(torch.float64))
 
 
-def main() -> None:
+def main(argv=None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--case", required=True, choices=sorted(CASES) + sorted(FP16_CASES))
     ap.add_argument("--out", required=True)
     ap.add_argument("--seed", type=int, default=1234)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     os.makedirs(args.out, exist_ok=True)
 
     fp16 = args.case in FP16_CASES

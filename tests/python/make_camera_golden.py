@@ -97,11 +97,11 @@ def pose_case(out: str, name: str, rel: torch.Tensor, kraw: torch.Tensor, v: int
     save(d, "k", k.reshape(b, v, 4), "<f8")
 
 
-def main() -> None:
+def main(argv=None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", required=True)
     ap.add_argument("--seed", type=int, default=4321)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     gen = torch.Generator().manual_seed(args.seed)
 
     c2w, k = random_cameras(3, gen)

@@ -24,12 +24,12 @@ from spar_reference.cli import load_checkpoint  # noqa: E402
 from spar_reference.dino_v3 import DinoV3  # noqa: E402
 
 
-def main() -> int:
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--checkpoint", required=True)
     ap.add_argument("--config", required=True)
     ap.add_argument("--out", required=True)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     torch.set_num_threads(2)
 
     cfg = SparConfig.from_file(args.config)

@@ -41,10 +41,10 @@ def content(w: int, h: int, channels: int, seed: int) -> np.ndarray:
     return a
 
 
-def main() -> None:
+def main(argv=None) -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", required=True)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     out = args.out
     os.makedirs(out, exist_ok=True)
 

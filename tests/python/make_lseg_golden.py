@@ -93,13 +93,13 @@ def full_case(args):
     save_case(args.out, "full", model.double(), torch.rand(1, 3, 256, 256, generator=g))
 
 
-def main() -> int:
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--checkpoint")
     ap.add_argument("--config")
     ap.add_argument("--full", action="store_true")
     ap.add_argument("--out", required=True)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     torch.set_num_threads(2)
     if args.full:
         full_case(args)

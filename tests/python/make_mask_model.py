@@ -13,7 +13,6 @@ writes OUT_DIR/masked.pt (checkpoint) and OUT_DIR/masked.spar (packed with the f
 config, tiny_photometric.json).
 """
 import os
-import subprocess
 import sys
 
 import numpy as np
@@ -21,12 +20,14 @@ import torch
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 CONVERTER = os.path.join(os.path.dirname(os.path.dirname(HERE)), "converter")
+sys.path.insert(0, CONVERTER)
 HEAD = "cv_drp.estimator.dpt_decoder.head"
 GAIN = 100.0
 
 
-def main():
-    goldens, out = (os.path.abspath(a) for a in sys.argv[1:3])
+def make(goldens, out):
+    """Writes out/masked.pt and out/masked.spar from the fixture in goldens."""
+    from spar_convert.convert import main as convert
     os.makedirs(out, exist_ok=True)
     ck = torch.load(os.path.join(goldens, "tiny.pt"), map_location="cpu")
     sd = ck["model"]
@@ -37,11 +38,11 @@ def main():
     sd[HEAD + ".bias"] = torch.full_like(sd[HEAD + ".bias"], -GAIN * (float(logits.mean()) - bias))
     pt = os.path.join(out, "masked.pt")
     torch.save(ck, pt)
-    subprocess.run([sys.executable, os.path.join(CONVERTER, "spar-convert"), "-q", pt, "--config",
-                    os.path.join(goldens, "tiny_photometric.json"), "-o", os.path.join(out, "masked.spar")],
-                   check=True, env=dict(os.environ, PYTHONPATH=CONVERTER))
+    if convert(["-q", pt, "--config", os.path.join(goldens, "tiny_photometric.json"),
+                "-o", os.path.join(out, "masked.spar")]) != 0:
+        raise SystemExit("make_mask_model: spar-convert failed")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(make(*(os.path.abspath(a) for a in sys.argv[1:3])))

@@ -185,11 +185,11 @@ def transforms_cases(out_dir, rng):
     return results
 
 
-def main():
+def main(argv=None):
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", required=True)
     ap.add_argument("--seed", type=int, default=11)
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
     os.makedirs(a.out, exist_ok=True)
     rng = np.random.default_rng(a.seed)
     doc = {"quat": quat_cases(rng), "slerp": slerp_cases(rng), "path": path_cases(rng),

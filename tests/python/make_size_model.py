@@ -12,7 +12,6 @@ packed by spar-convert with that YAML.
 writes OUT_DIR/spar.yaml, size128.pt, size128.spar and frame_0.png .. frame_2.png (160x120).
 """
 import os
-import subprocess
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -77,8 +76,9 @@ def main(out):
     yaml_path, ck = os.path.join(out, "spar.yaml"), os.path.join(out, "size128.pt")
     write_yaml(yaml_path, cfg)
     torch.save(make_checkpoint(cfg, seed=9, perturb=True, optimizer_state=False), ck)
-    subprocess.run([sys.executable, os.path.join(CONVERTER, "spar-convert"), "-q", ck, "--config",
-                    yaml_path, "-o", os.path.join(out, "size128.spar")], check=True)
+    from spar_convert.convert import main as convert
+    if convert(["-q", ck, "--config", yaml_path, "-o", os.path.join(out, "size128.spar")]) != 0:
+        raise SystemExit("make_size_model: spar-convert failed")
     frames(out, count=3)
     return 0
 

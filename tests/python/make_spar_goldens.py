@@ -22,11 +22,21 @@ writes OUT_DIR/
     all_dynamic/, all_static/ a model whose CV-DRP head bias is +40 / -40: P(dynamic) = 1 / ~0
                               everywhere (gating with s = 0 everywhere / s = 1)
     focal_large/, focal_small/ a model whose canonical_k_head predicts focal 1001.25 / 0.001
-    static/                   goldens: as interleaved with --assume-static (no DINOv3, CV-DRP, gating)
+  and what single test programs read beyond those (made here once per build, not once per test):
+    tiny16.spar               tiny.pt packed with --fp16
+    dino/                     make_dino_golden.py: DINOv3 on constant and non-square images
+    cv_drp/                   make_cv_drp_golden.py: pairs.json and identical/
+    masked/                   make_mask_model.py: masked.pt / masked.spar (mixed motion masks)
+--semantic writes the tiny semantic model, its goldens (semantic/, semantic_path/), and
+    label_render/             spar-reference render --labels of the semantic case
+    lseg/                     make_lseg_golden.py: LSeg on constant and non-square images
+    text/, text_random/       make_text_golden.py: tests/data/text_prompts.json with embeddings,
+                              4000 random prompts (seed 11)
+Every tool runs in this process (one torch import for the whole fixture).
 """
 import json
 import os
-import subprocess
+import shutil
 import sys
 
 import numpy as np
@@ -36,6 +46,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
 CONVERTER = os.path.join(ROOT, "converter")
 sys.path.insert(0, CONVERTER)
+sys.path.insert(0, HERE)
 
 from spar_convert.model_config import full, tiny  # noqa: E402
 
@@ -70,8 +81,24 @@ def variant(ck, out, changes):
     torch.save(sd, out)
 
 
-def run(*args):
-    subprocess.run([sys.executable, *args], check=True, env=dict(os.environ, PYTHONPATH=CONVERTER))
+def reference(*argv):
+    """spar-reference ARGV in this process (one torch import for the whole fixture)."""
+    from spar_reference.cli import main as reference_main
+    if reference_main([str(a) for a in argv]) != 0:
+        raise SystemExit("make_spar_goldens: spar-reference %s failed" % argv[0])
+
+
+def convert(*argv):
+    """spar-convert ARGV in this process."""
+    from spar_convert.convert import main as convert_main
+    if convert_main([str(a) for a in argv]) != 0:
+        raise SystemExit("make_spar_goldens: spar-convert failed: %s" % " ".join(map(str, argv)))
+
+
+def fresh(d):
+    """d, emptied: a fixture made again replaces what it made before."""
+    shutil.rmtree(d, ignore_errors=True)
+    return d
 
 
 # CLIP's merges table: the repository's copy unless the command line names another.
@@ -97,21 +124,18 @@ def main_full(out, bpe):
         json.dump(cfg.validate().to_dict(), f, indent=1)
     f = frames(out, count=3, width=320, height=240)
     ck, packed = os.path.join(out, "full.pt"), os.path.join(out, "full.spar")
-    ref = os.path.join(CONVERTER, "spar-reference")
     require_bpe(bpe)
-    run(ref, "make-checkpoint", "--config", cfg_path, "--seed", "11", "--perturb", "--no-optimizer", "-o", ck)
-    run(os.path.join(CONVERTER, "spar-convert"), "-q", ck, "--config", cfg_path,
-        "--bpe", bpe, "-o", packed)
-    d = os.path.join(out, "full_2in_1out")
-    if os.path.exists(d):
-        subprocess.run(["rm", "-rf", d], check=True)
+    reference("make-checkpoint", "--config", cfg_path, "--seed", "11", "--perturb", "--no-optimizer", "-o", ck)
+    convert("-q", ck, "--config", cfg_path, "--bpe", bpe, "-o", packed)
+    d = fresh(os.path.join(out, "full_2in_1out"))
     labels = ["--labels", ",".join(LABELS[:4]), "--bpe", bpe]
-    run(ref, "goldens", "--checkpoint", ck, "--config", cfg_path, "--frames", *f, "--inputs", "0,2",
-        *labels, "--float64", "--out", d)
+    reference("goldens", "--checkpoint", ck, "--config", cfg_path, "--frames", *f, "--inputs", "0,2",
+              *labels, "--float64", "--out", d)
     os.unlink(ck)  # 3 GB: only the packed file is needed from here on
     return 0
 
 
+TEXT_PROMPTS = os.path.join(ROOT, "tests", "data", "text_prompts.json")
 LABELS = ["sofa", "window", "person", "floor", "ünïcödé chäir",
           "a " + "very " * 90 + "long prompt that CLIP truncates at 77 tokens"]
 
@@ -127,20 +151,29 @@ def main_semantic(out, bpe):
         json.dump(cfg.validate().to_dict(), f, indent=1)
     f = frames(out)
     ck, packed = os.path.join(out, "tiny_semantic.pt"), os.path.join(out, "tiny_semantic.spar")
-    ref = os.path.join(CONVERTER, "spar-reference")
-    run(ref, "make-checkpoint", "--config", cfg_path, "--seed", "7", "--perturb", "--no-optimizer", "-o", ck)
+    reference("make-checkpoint", "--config", cfg_path, "--seed", "7", "--perturb", "--no-optimizer", "-o", ck)
     require_bpe(bpe)
-    run(os.path.join(CONVERTER, "spar-convert"), "-q", ck, "--config", cfg_path,
-        "--bpe", bpe, "-o", packed)
+    convert("-q", ck, "--config", cfg_path, "--bpe", bpe, "-o", packed)
     with open(os.path.join(out, "labels.json"), "w") as fh:
         json.dump(LABELS, fh, ensure_ascii=False)
+    labels = ["--labels", ",".join(LABELS), "--bpe", bpe]
     for name, args in {"semantic": ["--frames", *f, "--inputs", "0,2,4"],
                        "semantic_path": ["--images", f[0], f[2], f[4], "--path", "3"]}.items():
-        d = os.path.join(out, name)
-        if os.path.exists(d):
-            subprocess.run(["rm", "-rf", d], check=True)
-        labels = ["--labels", ",".join(LABELS), "--bpe", bpe]
-        run(ref, "goldens", "--checkpoint", ck, "--config", cfg_path, *args, *labels, "--float64", "--out", d)
+        reference("goldens", "--checkpoint", ck, "--config", cfg_path, *args, *labels, "--float64",
+                  "--out", fresh(os.path.join(out, name)))
+    # What tests/test_label_maps.cpp compares its label map files with: the reference's render.
+    reference("render", "--checkpoint", ck, "--config", cfg_path, "--frames", *f, "--inputs", "0,2,4",
+              *labels, "--out", fresh(os.path.join(out, "label_render")))
+    # LSeg cases beyond the model's (tests/test_lseg.cpp): constant, non-square, input_norm lseg.
+    import make_lseg_golden
+    make_lseg_golden.main(["--checkpoint", ck, "--config", cfg_path, "--out", fresh(os.path.join(out, "lseg"))])
+    # The text side (tests/test_bpe_tokenizer.cpp, tests/test_clip_text.cpp): the prompts of
+    # tests/data/text_prompts.json with the CLIP text encoder's embeddings, and 4000 random prompts.
+    import make_text_golden
+    make_text_golden.main(["--bpe", bpe, "--prompts", TEXT_PROMPTS, "--checkpoint", ck, "--config", cfg_path,
+                           "--out", fresh(os.path.join(out, "text"))])
+    make_text_golden.main(["--bpe", bpe, "--random", "4000", "--seed", "11",
+                           "--out", fresh(os.path.join(out, "text_random"))])
     return 0
 
 
@@ -158,9 +191,10 @@ def main():
         json.dump(cfg.validate().to_dict(), f, indent=1)
     f = frames(out)
     ck, packed = os.path.join(out, "tiny.pt"), os.path.join(out, "tiny.spar")
-    ref = os.path.join(CONVERTER, "spar-reference")
-    run(ref, "make-checkpoint", "--config", cfg_path, "--seed", "7", "--perturb", "--no-optimizer", "-o", ck)
-    run(os.path.join(CONVERTER, "spar-convert"), "-q", ck, "--config", cfg_path, "-o", packed)
+    reference("make-checkpoint", "--config", cfg_path, "--seed", "7", "--perturb", "--no-optimizer", "-o", ck)
+    convert("-q", ck, "--config", cfg_path, "-o", packed)
+    # The same checkpoint packed with --fp16 (tests/test_spar_precision.cpp).
+    convert("-q", "--fp16", ck, "--config", cfg_path, "-o", os.path.join(out, "tiny16.spar"))
     cases = {
         "interleaved": ["--frames", *f, "--inputs", "0,2,4"],
         "odd_targets": ["--frames", *f, "--inputs", "1,3"],
@@ -186,16 +220,23 @@ def main():
     for name, changes in models.items():
         mck = os.path.join(out, f"{name}.pt")
         variant(ck, mck, changes)
-        run(os.path.join(CONVERTER, "spar-convert"), "-q", mck, "--config", cfg_path,
-            "-o", os.path.join(out, f"{name}.spar"))
+        convert("-q", mck, "--config", cfg_path, "-o", os.path.join(out, f"{name}.spar"))
         model_ck[name] = mck
         cases[name] = ["--frames", *f, "--inputs", "0,2,4"]
     for name, args in cases.items():
-        d = os.path.join(out, name)
-        if os.path.exists(d):
-            subprocess.run(["rm", "-rf", d], check=True)
-        this = ["--checkpoint", model_ck.get(name, ck), "--config", cfg_path]
-        run(ref, "goldens", *this, *args, "--float64", "--out", d)
+        reference("goldens", "--checkpoint", model_ck.get(name, ck), "--config", cfg_path, *args, "--float64",
+                  "--out", fresh(os.path.join(out, name)))
+    # Stage-level cases beyond the model's: DINOv3 on constant and non-square images
+    # (tests/test_dino_v3.cpp), CV-DRP's view pairs and all views identical (tests/test_cv_drp.cpp).
+    import make_cv_drp_golden
+    import make_dino_golden
+    make_dino_golden.main(["--checkpoint", ck, "--config", cfg_path, "--out", fresh(os.path.join(out, "dino"))])
+    os.makedirs(fresh(os.path.join(out, "cv_drp")))
+    make_cv_drp_golden.pairs(os.path.join(out, "cv_drp", "pairs.json"))
+    make_cv_drp_golden.identical(out, os.path.join(out, "cv_drp", "identical"))
+    # A variant whose motion masks hold both values (tests/test_spar_render.cpp).
+    import make_mask_model
+    make_mask_model.make(out, fresh(os.path.join(out, "masked")))
     return 0
 
 

@@ -63,7 +63,7 @@ def random_prompts(n: int, seed: int):
     return out
 
 
-def main() -> int:
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--bpe", required=True)
     ap.add_argument("--prompts")
@@ -72,7 +72,7 @@ def main() -> int:
     ap.add_argument("--out", required=True)
     ap.add_argument("--checkpoint")
     ap.add_argument("--config")
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
     os.makedirs(a.out, exist_ok=True)
     if a.random:
         prompts = random_prompts(a.random, a.seed)
