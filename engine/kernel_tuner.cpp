@@ -8,7 +8,10 @@
 #include <fstream>
 #include <functional>
 #include <nlohmann/json.hpp>
+#include <string>
 #include <vector>
+
+#include <unistd.h>
 
 #include "engine/engine.h"
 #include "engine/ops/attention.h"
@@ -228,7 +231,7 @@ void measureKernelChoice(Engine& engine, KernelPlan& plan) {
   if (!coops.empty()) all[key]["coopmat"] = {{"tiles", c.tried[c.index]["tiles"]}, {"candidates", c.tried}};
   std::error_code ec;
   fs::create_directories(fs::path(file).parent_path(), ec);
-  const std::string tmp = file + ".tmp";
+  const std::string tmp = file + ".tmp-" + std::to_string(::getpid());  // processes may save at once
   {
     std::ofstream o(tmp);
     o << all.dump(1) << "\n";

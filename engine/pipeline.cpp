@@ -7,7 +7,10 @@
 #include <cstdlib>
 #include <fstream>
 #include <iterator>
+#include <string>
 #include <thread>
+
+#include <unistd.h>
 
 #include "engine/error.h"
 #include "engine/shader_registry.h"
@@ -62,7 +65,9 @@ PipelineCache::~PipelineCache() {
     if (vkGetPipelineCacheData(dev, driverCache_, &size, nullptr) == VK_SUCCESS && size) {
       std::vector<char> data(size);
       if (vkGetPipelineCacheData(dev, driverCache_, &size, data.data()) == VK_SUCCESS) {
-        std::string tmp = cacheFile_ + ".tmp";
+        // A temporary of this process's own: two processes saving the shared cache at once
+        // (spar jobs, tests run in parallel) each rename a whole file; the last one stays.
+        const std::string tmp = cacheFile_ + ".tmp-" + std::to_string(::getpid());
         std::ofstream out(tmp, std::ios::binary);
         out.write(data.data(), static_cast<std::streamsize>(size));
         out.close();
