@@ -76,7 +76,7 @@ if [ "$mode" = pack ]; then
   exit 0
 fi
 
-if [ "$mode" != run ]; then
+if [ "$mode" != run ] || [ $# -gt 1 ] || { [ $# = 1 ] && [ "$1" != --cpu ] && [ "$1" != --cpu-coopmat ]; }; then
   echo "usage: bash scripts/gpu-check.sh pack | run [--cpu | --cpu-coopmat]" >&2
   exit 2
 fi
@@ -100,11 +100,12 @@ rt="$work/runtime"
 # NVIDIA's Vulkan driver: where the device README says it is, else the usual places.
 libpath="$rt"
 if [ $cpu = 0 ]; then
-  for icd in "${VK_DRIVER_FILES:-}" /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json /usr/share/vulkan/icd.d/nvidia_icd.json \
-             /etc/vulkan/icd.d/nvidia_icd.json; do
+  nv=${GPU_CHECK_NVIDIA_ROOT:-}  # where / is, for the driver's files (a test's fake tree; else /)
+  for icd in "${VK_DRIVER_FILES:-}" "$nv"/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json \
+             "$nv"/usr/share/vulkan/icd.d/nvidia_icd.json "$nv"/etc/vulkan/icd.d/nvidia_icd.json; do
     [ -n "$icd" ] && [ -f "$icd" ] && break
   done
-  nvlibs=(/usr/local/nvidia/lib64 /usr/local/nvidia/lib /usr/lib/x86_64-linux-gnu /lib/x86_64-linux-gnu)
+  nvlibs=("$nv"/usr/local/nvidia/lib64 "$nv"/usr/local/nvidia/lib "$nv"/usr/lib/x86_64-linux-gnu "$nv"/lib/x86_64-linux-gnu)
   if [ ! -f "$icd" ]; then
     # No manifest, but the driver's Vulkan library may be there (it is libGLX_nvidia): name it in
     # a manifest of our own.

@@ -51,7 +51,7 @@ if [ "$mode" = unpack ]; then
   exit $?
 fi
 
-if [ "$mode" != run ]; then
+if [ "$mode" != run ] || [ $# -gt 1 ] || [ "${1:---cpu}" != --cpu ]; then  # nothing written yet
   echo "usage: bash scripts/gpu-session.sh pack | run [--cpu] | unpack DIR" >&2
   exit 2
 fi

@@ -73,7 +73,7 @@ PY
   exit 0
 fi
 
-if [ "$mode" != run ] && [ "$mode" != pool ]; then
+if { [ "$mode" != run ] && [ "$mode" != pool ]; } || [ $# -gt 1 ] || [ "${1:---cpu}" != --cpu ]; then
   echo "usage: bash scripts/gpu-train.sh run [--cpu] | pool [--cpu] | unpack DIR RUN" >&2
   exit 2
 fi
