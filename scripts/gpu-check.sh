@@ -170,6 +170,10 @@ step kernels 120 "${plan[@]}" $bin spar-bench --list-kernels --json
 cp "$out/kernels.log" "$out/kernels.json" 2>/dev/null
 
 mkdir -p "$out/tests"
+# The op tests' goldens that need no model (transformer blocks, Plucker rays: CTest's fixture
+# op_goldens), made there.
+step op-goldens 120 "$py" tests/python/make_op_goldens.py "$work/op-goldens"
+export SPAR_OP_GOLDENS_DIR="$work/op-goldens"
 # The tests keep the plan's default tiles (measuring them in every test process would cost
 # seconds each); spar-bench below measures, and its choice is what the timings use.
 export SPAR_MEASURE_KERNELS=0

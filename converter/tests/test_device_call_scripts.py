@@ -33,12 +33,12 @@ OP_TESTS = ["test_linear", "test_attention", "test_conv2d", "test_conv_transpose
             "test_count_nonfinite", "test_kernel_plan", "test_plucker_rays"]
 MODEL_TESTS = ["test_dino_v3", "test_cv_drp"]
 BINS = ["spar-bench"] + OP_TESTS + ["test_coopmat"] + MODEL_TESTS
-STEP_LIMITS = {"kernels": 120, "reference-ops": 240, "reference-model": 420, "report": 60}  # others 300 s
+STEP_LIMITS = {"kernels": 120, "op-goldens": 120, "reference-ops": 240, "reference-model": 420, "report": 60}  # others 300 s
 
 
 def check_steps(coopmat, report=True):
     """gpu-check.sh run's steps in order (test_coopmat where the device has cooperative matrices)."""
-    return (["kernels"] + [f"test-{t}" for t in OP_TESTS] + (["test-test_coopmat"] if coopmat else []) +
+    return (["kernels", "op-goldens"] + [f"test-{t}" for t in OP_TESTS] + (["test-test_coopmat"] if coopmat else []) +
             ["bench-ops", "reference-ops", "make-model", "bench-model-fp32", "bench-model-fp16", "reference-model",
              "goldens"] + [f"test-{t}" for t in MODEL_TESTS] + (["report"] if report else []))
 
@@ -70,7 +70,7 @@ case "${1:-}" in
 esac
 """
 # converter/spar-train, spar-scenes, spar-reference, spar-convert, tests/python/make_spar_goldens.py,
-# scripts/gpu_reference_bench.py of the temporary repository: one file, told apart by its name.
+# tests/python/make_op_goldens.py, scripts/gpu_reference_bench.py of the temporary repository: one file, told apart by its name.
 TOOL = r"""import json, os, sys
 name, a = os.path.basename(sys.argv[0]), sys.argv[1:]
 opt = lambda k: a[a.index(k) + 1] if k in a else None
@@ -80,7 +80,7 @@ if name == "spar-scenes":
     os.makedirs(opt("--out"))
 elif name in ("spar-reference", "spar-convert"):
     open(opt("-o"), "w").write(name + " output\n")
-elif name == "make_spar_goldens.py":
+elif name in ("make_spar_goldens.py", "make_op_goldens.py"):
     os.makedirs(a[0])
 elif name == "gpu_reference_bench.py":
     doc = {"tool": name}
@@ -117,7 +117,7 @@ elif name == "spar-train":
 # the bundle's programs (one script, told apart by its name) and its dynamic loader
 BUNDLE_BIN = r"""#!/bin/sh
 name=${0##*/}
-echo "bin $name $* | kernels=${SPAR_KERNELS-} measure=${SPAR_MEASURE_KERNELS-} shards=${GTEST_TOTAL_SHARDS-}/${GTEST_SHARD_INDEX-} driver=${VK_DRIVER_FILES-} icd=${VK_ICD_FILENAMES-} layers=${VK_LAYER_PATH-} goldens=${SPAR_GOLDENS_DIR-}" >> "$STUB_LOG"
+echo "bin $name $* | kernels=${SPAR_KERNELS-} measure=${SPAR_MEASURE_KERNELS-} shards=${GTEST_TOTAL_SHARDS-}/${GTEST_SHARD_INDEX-} driver=${VK_DRIVER_FILES-} icd=${VK_ICD_FILENAMES-} layers=${VK_LAYER_PATH-} goldens=${SPAR_GOLDENS_DIR-} op_goldens=${SPAR_OP_GOLDENS_DIR-}" >> "$STUB_LOG"
 case $name in
   spar-bench)
     case "$*" in
@@ -215,7 +215,8 @@ class Repo:
         else:
             write(os.path.join(self.root, "scripts", "gpu_check_report.py"), TOOL)
         for rel in ("converter/spar-train", "converter/spar-scenes", "converter/spar-reference",
-                    "converter/spar-convert", "tests/python/make_spar_goldens.py", "scripts/gpu_reference_bench.py"):
+                    "converter/spar-convert", "tests/python/make_spar_goldens.py", "tests/python/make_op_goldens.py",
+                    "scripts/gpu_reference_bench.py"):
             write(os.path.join(self.root, rel), TOOL)
         for name, text in PATH_STUBS.items():
             write(os.path.join(self.stubs, name), text, 0o755)
@@ -458,7 +459,7 @@ def test_check_skips_steps_past_its_deadline(tmp_path):
     steps = json.load(open(os.path.join(out, "report.json")))["steps"]
     assert steps == dict({n: "skipped" for n in names}, report=0)  # (the report's own step, run before)
     md = open(os.path.join(out, "report.md")).read()
-    assert "Steps: kernels skipped, test-test_linear skipped, " in md
+    assert "Steps: kernels skipped, op-goldens skipped, test-test_linear skipped, " in md
 
 
 @pytest.mark.parametrize("mode", ["--cpu", "--cpu-coopmat"])
@@ -492,6 +493,7 @@ def test_check_cpu_runs_every_step(tmp_path, mode):
         assert seen["kernels"] == ("coopmat" if t == "test_coopmat" else "") and seen["measure"] == "0", t
         assert seen["shards"] == ("/" if t in MODEL_TESTS else "4/0"), t
         assert seen["goldens"] == (f"{repo.check_work}/goldens" if t in MODEL_TESTS else ""), t
+        assert seen["op_goldens"] == f"{repo.check_work}/op-goldens", t
     driver = f"{lvp}/lvp_icd.json" if coop else ""
     assert {s["driver"] for c in runs.values() for _, s in c} == {driver}
     extra = [f"{lvp}/root/usr/lib/x86_64-linux-gnu"] if coop else []
