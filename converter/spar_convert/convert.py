@@ -982,7 +982,8 @@ def build_parser():
     return ap
 
 
-def convert(args, out=sys.stdout):
+def convert(args, out=None):
+    out = sys.stdout if out is None else out   # the stdout of the call, not of the import
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=out))
     inp = read_inputs(args)
     try:

@@ -13,11 +13,11 @@ Image preparation: ``images.py``; camera conventions: ``cameras.py``; golden fil
 ``goldens.py``.
 
   spar-reference make-checkpoint --config tiny|full|PATH -o X.pt [--seed N] [--perturb]
-                                 [--no-optimizer]
+                                 [--no-optimizer] [--threads N]
   spar-reference render --checkpoint X.pt [--config tiny|full|PATH]
         (--images A B ... [--targets C D ...] | --frames f0 f1 ... --inputs 0,3,4)
         [--cameras transforms.json | --path N] [--labels "a,b"] [--features] [--bpe PATH]
-        [--float64] --out DIR
+        [--float64] [--threads N] --out DIR
   spar-reference goldens  (same view / camera / label options, no --features) --out DIR
 
 render writes view_XX.png (rendered views: the targets, or the --path / --cameras cameras),
@@ -761,6 +761,21 @@ class _Parser(argparse.ArgumentParser):
         sys.exit(2)
 
 
+def _threads(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return n
+
+
+def _add_threads_arg(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--threads", type=_threads, default=2, metavar="N",
+                   help="torch threads (default 2)")
+
+
 def _add_run_args(p: argparse.ArgumentParser, render: bool) -> None:
     p.add_argument("--checkpoint", required=True, metavar="X.pt",
                    help="SPAR training checkpoint ({'model': state_dict, ...} or a state_dict)")
@@ -797,6 +812,7 @@ def _add_run_args(p: argparse.ArgumentParser, render: bool) -> None:
                    help="declare the scene static: skip DINOv3 and CV-DRP, gate no token, "
                         "write no motion maps")
     p.add_argument("--float64", action="store_true", help="run the model in float64")
+    _add_threads_arg(p)
     p.add_argument("--out", required=True, metavar="DIR",
                    help="output directory (must not exist; written as DIR.tmp-XXXX, renamed)")
 
@@ -820,6 +836,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "heads (weights a test can see through)")
     p.add_argument("--no-optimizer", action="store_true",
                    help="no Adam moments in the optimizer state (param groups only): smaller")
+    _add_threads_arg(p)
     p.set_defaults(func=cmd_make_checkpoint)
 
     p = sub.add_parser("render", help="run the reference and write images, masks, cameras",
@@ -843,7 +860,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         import torch
-        torch.set_num_threads(2)
+        torch.set_num_threads(args.threads)
         return int(args.func(args) or 0)
     except CliError as e:
         sys.stderr.write(f"{PROG}: error: {_one_line(e)}\n")

@@ -11,10 +11,12 @@ OVERRUN = 1.1   # a run still this far past its budget stops, its schedule cut s
 
 
 class TimeBudget:
-    def __init__(self, minutes: float, max_steps: int, eval_every: int, log=print):
+    def __init__(self, minutes: float, max_steps: int, eval_every: int, log=print, clock=time.time):
+        # clock: seconds now (time.time; a test passes a fake one)
         self.seconds = minutes * 60.0
         self.minutes, self.max_steps, self.eval_every, self.log = minutes, max_steps, eval_every, log
-        self.t0 = time.time()
+        self.clock = clock
+        self.t0 = clock()
         self.calibrated = not minutes
         self._mark = None   # (time, measurement seconds) after the warm-up
 
@@ -24,14 +26,14 @@ class TimeBudget:
         if self.calibrated:
             return total
         if step == WARMUP_STEPS:
-            self._mark = (time.time(), eval_seconds)
+            self._mark = (self.clock(), eval_seconds)
         timed = step - WARMUP_STEPS
         if self._mark is None or timed < 2 or (timed < CALIBRATION_STEPS and
-                                               time.time() - self.t0 <= 0.2 * self.seconds):
+                                               self.clock() - self.t0 <= 0.2 * self.seconds):
             return total
-        per_step = (time.time() - self._mark[0] - (eval_seconds - self._mark[1])) / timed
+        per_step = (self.clock() - self._mark[0] - (eval_seconds - self._mark[1])) / timed
         per_eval = eval_seconds / evals_done if evals_done else 0.0
-        left = self.seconds - (time.time() - self.t0)
+        left = self.seconds - (self.clock() - self.t0)
         total = max(step + 1, min(self.max_steps, step + int(left / (per_step + per_eval / self.eval_every))))
         self.calibrated = True
         self.log(f"time budget {self.minutes} min: {per_step:.3f} s a step, {per_eval:.1f} s a "
@@ -39,4 +41,4 @@ class TimeBudget:
         return total
 
     def overrun(self) -> bool:
-        return bool(self.minutes) and time.time() - self.t0 > self.seconds * OVERRUN
+        return bool(self.minutes) and self.clock() - self.t0 > self.seconds * OVERRUN

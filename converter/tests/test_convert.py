@@ -2,12 +2,17 @@
 """Tests of converter/spar-convert (spar_convert.convert): a tiny SPAR checkpoint made by the
 PyTorch reference (perturbed weights, so biases, BatchNorm statistics and the k-bias mask
 matter) is converted and the packed file compared with the sources; refusals exit 1 with one
-line and leave no file. The converter itself never imports torch (checked in a subprocess)."""
+line and leave no file. The converter itself never imports torch (checked in a subprocess).
+Conversions run through spar_convert.convert.main in this process (exit code, stdout and stderr
+as a subprocess would give them); the script itself runs in subprocesses in test_help and
+test_runs_without_torch."""
 import gzip
+import io
 import json
 import os
 import subprocess
 import sys
+from contextlib import redirect_stderr, redirect_stdout
 
 import numpy as np
 import pytest
@@ -20,18 +25,29 @@ SCRIPT = os.path.join(CONVERTER, "spar-convert")
 sys.path.insert(0, CONVERTER)
 
 from spar_convert.safetensors_file import SafetensorsFile  # noqa: E402
-from spar_convert.convert import RUNTIME_FIELDS, is_matrix  # noqa: E402
+from spar_convert.convert import RUNTIME_FIELDS, is_matrix, main  # noqa: E402
 from spar_reference import make_checkpoint, tiny  # noqa: E402
 from spar_reference.dino_v3 import DinoV3Backbone  # noqa: E402
 from spar_reference.clip_text import CLIPTextEncoder  # noqa: E402
 
-torch.set_num_threads(2)
+torch.set_num_threads(1)
 SEED = 5
 
 
-def run(*args, env=None):
+def run(*args):
+    """spar-convert ARGS through spar_convert.convert.main here: (exit code, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as e:     # argparse: usage errors and --help
+            code = e.code
+    return code, out.getvalue(), err.getvalue()
+
+
+def run_executable(*args):
     p = subprocess.run([sys.executable, SCRIPT] + [str(a) for a in args], capture_output=True,
-                       text=True, timeout=120, env=env)
+                       text=True, timeout=120)
     return p.returncode, p.stdout, p.stderr
 
 
@@ -601,5 +617,5 @@ def test_runs_without_torch(work):
 
 
 def test_help():
-    rc, so, se = run("--help")
+    rc, so, se = run_executable("--help")
     assert rc == 0 and "--fp16" in so and "--dino" in so and "--bpe" in so

@@ -3,16 +3,19 @@
 
 Metrics against hand-computed values and a brute-force SSIM; the view index formula; an
 end-to-end run of run_reference on two generated test scenes with the tiny semantic model in
-the three modes; the command-line tools' exit codes.
+the three modes; the command-line tools' exit codes (spar-eval-reference's refusals through its
+main() in this process, one successful run of each tool as a subprocess).
 
 Run: cd /work/main && /usr/bin/python3 -m pytest -q converter/tests/test_eval_metrics.py
 """
 
+import io
 import json
 import math
 import os
 import subprocess
 import sys
+from contextlib import redirect_stderr, redirect_stdout
 
 import numpy as np
 import pytest
@@ -206,20 +209,26 @@ def test_baselines_known_values():
 
 
 # ============================================================================ end to end
+SIZE = 64   # the tiny model and the scenes at 64x64 (a quarter of the pixels of 128x128)
+
+
 @pytest.fixture(scope="module")
 def e2e(tmp_path_factory):
     import torch
     from spar_convert.model_config import tiny
     torch.set_num_threads(1)
     d = tmp_path_factory.mktemp("eval")
-    p = tool("spar-scenes", "split", "--split", "test", "--count", 2, "--out", d / "scenes")
+    p = tool("spar-scenes", "split", "--split", "test", "--count", 2, "--size", SIZE,
+             "--out", d / "scenes")
     assert p.returncode == 0, p.stderr
     cfg = d / "tiny.json"
-    tiny().save(str(cfg))
+    c = tiny()
+    c.image_height = c.image_width = SIZE
+    c.validate().save(str(cfg))
     ckpt = d / "tiny.pt"
-    p = tool("spar-reference", "make-checkpoint", "--config", cfg, "-o", ckpt, "--seed", 5,
-             "--perturb", "--no-optimizer")
-    assert p.returncode == 0, p.stderr
+    from spar_reference.cli import main as reference_main
+    assert reference_main(["make-checkpoint", "--config", str(cfg), "-o", str(ckpt), "--seed", "5",
+                           "--perturb", "--no-optimizer", "--threads", "1"]) == 0
     return {"dir": d, "scenes": str(d / "scenes"), "cfg": str(cfg), "ckpt": str(ckpt)}
 
 
@@ -318,19 +327,36 @@ def test_cli_outputs_and_tools(e2e, runs, tmp_path):
     assert " - | - |" in rows[1]             # assume-static: mask columns null
 
 
+def eval_reference(*args):
+    """spar-eval-reference ARGS through spar_eval.cli.main in this process (one torch thread):
+    (exit code, stderr) as the subprocess gives them (its success runs in test_cli_outputs_and_tools)."""
+    import torch
+    from spar_eval.cli import main
+    err = io.StringIO()
+    threads = torch.get_num_threads()
+    with redirect_stdout(io.StringIO()), redirect_stderr(err):
+        try:
+            code = main([str(a) for a in args] + ["--threads", "1"])
+        except SystemExit as e:     # argparse's usage errors
+            code = e.code
+        finally:
+            torch.set_num_threads(threads)
+    return code, err.getvalue()
+
+
 def test_cli_errors_leave_no_output(e2e, tmp_path):
     out = tmp_path / "r.json"
     common = ["--checkpoint", e2e["ckpt"], "--config", e2e["cfg"], "--bpe", BPE_PATH, "--out", out]
-    p = tool("spar-eval-reference", "--scenes", tmp_path / "missing", *common)
-    assert p.returncode == 1 and p.stderr.count("\n") == 1 and "not found" in p.stderr
-    p = tool("spar-eval-reference", "--scenes", e2e["scenes"], "--views", "2,x", *common)
-    assert p.returncode == 2 and p.stderr.count("\n") == 1
-    p = tool("spar-eval-reference", "--scenes", e2e["scenes"], "--views", "8", *common)
-    assert p.returncode == 1 and "no target" in p.stderr
+    code, err = eval_reference("--scenes", tmp_path / "missing", *common)
+    assert code == 1 and err.count("\n") == 1 and "not found" in err
+    code, err = eval_reference("--scenes", e2e["scenes"], "--views", "2,x", *common)
+    assert code == 2 and err.count("\n") == 1
+    code, err = eval_reference("--scenes", e2e["scenes"], "--views", "8", *common)
+    assert code == 1 and "no target" in err
     small = tmp_path / "small"
-    assert tool("spar-scenes", "split", "--split", "test", "--count", 1, "--size", 64,
+    assert tool("spar-scenes", "split", "--split", "test", "--count", 1, "--size", SIZE // 2,
                 "--out", small).returncode == 0
-    p = tool("spar-eval-reference", "--scenes", small, *common)
-    assert p.returncode == 1 and "no resizing" in p.stderr and p.stderr.count("\n") == 1
+    code, err = eval_reference("--scenes", small, *common)
+    assert code == 1 and "no resizing" in err and err.count("\n") == 1
     assert not out.exists() and not any(n.startswith("r.json") for n in os.listdir(tmp_path))
     assert tool("spar-eval-compare", tmp_path / "nope.json", tmp_path / "nope.json").returncode == 2

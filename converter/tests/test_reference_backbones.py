@@ -25,7 +25,7 @@ from spar_reference.lseg import (LSegEncoder, add_net_prefix, split_lseg_state_d
 from spar_reference.clip_text import CLIPTextEncoder, LSEG_LOGIT_SCALE, label_logits  # noqa: E402
 from spar_reference import bpe  # noqa: E402
 
-torch.set_num_threads(2)
+torch.set_num_threads(1)
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 BPE_PATH = os.environ.get("SPAR_CLIP_BPE", os.path.join(REPO, "text", "data", "clip", "bpe_simple_vocab_16e6.txt.gz"))

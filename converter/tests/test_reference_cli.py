@@ -1,17 +1,23 @@
 #!/usr/bin/python3
 """Tests of the reference's command-line tool ``converter/spar-reference`` (tiny config).
 
-Every command runs the executable in a subprocess, as a user would. The checkpoint is made
-once per module (make-checkpoint --perturb --no-optimizer). Inputs are small random PNGs of
-odd, non-square sizes (so resize and centre crop take part).
+Commands run through spar_reference.cli.main in this process with one torch thread (an import
+of torch and the model code per command would cost more than the command); the executable
+itself runs in a subprocess twice, as a user would: a render (compared byte for byte with the
+same render in this process: determinism across processes) and a refused command. The
+checkpoint is made once per module (make-checkpoint --perturb --no-optimizer). Inputs are small
+random PNGs of odd, non-square sizes (so resize and centre crop take part).
 
 Run: cd /work/main && /usr/bin/python3 -m pytest -q converter/tests/test_reference_cli.py
 """
 
+import io
 import json
 import os
 import subprocess
 import sys
+import types
+from contextlib import redirect_stderr, redirect_stdout
 
 import numpy as np
 import pytest
@@ -23,6 +29,7 @@ sys.path.insert(0, os.path.join(HERE, ".."))
 from spar_reference import config as spar_config  # noqa: E402
 from spar_reference.images import crop_geometry, load_image, to_uint8  # noqa: E402
 from spar_reference.cameras import interpolate_path, mat_to_quat, quat_to_mat  # noqa: E402
+from spar_reference.cli import main  # noqa: E402
 
 TOOL = os.path.join(HERE, "..", "spar-reference")
 REPO = os.path.dirname(os.path.dirname(HERE))
@@ -33,9 +40,28 @@ H, W = CFG.image_height, CFG.image_width
 FLIP = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
-def run(*args, check=True):
-    p = subprocess.run([sys.executable, TOOL] + [str(a) for a in args],
+torch.set_num_threads(1)
+
+
+def run_executable(*args, check=True):
+    """The spar-reference script in a subprocess (one torch thread)."""
+    p = subprocess.run([sys.executable, TOOL] + [str(a) for a in args] + ["--threads", "1"],
                        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, timeout=300)
+    if check:
+        assert p.returncode == 0, p.stderr
+    return p
+
+
+def run(*args, check=True):
+    """The same command through spar_reference.cli.main in this process (one torch thread):
+    exit code, stdout and stderr as the subprocess would give them."""
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        try:
+            code = main([str(a) for a in args] + ["--threads", "1"])
+        except SystemExit as e:     # argparse's usage errors
+            code = e.code
+    p = types.SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())
     if check:
         assert p.returncode == 0, p.stderr
     return p
@@ -155,9 +181,10 @@ def test_render_images_and_targets(work, tmp_path):
 
 
 def test_render_frames_inputs_is_deterministic_and_matches_goldens(work, tmp_path):
+    """The executable's render and the same render in this process give the same bytes."""
     f = work["frames"]
     args = ["--checkpoint", work["ckpt"], "--frames"] + f + ["--inputs", "0,3,4"]
-    run("render", *args, "--out", tmp_path / "a")
+    run_executable("render", *args, "--out", tmp_path / "a")
     run("render", *args, "--out", tmp_path / "b")
     run("goldens", *args, "--out", tmp_path / "g")
     a, b = tmp_path / "a", tmp_path / "b"
@@ -341,37 +368,36 @@ def check_error(code, stderr, out, tmp_path):
     assert not [n for n in listing(tmp_path) if ".tmp-" in n]
 
 
-@pytest.mark.parametrize("cmd,case", [("render", "missing_image"), ("render", "one_input"),
-                                      ("render", "no_checkpoint"), ("goldens", "one_input")])
-def test_errors_executable(work, tmp_path, cmd, case):
+# The executable's error path once (its exit code, one line, no traceback, nothing written); the
+# cases one_input and no_checkpoint, and goldens, are refused the same way in
+# test_errors_in_process (render and goldens each).
+def test_errors_executable(work, tmp_path):
     out = tmp_path / "out"
-    p = run(cmd, *error_args(work, tmp_path, case), "--out", out, check=False)
+    p = run_executable("render", *error_args(work, tmp_path, "missing_image"), "--out", out,
+                       check=False)
     check_error(p.returncode, p.stderr, out, tmp_path)
 
 
 @pytest.mark.parametrize("case", ["missing_image", "one_input", "no_checkpoint", "bad_image",
                                   "not_a_checkpoint", "bad_inputs", "labels_no_bpe"])
 def test_errors_in_process(work, tmp_path, case, capsys):
-    from spar_reference.cli import main
     out = tmp_path / "out"
     for cmd in ("render", "goldens"):
-        code = main([cmd] + error_args(work, tmp_path, case) + ["--out", str(out)])
+        code = main([cmd] + error_args(work, tmp_path, case) + ["--out", str(out), "--threads", "1"])
         check_error(code, capsys.readouterr().err, out, tmp_path)
 
 
 def test_error_wrong_config(work, tmp_path, capsys):
-    from spar_reference.cli import main
     out = tmp_path / "out"
-    code = main(["render"] + error_args(work, tmp_path, "wrong_config") + ["--out", str(out)])
+    code = main(["render"] + error_args(work, tmp_path, "wrong_config")
+                + ["--out", str(out), "--threads", "1"])
     err = capsys.readouterr().err
     check_error(code, err, out, tmp_path)
     assert "does not match" in err
 
 
 def test_help_of_each_subcommand(capsys):
-    from spar_reference.cli import main
-    p = run("render", "--help")
-    assert "usage: spar-reference render" in p.stdout
+    # (the program name is spar_reference.cli.PROG, not argv[0]: the same in a subprocess)
     for cmd in ("make-checkpoint", "render", "goldens"):
         with pytest.raises(SystemExit) as e:
             main([cmd, "--help"])
@@ -390,7 +416,8 @@ def test_config_inference(work, tmp_path):
     cj = tmp_path / "custom.json"
     c.save(str(cj))
     ck = tmp_path / "custom.pt"
-    assert cli.main(["make-checkpoint", "--config", str(cj), "-o", str(ck), "--no-optimizer"]) == 0
+    assert cli.main(["make-checkpoint", "--config", str(cj), "-o", str(ck), "--no-optimizer",
+                     "--threads", "1"]) == 0
     inferred = cli.infer_config(cli.load_checkpoint(str(ck)), str(ck))
     assert (inferred.scene_tokens, inferred.encoder_n_layer, inferred.d) == (8, 1, c.d)
 

@@ -23,7 +23,7 @@ from spar_reference import config as spar_config  # noqa: E402
 from spar_reference import spar  # noqa: E402
 from spar_reference.transformer import Block, RMSNorm  # noqa: E402
 
-torch.set_num_threads(2)
+torch.set_num_threads(1)
 
 # Stated tolerance: float32 vs float64 outputs of every stage of the tiny model, as
 # max|a32 - a64| / max|a64| per tensor. Measured ~1e-6 at most (perturbed and official init).

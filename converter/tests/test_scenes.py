@@ -1,14 +1,17 @@
 #!/usr/bin/python3
 """Tests of the procedural scene generator ``spar_scenes`` and its tool ``converter/spar-scenes``.
 
-Small images (48-96 px, 3-5 frames) keep the file to a few seconds.
+Small images (48-96 px, 3-5 frames) keep the file to a few seconds. The tool runs as a
+subprocess where it writes scenes; its refusals go through spar_scenes.cli.main in this process.
 Run: cd /work/main && PYTHONPATH=converter /usr/bin/python3 -m pytest -q converter/tests/test_scenes.py
 """
 
+import io
 import json
 import os
 import subprocess
 import sys
+from contextlib import redirect_stderr, redirect_stdout
 
 import numpy as np
 import pytest
@@ -30,6 +33,18 @@ DYN = [CLASS_ID["person"], CLASS_ID["pet"]]
 def run(*args):
     return subprocess.run([sys.executable, TOOL] + [str(a) for a in args], stdout=subprocess.PIPE,
                           stderr=subprocess.PIPE, text=True, timeout=120)
+
+
+def run_in_process(*args):
+    """spar_scenes.cli.main(ARGS) here: (exit code, stderr) as the subprocess gives them."""
+    from spar_scenes.cli import main
+    err = io.StringIO()
+    with redirect_stdout(io.StringIO()), redirect_stderr(err):
+        try:
+            code = main([str(a) for a in args])
+        except SystemExit as e:     # argparse's usage errors
+            code = e.code
+    return code, err.getvalue()
 
 
 def dynamic_seed(n_frames=4, size=64):
@@ -237,9 +252,9 @@ def test_cli_split_static_and_copy_paste(tmp_path):
     (["bogus"], 2),
 ])
 def test_cli_bad_arguments_one_line(tmp_path, args, code):
-    p = run(*args, "--out", tmp_path / "o")
-    assert p.returncode == code, p.stderr
-    assert p.stderr.startswith("spar-scenes: error: ") and p.stderr.count("\n") == 1, p.stderr
+    got, err = run_in_process(*args, "--out", tmp_path / "o")
+    assert got == code, err
+    assert err.startswith("spar-scenes: error: ") and err.count("\n") == 1, err
     assert not os.listdir(tmp_path)
 
 

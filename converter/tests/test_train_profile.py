@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """``spar-train --profile N``: a training step's time by part, on the real recipe (a few scenes
-and steps keep it to seconds). The parts must add up to the step, and the forward's modules
+and steps, and 32x32 images, the smallest size the recipe takes, keep it to seconds). The parts must add up to the step, and the forward's modules
 (with what lies outside them) to the forward.
 Run: cd /work/main && /usr/bin/python3 -m pytest -q converter/tests/test_train_profile.py
 """
@@ -19,7 +19,7 @@ TOOL = os.path.join(HERE, "..", "spar-train")
 def test_profile_parts_add_up(tmp_path):
     out = tmp_path / "run"
     p = subprocess.run([sys.executable, TOOL, "--out", str(out), "--scenes", "3", "--batch", "2",
-                        "--profile", "1", "--threads", "1"], capture_output=True, text=True,
+                        "--profile", "1", "--threads", "1", "--image-size", "32"], capture_output=True, text=True,
                        timeout=600)
     assert p.returncode == 0, p.stderr
     assert "s a step" in p.stdout
