@@ -35,7 +35,7 @@ def pairs(out):
 
 
 def identical(goldens, out):
-    torch.set_num_threads(2)
+    torch.set_num_threads(1)  # fixtures run beside another test (ctest -j2)
     os.makedirs(out, exist_ok=True)
     cfg = SparConfig.from_file(os.path.join(goldens, "tiny_photometric.json"))
     sd = load_checkpoint(os.path.join(goldens, "tiny.pt"))

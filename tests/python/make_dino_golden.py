@@ -30,7 +30,7 @@ def main(argv=None) -> int:
     ap.add_argument("--config", required=True)
     ap.add_argument("--out", required=True)
     args = ap.parse_args(argv)
-    torch.set_num_threads(2)
+    torch.set_num_threads(1)  # fixtures run beside another test (ctest -j2)
 
     cfg = SparConfig.from_file(args.config)
     sd = load_checkpoint(args.checkpoint)

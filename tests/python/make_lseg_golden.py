@@ -100,7 +100,7 @@ def main(argv=None) -> int:
     ap.add_argument("--full", action="store_true")
     ap.add_argument("--out", required=True)
     args = ap.parse_args(argv)
-    torch.set_num_threads(2)
+    torch.set_num_threads(1)  # fixtures run beside another test (ctest -j2)
     if args.full:
         full_case(args)
     else:

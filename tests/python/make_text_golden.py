@@ -95,7 +95,7 @@ def main(argv=None) -> int:
     if a.checkpoint:
         import torch
         from spar_reference import cli
-        torch.set_num_threads(2)
+        torch.set_num_threads(1)  # fixtures run beside another test (ctest -j2)
         sd = cli.load_checkpoint(a.checkpoint)
         cfg = cli.get_config(a.config, sd, a.checkpoint)
         _, clip_sd = cli.split_state_dict(sd)
