@@ -109,10 +109,7 @@ Outputs runInterleaved(Engine& engine, const std::string& modelPath, DType weigh
 // apart (measured: 23 elements). Outputs therefore agree far below the fp16 error itself
 // (measured: rgb max abs 1.2e-7 and motion 6e-8 between the two, against 4.3e-5 between f16
 // and f32 weights).
-TEST_F(SparPrecisionTest, Fp16PackEqualsF16AtUpload) {
-  const Outputs pack = runInterleaved(eng(), fp16Pack(), DType::F16);
-  const Outputs upload = runInterleaved(eng(), tinyModelPath(), DType::F16);
-  const Outputs fp32 = runInterleaved(eng(), tinyModelPath(), DType::F32);
+void expectPackEqualsUpload(const Outputs& pack, const Outputs& upload, const Outputs& fp32) {
   const nlohmann::json folded =
       nlohmann::json::parse(PackedModel::open(fp16Pack()).metadata().at("conversion")).at("folded");
   ASSERT_EQ(pack.weights.size(), upload.weights.size());
@@ -152,10 +149,7 @@ TEST_F(SparPrecisionTest, Fp16PackEqualsF16AtUpload) {
 // only the f32 kernels: on lavapipe every extra kernel variant costs seconds of JIT), so it
 // loads what an F32 file loads, with the fp16 pack's values, and computes what the f16 run does
 // up to the f32 kernels' own rounding.
-TEST_F(SparPrecisionTest, Fp16PackAtFp32IsWidened) {
-  const Outputs wide = runInterleaved(eng(), fp16Pack(), DType::F32);
-  const Outputs half = runInterleaved(eng(), fp16Pack(), DType::F16);
-  const Outputs fp32 = runInterleaved(eng(), tinyModelPath(), DType::F32);
+void expectPackWidenedAtFp32(const Outputs& wide, const Outputs& half, const Outputs& fp32) {
   EXPECT_EQ(wide.bytes, fp32.bytes);
   EXPECT_LT(half.bytes, wide.bytes);
   size_t widened = 0;
@@ -171,6 +165,17 @@ TEST_F(SparPrecisionTest, Fp16PackAtFp32IsWidened) {
   const ErrorStats rgb = compare(wide.rgb, toDouble(half.rgb));
   std::printf("  fp16 pack at fp32 vs at fp16: %zu matrices widened, rgb max abs %.3e\n", widened, rgb.maxAbs);
   EXPECT_LE(rgb.maxAbs, 1e-5);
+}
+
+// One test for both comparisons (four runs in one process, where two tests ran six in two:
+// the f16 and f32 kernels are compiled once).
+TEST_F(SparPrecisionTest, Fp16PackEqualsF16AtUploadAndWidensAtFp32) {
+  const Outputs pack = runInterleaved(eng(), fp16Pack(), DType::F16);
+  const Outputs upload = runInterleaved(eng(), tinyModelPath(), DType::F16);
+  const Outputs fp32 = runInterleaved(eng(), tinyModelPath(), DType::F32);
+  const Outputs wide = runInterleaved(eng(), fp16Pack(), DType::F32);
+  expectPackEqualsUpload(pack, upload, fp32);
+  expectPackWidenedAtFp32(wide, pack, fp32);
 }
 
 // A copy of the tiny F32 file with one element of `name` set to `value` (the data area starts
