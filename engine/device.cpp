@@ -1,5 +1,7 @@
 #include "engine/device.h"
 
+#include "engine/device_limits.h"
+
 #include <algorithm>
 #include <cctype>
 #include <cstdlib>
@@ -157,6 +159,8 @@ Device::Device(const DeviceOptions& options) {
     createInstance(options.validation);
     pickPhysicalDevice(options.select);
     readCaps();
+    tightenCaps(caps_, options.limits);
+    bindingRangeLimit_ = caps_.maxStorageBufferRange;
     createLogicalDevice();
   } catch (...) {
     if (device_) vkDestroyDevice(device_, nullptr);
@@ -178,7 +182,8 @@ Device::Device(const DeviceOptions& options) {
               << ", timestamps " << (caps_.timestamps ? "yes" : "no")
               << ", host-visible device memory " << (caps_.hostVisibleDeviceLocal ? "yes" : "no (staging)")
               << ", max binding " << (caps_.maxStorageBufferRange >> 20) << " MiB"
-              << (validationEnabled() ? ", validation layer on" : "") << "\n";
+              << (validationEnabled() ? ", validation layer on" : "")
+              << (caps_.limitsProfile.empty() ? "" : "\n  device-limit profile " + options.limits.describe()) << "\n";
   }
 }
 
@@ -280,6 +285,8 @@ void Device::readCaps() {
   for (int i = 0; i < 3; ++i) caps_.maxWorkGroupCount[i] = l.maxComputeWorkGroupCount[i];
   caps_.maxWorkGroupInvocations = l.maxComputeWorkGroupInvocations;
   caps_.maxSharedMemory = l.maxComputeSharedMemorySize;
+  caps_.maxPerStageStorageBuffers = l.maxPerStageDescriptorStorageBuffers;
+  caps_.maxPerStageSampledImages = l.maxPerStageDescriptorSampledImages;
   caps_.timestampPeriodNs = l.timestampPeriod;
 
   uint32_t familyCount = 0;

@@ -7,6 +7,8 @@
 #include <string>
 #include <vector>
 
+#include "spar/device_limits.h"
+
 namespace spar {
 
 struct DeviceOptions {
@@ -18,6 +20,8 @@ struct DeviceOptions {
   bool validation = false;
   // Print the chosen device and the features used to stderr.
   bool verbose = false;
+  // Act as if the device had at most these limits and features (EngineOptions::limits).
+  DeviceLimits limits;
 };
 
 // One matrix multiply-add a subgroup can do on VK_KHR_cooperative_matrix: an M x K matrix A
@@ -56,6 +60,9 @@ struct DeviceCaps {
   uint32_t maxWorkGroupCount[3] = {0, 0, 0};
   uint32_t maxWorkGroupInvocations = 0;
   uint32_t maxSharedMemory = 0;
+  uint32_t maxPerStageStorageBuffers = 0;  // storage-buffer bindings one kernel may have
+  uint32_t maxPerStageSampledImages = 0;   // texel-buffer bindings one kernel may have
+  std::string limitsProfile;               // the device-limit profile applied ("" for none)
   float timestampPeriodNs = 0;
   bool timestamps = false;
   bool shaderFloat16 = false;

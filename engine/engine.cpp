@@ -15,7 +15,7 @@ namespace {
 
 DeviceOptions deviceOptions(const EngineOptions& o) {
   o.tuning.validate();
-  return {o.device, o.validation, o.verbose};
+  return {o.device, o.validation, o.verbose, o.limits};
 }
 
 }  // namespace
@@ -26,7 +26,12 @@ Engine::Engine(const EngineOptions& options)
       memory_(std::make_unique<MemoryAllocator>(*device_)),
       pipelines_(std::make_unique<PipelineCache>(*device_, options.pipelineCacheFile, options.logPipelines)) {
   memory_->failAllocation(options.faults.allocation);
-  memory_->limit(options.memoryLimitBytes);
+  // The smaller of the option's limit and the device-limit profile's memory, named in errors.
+  const uint64_t profileMemory = options.limits.deviceMemoryBytes.value_or(0);
+  if (profileMemory && (!options.memoryLimitBytes || profileMemory < options.memoryLimitBytes))
+    memory_->limit(profileMemory, "the memory of device-limit profile " + options.limits.name);
+  else
+    memory_->limit(options.memoryLimitBytes, "EngineOptions::memoryLimitBytes, SPAR_MEMORY_LIMIT_MB");
   plan_ = planKernels(device_->caps(), options_.tuning);
 }
 

@@ -97,6 +97,8 @@ EngineOptions EngineOptions::fromEnvironment(EngineOptions base) {
   o.profileDispatches = o.profileDispatches || flag("SPAR_PROFILE");
   if (auto ms = count("SPAR_SUBMIT_TIMEOUT_MS")) o.submitTimeoutMs = *ms;
   if (auto mb = count("SPAR_MEMORY_LIMIT_MB")) o.memoryLimitBytes = *mb << 20;
+  if (o.limits.empty())
+    if (const char* l = env("SPAR_DEVICE_LIMITS")) o.limits = DeviceLimits::parse(l);
   if (auto n = count("SPAR_FAULT_ALLOCATION")) o.faults.allocation = *n;
   if (auto n = count("SPAR_FAULT_SUBMISSION")) o.faults.submission = *n;
   KernelTuning& t = o.tuning;

@@ -74,6 +74,10 @@ VkDeviceSize MemoryAllocator::budget() const {
   return limit_ ? (heap ? std::min(limit_, heap) : limit_) : heap;
 }
 
+std::string MemoryAllocator::budgetSource() const {
+  return limit_ && budget() == limit_ ? limitSource_ : "the device's largest memory heap";
+}
+
 Allocation MemoryAllocator::allocate(const VkMemoryRequirements& req, MemoryUsage usage) {
   uint32_t type = chooseMemoryType(req.memoryTypeBits, usage);
   if (++allocations_ == failAt_)
@@ -81,7 +85,7 @@ Allocation MemoryAllocator::allocate(const VkMemoryRequirements& req, MemoryUsag
                             "VK_ERROR_OUT_OF_DEVICE_MEMORY (injected: allocation " + std::to_string(failAt_) + ")"));
   if (limit_ && inUse_ + req.size > limit_)
     throw Error(outOfMemory(req.size, type, "over the memory limit of " + std::to_string(limit_ >> 20) +
-                                                " MiB (EngineOptions::memoryLimitBytes, SPAR_MEMORY_LIMIT_MB)"));
+                                                " MiB (" + limitSource_ + ")"));
   const VkDeviceSize maxAlloc = device_.caps().maxMemoryAllocationSize;
   if (maxAlloc && req.size > maxAlloc)
     throw Error("a buffer of " + std::to_string(req.size >> 20) + " MiB exceeds the device's largest allocation (" +

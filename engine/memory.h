@@ -43,9 +43,15 @@ class MemoryAllocator {
   void failAllocation(uint64_t n) { failAt_ = n; }
   uint64_t allocations() const { return allocations_; }
   // At most `bytes` in use at once (0: no limit beyond the device's); over it is out of memory.
-  void limit(VkDeviceSize bytes) { limit_ = bytes; }
-  // What a request may use: the limit, else the largest device-local heap.
+  // `source` names where the limit comes from, in errors.
+  void limit(VkDeviceSize bytes, std::string source) {
+    limit_ = bytes;
+    limitSource_ = std::move(source);
+  }
+  // What a request may use: the limit, else the largest device-local heap; and which of the
+  // two that is, in words (for errors).
   VkDeviceSize budget() const;
+  std::string budgetSource() const;
 
   VkDeviceSize bytesInUse() const { return inUse_; }
   VkDeviceSize peakBytes() const { return peak_; }
@@ -68,6 +74,7 @@ class MemoryAllocator {
   VkDeviceSize inUse_ = 0, peak_ = 0;
   uint64_t allocations_ = 0, failAt_ = 0;
   VkDeviceSize limit_ = 0;
+  std::string limitSource_;
   // "cannot allocate ...: <why>" with what is in use and the heap's size, so that a request too
   // large for the device says how much it asked for.
   std::string outOfMemory(VkDeviceSize bytes, uint32_t memoryType, const std::string& why) const;

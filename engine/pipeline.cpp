@@ -89,6 +89,12 @@ const Kernel& PipelineCache::get(const KernelSpec& spec) {
   if (spec.constants.size() < 3) throw Error("kernel " + spec.shader + ": constants 0-2 must give the workgroup size");
   if (spec.pushBytes > device_.caps().maxPushConstantsSize)
     throw Error("kernel " + spec.shader + " needs more push-constant bytes than the device offers");
+  const auto texels = std::count(spec.bindings.begin(), spec.bindings.end(), Bind::Texel);
+  const auto storage = static_cast<std::ptrdiff_t>(spec.bindings.size()) - texels;
+  if (uint64_t(storage) > device_.caps().maxPerStageStorageBuffers || uint64_t(texels) > device_.caps().maxPerStageSampledImages)
+    throw Error("kernel " + spec.shader + " binds " + std::to_string(storage) + " storage and " + std::to_string(texels) +
+                " texel buffers; the device allows " + std::to_string(device_.caps().maxPerStageStorageBuffers) + " and " +
+                std::to_string(device_.caps().maxPerStageSampledImages));
   findShader(spec.shader);  // an unknown variant fails here, where the op asks for it
 
   VkDevice dev = device_.handle();

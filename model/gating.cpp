@@ -78,10 +78,10 @@ void TokenGating::gate(Recorder& rec, const Tensor& fused, const Tensor& prob, c
   const Kernel& kernel = engine_.kernel({"token_gate",
                                          {Bind::Read, Bind::Read, Bind::Read, Bind::Read, Bind::Write},
                                          sizeof(GatePush),
-                                         {ops::kElementLocalX, 1, 1}});
+                                         {ops::elementLocalX(engine_.caps()), 1, 1}});
   const GatePush push{uint32_t(tokens), uint32_t(d), uint32_t(n), soft ? 0u : 1u};
   const ops::Grid grid =
-      ops::linearGrid(engine_.caps(), ops::ceilDiv(uint64_t(tokens * d), uint64_t(ops::kElementLocalX)), op);
+      ops::linearGrid(engine_.caps(), ops::ceilDiv(uint64_t(tokens * d), uint64_t(ops::elementLocalX(engine_.caps()))), op);
   // zero_out binds the token tensor in place of the unused mask and code.
   const Tensor mask = soft ? mask_ : fused, codes = soft ? code(gh, gw) : fused;
   rec.dispatch(kernel, {Arg::in(fused), Arg::in(dynPatch), Arg::in(mask), Arg::in(codes), Arg::out(gated)}, push,

@@ -38,10 +38,10 @@ void pluckerRays(Recorder& rec, const Tensor& c2w, const Tensor& fxfycxcy, const
 
   registerModelShaders();  // model/shaders/plucker_rays.comp
   const Kernel& kernel = engine.kernel(
-      {"plucker_rays", {Bind::Read, Bind::Read, Bind::Write}, sizeof(PluckerPush), {ops::kElementLocalX, 1, 1}});
+      {"plucker_rays", {Bind::Read, Bind::Read, Bind::Write}, sizeof(PluckerPush), {ops::elementLocalX(engine.caps()), 1, 1}});
   const PluckerPush push{uint32_t(V), uint32_t(H), uint32_t(W)};
   const ops::Grid grid =
-      ops::linearGrid(engine.caps(), ops::ceilDiv(uint64_t(V * H * W), uint64_t(ops::kElementLocalX)), op);
+      ops::linearGrid(engine.caps(), ops::ceilDiv(uint64_t(V * H * W), uint64_t(ops::elementLocalX(engine.caps()))), op);
   rec.dispatch(kernel, {Arg::in(c2w), Arg::in(fxfycxcy), Arg::out(rays)}, push, grid.x, grid.y, 1, op);
 }
 

@@ -64,12 +64,12 @@ void binaryOp(Recorder& rec, BinaryOp op, const Tensor& a0, const Tensor& b0, co
                                         inPlace ? std::vector<Bind>{Bind::ReadWrite, Bind::Read}
                                                 : std::vector<Bind>{Bind::Read, Bind::Read, Bind::Write},
                                         sizeof(BinaryPush),
-                                        {ops::kElementLocalX, 1, 1, bMode}});
+                                        {ops::elementLocalX(engine.caps()), 1, 1, bMode}});
   const Tensor a1 = a.reshape({n}), o1 = out.reshape({n}), b1 = b.reshape({bSize});
   for (auto [i0, count] : ops::rowChunks(engine, n, {4}, name, 4)) {
     const Tensor ac = a1.view(i0, {count}), oc = o1.view(i0, {count});
     const BinaryPush push{uint32_t(count), uint32_t(bInner), uint32_t(bSize), uint32_t(uint64_t(i0) % period)};
-    const ops::Grid grid = ops::linearGrid(engine.caps(), ops::ceilDiv(count, ops::kElementsPerGroup), name);
+    const ops::Grid grid = ops::linearGrid(engine.caps(), ops::ceilDiv(count, ops::elementsPerGroup(engine.caps())), name);
     rec.dispatch(kernel,
                  inPlace ? std::vector<Arg>{Arg::inout(ac), Arg::in(b1)}
                          : std::vector<Arg>{Arg::in(ac), Arg::in(b1), Arg::out(oc)},

@@ -1,6 +1,7 @@
 // Strided 2-D copy, concatenation and slicing; the kernel is shaders/copy2d.comp.
 #include "engine/ops/copy2d.h"
 
+#include "engine/ops/binding_range.h"
 #include "engine/ops/dispatch_helpers.h"
 
 namespace spar {
@@ -59,21 +60,26 @@ void copy2d(Recorder& rec, const Tensor& src, int64_t srcStride, int64_t srcCol,
   if (ops::overlaps(src, dst)) throw Error(op + ": src and dst overlap");
   if (uint64_t(rows) * uint64_t(cols) > 0x7fffffffull) throw Error(op + ": too many values for 32-bit indexing");
 
-  const bool vec4 = cols % 4 == 0 && srcStride % 4 == 0 && srcCol % 4 == 0 && dstStride % 4 == 0 && dstCol % 4 == 0;
+  // Bindings start where the device allows (ops::bindRange), at or before a chunk's first row;
+  // the column offsets carry the difference, a whole number of vec4s when both tensors start
+  // on 16 bytes.
+  const bool vec4 = cols % 4 == 0 && srcStride % 4 == 0 && srcCol % 4 == 0 && dstStride % 4 == 0 && dstCol % 4 == 0 &&
+                    src.byteOffset() % 16 == 0 && dst.byteOffset() % 16 == 0;
   const Kernel& kernel =
-      engine.kernel({"copy2d", {Bind::Read, Bind::Write}, sizeof(Copy2dPush), {ops::kElementLocalX, 1, 1, vec4}});
+      engine.kernel({"copy2d", {Bind::Read, Bind::Write}, sizeof(Copy2dPush), {ops::elementLocalX(engine.caps()), 1, 1, vec4}});
   // Chunks of whole rows; the last row of a tensor may stop short of a full stride.
   for (auto [r0, n] : ops::rowChunks(engine, rows, {uint64_t(srcStride) * 4, uint64_t(dstStride) * 4}, op)) {
     const int64_t srcLen = std::min(n * srcStride, src.numel() - r0 * srcStride);
     const int64_t dstLen = std::min(n * dstStride, dst.numel() - r0 * dstStride);
-    const Tensor sc = src.reshape({src.numel()}).view(r0 * srcStride, {srcLen});
-    const Tensor dc = dst.reshape({dst.numel()}).view(r0 * dstStride, {dstLen});
+    const ops::BoundRange sc = ops::bindRange(engine.caps(), src.reshape({src.numel()}), r0 * srcStride, r0 * srcStride + srcLen, false);
+    const ops::BoundRange dc = ops::bindRange(engine.caps(), dst.reshape({dst.numel()}), r0 * dstStride, r0 * dstStride + dstLen, false);
+    const int64_t srcShift = r0 * srcStride - sc.base, dstShift = r0 * dstStride - dc.base;
     const Copy2dPush push{uint32_t(n),      uint32_t(cols),      uint32_t(srcStride),
-                          uint32_t(srcCol), uint32_t(dstStride), uint32_t(dstCol)};
+                          uint32_t(srcCol + srcShift), uint32_t(dstStride), uint32_t(dstCol + dstShift)};
     const ops::Grid grid = ops::linearGrid(
-        engine.caps(), ops::ceilDiv(uint64_t(n) * cols, vec4 ? ops::kElementsPerGroup : uint64_t(ops::kElementLocalX)),
+        engine.caps(), ops::ceilDiv(uint64_t(n) * cols, vec4 ? ops::elementsPerGroup(engine.caps()) : uint64_t(ops::elementLocalX(engine.caps()))),
         op);
-    rec.dispatch(kernel, {Arg::in(sc), Arg::out(dc)}, push, grid.x, grid.y, 1, op);
+    rec.dispatch(kernel, {Arg::in(sc.view), Arg::out(dc.view)}, push, grid.x, grid.y, 1, op);
   }
 }
 

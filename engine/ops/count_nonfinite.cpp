@@ -21,11 +21,11 @@ void countNonFinite(Recorder& rec, const Tensor& x, const Tensor& counts, int64_
   if (slot < 0 || slot >= counts.dim(0)) throw Error(op + ": slot " + std::to_string(slot) + " outside " + counts.describe());
   if (x.numel() == 0) return;
   const Kernel& kernel =
-      engine.kernel({"count_nonfinite", {Bind::Read, Bind::ReadWrite}, sizeof(CountPush), {ops::kElementLocalX, 1, 1}});
+      engine.kernel({"count_nonfinite", {Bind::Read, Bind::ReadWrite}, sizeof(CountPush), {ops::elementLocalX(engine.caps()), 1, 1}});
   const Tensor flat = x.reshape({x.numel()});
   for (auto [i0, n] : ops::rowChunks(engine, x.numel(), {4}, op)) {
     const CountPush push{uint32_t(n), uint32_t(slot)};
-    const ops::Grid grid = ops::linearGrid(engine.caps(), ops::ceilDiv(uint64_t(n), ops::kElementsPerGroup), op);
+    const ops::Grid grid = ops::linearGrid(engine.caps(), ops::ceilDiv(uint64_t(n), ops::elementsPerGroup(engine.caps())), op);
     rec.dispatch(kernel, {Arg::in(flat.view(i0, {n})), Arg::inout(counts)}, push, grid.x, grid.y, 1, op);
   }
 }

@@ -68,6 +68,14 @@ inline bool sameMemory(const Tensor& a, const Tensor& b) {
          a.bytes() == b.bytes();
 }
 
+// Elementwise kernels (unary, binary, copy2d, ...): workgroups of 256 invocations, or the
+// device's limit when it is lower (128 is all Vulkan guarantees), each invocation handling one
+// vec4 of 4 consecutive values (llvmpipe loads a vec4 for about the cost of a float).
+inline int elementLocalX(const DeviceCaps& caps) {
+  return static_cast<int>(std::clamp<uint32_t>(caps.maxWorkGroupInvocations / 8 * 8, 8, 256));
+}
+inline uint64_t elementsPerGroup(const DeviceCaps& caps) { return 4 * uint64_t(elementLocalX(caps)); }
+
 // Workgroup shape for shaders/line_reduce.glsl. split: the lanes along x share one line;
 // otherwise every invocation owns a line.
 struct LineGroup {
@@ -102,12 +110,9 @@ inline LineGroup lineGroupFor(Engine& engine, int64_t lineLength, bool contiguou
   while (lanes < 64 && lanes < lineLength) lanes *= 2;
   // With subgroup reductions a workgroup is one line (see line_reduce.glsl, SUBGROUP).
   if (subgroups) return {true, lanes, 1, true};
-  return {true, lanes, std::max(1, 256 / lanes)};
+  return {true, lanes, std::max(1, std::min(256, elementLocalX(caps)) / lanes)};
 }
 
-// Elementwise kernels (unary, binary, copy2d): workgroups of 256 invocations, each handling
-// one vec4 of 4 consecutive values (llvmpipe loads a vec4 for about the cost of a float).
-constexpr int kElementLocalX = 256;
-constexpr uint64_t kElementsPerGroup = 4 * kElementLocalX;
+
 
 }  // namespace spar::ops

@@ -38,8 +38,8 @@ void embedding(Recorder& rec, const Tensor& table, const Tensor& ids, const Tens
   if (rowsPerBinding < 1) throw Error(op + ": one table row exceeds a texel binding");
 
   const Kernel& kernel =
-      engine.kernel({"embedding", {Bind::Texel, Bind::Read, Bind::Write}, sizeof(EmbeddingPush), {ops::kElementLocalX, 1, 1}});
-  const ops::Grid grid = ops::linearGrid(caps, ops::ceilDiv(uint64_t(T * D), ops::kElementLocalX), op);
+      engine.kernel({"embedding", {Bind::Texel, Bind::Read, Bind::Write}, sizeof(EmbeddingPush), {ops::elementLocalX(engine.caps()), 1, 1}});
+  const ops::Grid grid = ops::linearGrid(caps, ops::ceilDiv(uint64_t(T * D), ops::elementLocalX(engine.caps())), op);
   for (int64_t r0 = 0; r0 < V; r0 += rowsPerBinding) {
     const int64_t n = std::min(rowsPerBinding, V - r0);
     const uint64_t beginByte = table.byteOffset() + uint64_t(r0 * D) * es;

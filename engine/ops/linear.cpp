@@ -1,6 +1,7 @@
 #include "engine/ops/linear.h"
 
 #include <algorithm>
+#include <numeric>
 #include <cstdlib>
 #include <cstdio>
 
@@ -138,25 +139,44 @@ void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
     return;
   }
 
-  // Split rows so that no binding exceeds the device's storage range or texel count.
-  // Chunks are multiples of 256 rows, which keeps every view offset aligned.
-  const uint64_t ySize = dtypeSize(y.dtype()), xSize = dtypeSize(x.dtype());
+  // Split so that no binding exceeds the device's storage range or texel count: rows of x and
+  // y (M) in chunks, and where the weight is longer than one texel binding (65536 texels on
+  // the smallest devices) its rows (N) too, each chunk writing its block of y's columns.
+  // Chunk starts are multiples of steps that keep every binding's offset where the device
+  // can bind it (the tensors themselves start aligned).
+  const uint64_t ySize = dtypeSize(y.dtype()), xSize = dtypeSize(x.dtype()), wSize = dtypeSize(w.dtype());
+  const uint64_t tAlign = std::max<uint64_t>(1, caps.minTexelBufferOffsetAlignment);
+  const uint64_t sAlign = std::max<uint64_t>(1, caps.minStorageBufferOffsetAlignment);
+  auto stepFor = [](uint64_t bytesPerUnit, uint64_t align) { return align / std::gcd(bytesPerUnit, align); };
+  const uint64_t stepM = std::lcm(stepFor(uint64_t(K) * xSize, tAlign), stepFor(uint64_t(N) * ySize, sAlign));
+  const uint64_t stepN = std::lcm(std::lcm(stepFor(ySize, sAlign), stepFor(uint64_t(K) * wSize, tAlign)), stepFor(4, tAlign));
+  int64_t chunkN = N;
+  if (uint64_t(N) * uint64_t(kTexels) > caps.maxTexelBufferElements) {
+    chunkN = static_cast<int64_t>(caps.maxTexelBufferElements / uint64_t(kTexels) / stepN * stepN);
+    if (chunkN <= 0) throw Error("linear: one row of weight " + w.describe() + " exceeds the device's texel-buffer size");
+  }
   const uint64_t rowsByY = engine.device().bindingRangeLimit() / (uint64_t(N) * ySize);
   const uint64_t rowsByX = caps.maxTexelBufferElements / uint64_t(kTexels);
-  if (uint64_t(N) * uint64_t(kTexels) > caps.maxTexelBufferElements)
-    throw Error("linear: weight " + w.describe() + " exceeds the device's texel-buffer size");
   int64_t chunk = static_cast<int64_t>(std::min<uint64_t>(rowsByY, rowsByX));
-  if (chunk < M) chunk = chunk / 256 * 256;
+  if (chunk < M) chunk = static_cast<int64_t>(uint64_t(chunk) / stepM * stepM);
   if (chunk <= 0) throw Error("linear: one row of " + y.describe() + " exceeds the device's binding limits");
-  (void)xSize;
-  const Tensor x2 = x.reshape({M, K}), y2 = y.reshape({M, N});
+  const Tensor x2 = x.reshape({M, K}), y2 = y.reshape({M, N}), b1 = bias.defined() ? bias.reshape({N}) : Tensor();
   for (int64_t m0 = 0; m0 < M; m0 += chunk) {
     const int64_t rows = std::min(chunk, M - m0);
-    GemmPush push{int32_t(rows), int32_t(N), int32_t(kTexels), int32_t(kTexels), int32_t(kTexels), int32_t(N), 0, 0, 0};
-    rec.dispatch(kernel,
-                 {Arg::texel(x2.view(m0 * K, {rows, K}), texelK), Arg::texel(w, texelK), Arg::texel(biasArg, 1),
-                  Arg::out(y2.view(m0 * N, {rows, N}))},
-                 push, ops::ceilDiv(rows, launch.rowsPerGroup), ops::ceilDiv(N, launch.colsPerGroup), 1);
+    for (int64_t n0 = 0; n0 < N; n0 += chunkN) {
+      const int64_t cols = std::min(chunkN, N - n0);
+      GemmPush push{int32_t(rows), int32_t(cols), int32_t(kTexels), int32_t(kTexels), int32_t(kTexels), int32_t(N), 0, 0, 0};
+      const Tensor wPart = cols == N ? w : w.reshape({N, K}).view(n0 * K, {cols, K});
+      // Without a bias the binding is a placeholder never read: the weight, or one element of
+      // it where the weight as R texels would be longer than a texel binding.
+      const Tensor bPart = bias.defined() ? (cols == N ? biasArg : b1.view(n0, {cols}))
+                           : uint64_t(wPart.numel()) <= caps.maxTexelBufferElements ? wPart
+                                                                                    : wPart.reshape({wPart.numel()}).view(0, {1});
+      rec.dispatch(kernel,
+                   {Arg::texel(x2.view(m0 * K, {rows, K}), texelK), Arg::texel(wPart, texelK), Arg::texel(bPart, 1),
+                    Arg::out(y2.view(m0 * N + n0, {(rows - 1) * N + cols}))},
+                   push, ops::ceilDiv(rows, launch.rowsPerGroup), ops::ceilDiv(cols, launch.colsPerGroup), 1);
+    }
   }
 }
 

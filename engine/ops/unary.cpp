@@ -46,11 +46,11 @@ void unary(Recorder& rec, UnaryOp op, const Tensor& x, const Tensor& y, float al
       engine.kernel({variantName(op, inPlace),
                      inPlace ? std::vector<Bind>{Bind::ReadWrite} : std::vector<Bind>{Bind::Read, Bind::Write},
                      sizeof(UnaryPush),
-                     {ops::kElementLocalX, 1, 1}});
+                     {ops::elementLocalX(engine.caps()), 1, 1}});
   const Tensor x1 = x.reshape({n}), y1 = y.reshape({n});
   for (auto [i0, count] : ops::rowChunks(engine, n, {4}, name, 4)) {
     const Tensor xc = x1.view(i0, {count}), yc = y1.view(i0, {count});
-    const ops::Grid grid = ops::linearGrid(engine.caps(), ops::ceilDiv(count, ops::kElementsPerGroup), name);
+    const ops::Grid grid = ops::linearGrid(engine.caps(), ops::ceilDiv(count, ops::elementsPerGroup(engine.caps())), name);
     rec.dispatch(kernel, inPlace ? std::vector<Arg>{Arg::inout(xc)} : std::vector<Arg>{Arg::in(xc), Arg::out(yc)},
                  UnaryPush{uint32_t(count), alpha, beta}, grid.x, grid.y, 1, variantName(op, inPlace));
   }

@@ -6,6 +6,7 @@
 #include <optional>
 #include <string>
 
+#include "spar/device_limits.h"
 #include "spar/export.h"
 
 namespace spar {
@@ -66,6 +67,9 @@ struct SPAR_API EngineOptions {
   // a request that needs more is refused (before work where its need is known up front, else as
   // an out-of-memory error), as on a device with that much memory.
   unsigned long long memoryLimitBytes = 0;
+  // Act as if the device had at most these limits and features (a named profile such as
+  // "vulkan-1.2-min", or a JSON file's: include/spar/device_limits.h). Empty: the device's own.
+  DeviceLimits limits;
   FaultInjection faults;
 
   // `base` with what the environment sets: SPAR_DEVICE, SPAR_VALIDATION=1, SPAR_LOG_PIPELINES=1,
@@ -74,7 +78,7 @@ struct SPAR_API EngineOptions {
   // SPAR_KERNELS=cpu|gpu|gpu-fp16|coopmat, SPAR_GPU_GEMM_TILES=BM,BN,BK,TM,TN,
   // SPAR_GPU_ATTENTION_TILES=QUERIES,KEYS, SPAR_COOPMAT_TILES=WM,WN,SGM,SGN,KSTEPS,
   // SPAR_MEASURE_KERNELS=0|1,
-  // SPAR_SUBMIT_TIMEOUT_MS, SPAR_MEMORY_LIMIT_MB, SPAR_FAULT_ALLOCATION=N, SPAR_FAULT_SUBMISSION=N. A field
+  // SPAR_SUBMIT_TIMEOUT_MS, SPAR_MEMORY_LIMIT_MB, SPAR_DEVICE_LIMITS=PROFILE|FILE.json, SPAR_FAULT_ALLOCATION=N, SPAR_FAULT_SUBMISSION=N. A field
   // already set in `base` (device non-empty) wins over the environment. Throws Error for a
   // malformed value, naming the variable.
   static EngineOptions fromEnvironment(EngineOptions base);

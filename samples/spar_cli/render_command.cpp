@@ -234,7 +234,8 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
       throw Error("this request needs at least " + mib(need.total()) + " of device memory (weights " +
                   mib(need.weightBytes) + ", activations " + mib(need.activationBytes) + " for " + viewsText(v.views) +
                   " at " + std::to_string(h) + "x" + std::to_string(w) + "), more than the " + mib(budget) +
-                  " available: fewer views, a smaller --size or --precision fp16");
+                  " available (" + engine.memory().budgetSource() +
+                  "): fewer views, a smaller --size or --precision fp16");
     }
     SparPipeline pipeline(engine, *v.model, po);
     SparRequest req;
