@@ -35,6 +35,16 @@ Engine::Engine(const EngineOptions& options)
   plan_ = planKernels(device_->caps(), options_.tuning);
 }
 
+const Kernel& Engine::kernel(const KernelSpec& spec) {
+  if (!plan_.storageInputs || std::find(spec.bindings.begin(), spec.bindings.end(), Bind::Texel) == spec.bindings.end())
+    return pipelines_->get(spec);
+  KernelSpec twin = spec;
+  twin.shader += "_sx";
+  for (Bind& b : twin.bindings)
+    if (b == Bind::Texel) b = Bind::Read;
+  return pipelines_->get(twin);
+}
+
 void Engine::setTuning(const KernelTuning& tuning) {
   tuning.validate();
   KernelPlan plan = planKernels(device_->caps(), tuning);

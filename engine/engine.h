@@ -38,7 +38,9 @@ class Engine {
   const DeviceCaps& caps() const { return device_->caps(); }
   MemoryAllocator& memory() { return *memory_; }
   PipelineCache& pipelines() { return *pipelines_; }
-  const Kernel& kernel(const KernelSpec& spec) { return pipelines_->get(spec); }
+  // The kernel for a spec; on a device whose texel buffers are too short (plan().storageInputs)
+  // the storage-input twin of a kernel with texel bindings (shaders/common.glsl, TEXEL_INPUT).
+  const Kernel& kernel(const KernelSpec& spec);
 
   // A new tensor with its own buffer; contents undefined.
   Tensor tensor(const Shape& shape, DType dtype = DType::F32);

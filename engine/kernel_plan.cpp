@@ -58,6 +58,11 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
   const std::string& forced = tuning.kernels;
   const bool gpu = forced.empty() ? !caps.isCpu() : forced != "cpu";
   plan.source = forced.empty() ? "device properties" : "SPAR_KERNELS=" + forced;
+  plan.storageInputs = caps.maxTexelBufferElements * 4 < caps.maxStorageBufferRange;
+  if (plan.storageInputs)
+    plan.reasons.push_back("inputs through storage buffers (*_sx kernels): a texel buffer holds " +
+                           std::to_string(caps.maxTexelBufferElements) + " texels, less than a storage binding's " +
+                           std::to_string(caps.maxStorageBufferRange >> 20) + " MiB");
   if (!gpu) {
     plan.reasons.push_back(forced.empty()
                                ? "CPU device: register blocks through texel buffers, no shared memory (on llvmpipe shared "
@@ -93,8 +98,15 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
                            " below 256 workgroups)" +
                            (plan.measureTiles ? ", to be measured against other candidates at first use" : ""));
   }
-  if (plan.gemmTiles.invocations() > int(caps.maxWorkGroupInvocations))
-    throw Error("GPU GEMM tiles " + plan.gemmTiles.text() + " need more invocations than the device allows");
+  if (plan.gemmTiles.invocations() > int(caps.maxWorkGroupInvocations)) {
+    if (tuning.gpuGemmTiles)
+      throw Error("GPU GEMM tiles " + plan.gemmTiles.text() + " need more invocations than the device allows");
+    // Fewer invocations (128 is all Vulkan guarantees): halve the tile's columns, then rows.
+    for (TiledGemmTiles* t : {&plan.gemmTiles, &plan.gemmSmallTiles})
+      while (t->invocations() > int(caps.maxWorkGroupInvocations) && t->bn > t->tn) (t->bn >= t->bm ? t->bn : t->bm) /= 2;
+    plan.reasons.push_back("GEMM tiles within " + std::to_string(caps.maxWorkGroupInvocations) + " invocations: " +
+                           plan.gemmTiles.text() + " (" + plan.gemmSmallTiles.text() + ")");
+  }
   if (tuning.gpuAttentionTiles) {
     plan.attentionQueries = (*tuning.gpuAttentionTiles)[0];
     plan.attentionKeys = (*tuning.gpuAttentionTiles)[1];

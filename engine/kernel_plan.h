@@ -58,6 +58,10 @@ struct KernelPlan {
   KernelFamily conv = KernelFamily::CpuBlocks;     // conv2d (Tiled: an implicit GEMM)
   bool cpuShapes = true;            // workgroup shapes of the other ops: a CPU's SIMD lanes or a GPU's
   bool subgroupReductions = false;  // norms and softmax combine partial results with subgroup ops
+  // Inputs read through storage buffers instead of texel buffers (the *_sx kernels): where a
+  // texel binding holds fewer floats than a storage binding (Vulkan's minimum is 65536 texels
+  // against 128 MiB), so splitting by the storage range is all the ops need.
+  bool storageInputs = false;
   TiledGemmTiles gemmTiles;                          // products that fill the device
   TiledGemmTiles gemmSmallTiles{32, 32, 16, 2, 2};   // products with few output tiles
   CoopMatTiles coop;

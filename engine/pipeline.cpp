@@ -103,6 +103,7 @@ const Kernel& PipelineCache::get(const KernelSpec& spec) {
   kernel->spec = spec;
   kernel->bindings = spec.bindings;
   kernel->pushBytes = spec.pushBytes;
+  kernel->storageInputs = spec.shader.size() > 3 && spec.shader.compare(spec.shader.size() - 3, 3, "_sx") == 0;
   for (int i = 0; i < 3; ++i) kernel->localSize[i] = static_cast<uint32_t>(spec.constants[i]);
   if (kernel->localSize[0] * kernel->localSize[1] * kernel->localSize[2] > device_.caps().maxWorkGroupInvocations)
     throw Error("kernel " + spec.shader + ": workgroup larger than the device allows");

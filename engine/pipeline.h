@@ -49,6 +49,9 @@ struct Kernel {
   std::vector<Bind> bindings;
   uint32_t pushBytes = 0;
   uint32_t localSize[3] = {1, 1, 1};
+  // The storage-input twin of a texel kernel (shader "<variant>_sx"): what ops pass as texel
+  // arguments is bound as storage buffers (Engine::kernel chooses it; engine/kernel_plan.h).
+  bool storageInputs = false;
   VkDescriptorSetLayout setLayout = VK_NULL_HANDLE;
   VkPipelineLayout layout = VK_NULL_HANDLE;
 };

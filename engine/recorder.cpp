@@ -170,7 +170,15 @@ void Recorder::dispatch(const Kernel& kernel, const std::vector<Arg>& args, cons
   std::vector<VkWriteDescriptorSet> writes(args.size());
   std::vector<VkBufferView> newViews(args.size(), VK_NULL_HANDLE);
   for (size_t i = 0; i < args.size(); ++i) {
-    const Arg& a = args[i];
+    // A texel input of a kernel's storage-input twin (*_sx, engine/kernel_plan.h storageInputs)
+    // is bound as a storage buffer of floats.
+    Arg a = args[i];
+    if (a.kind == Bind::Texel && kernel.storageInputs && kernel.bindings[i] == Bind::Read) {
+      if (a.tensor.dtype() != DType::F32)
+        throw Error(name + ": input " + a.tensor.describe() + " is not fp32; this device's texel buffers are too short " +
+                    "for the engine's inputs and its storage-buffer inputs read fp32 only");
+      a.kind = Bind::Read;
+    }
     if (!a.tensor.defined()) throw Error(name + ": binding " + std::to_string(i) + " has no tensor");
     if (a.kind != kernel.bindings[i]) throw Error(name + ": binding " + std::to_string(i) + " has the wrong kind");
     const VkDeviceSize offset = a.tensor.byteOffset();

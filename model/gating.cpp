@@ -31,11 +31,18 @@ TokenGating::TokenGating(Engine& engine, WeightSet& weights, const SparConfig& c
   }
 }
 
-const Tensor& TokenGating::code(int64_t gh, int64_t gw) {
+// The 2D sin-cos code of a token grid, [gh * gw + 1, d], its last row the mask token (copied
+// there on the device by `rec` when made): one binding for both keeps token_gate within the
+// four storage buffers every device has.
+const Tensor& TokenGating::codeAndMask(Recorder& rec, int64_t gh, int64_t gw) {
   auto it = codes_.find({gh, gw});
-  if (it == codes_.end())
-    it = codes_.emplace(std::make_pair(gh, gw), engine_.fromFloats({gh * gw, config_.d}, gatingCode(config_.d, gh, gw)))
-             .first;
+  if (it == codes_.end()) {
+    const int64_t d = config_.d, n = gh * gw;
+    std::vector<float> values = gatingCode(d, gh, gw);
+    values.resize(size_t((n + 1) * d), 0.0f);
+    it = codes_.emplace(std::make_pair(gh, gw), engine_.fromFloats({n + 1, d}, values)).first;
+    copy2d(rec, mask_, d, 0, it->second.view(n * d, {d}), d, 0, 1, d);
+  }
   return it->second;
 }
 
@@ -76,15 +83,15 @@ void TokenGating::gate(Recorder& rec, const Tensor& fused, const Tensor& prob, c
   const bool soft = config_.inputMaskingMode == "soft_with_pe";
   registerModelShaders();  // model/shaders/token_gate.comp
   const Kernel& kernel = engine_.kernel({"token_gate",
-                                         {Bind::Read, Bind::Read, Bind::Read, Bind::Read, Bind::Write},
+                                         {Bind::Read, Bind::Read, Bind::Read, Bind::Write},
                                          sizeof(GatePush),
                                          {ops::elementLocalX(engine_.caps()), 1, 1}});
   const GatePush push{uint32_t(tokens), uint32_t(d), uint32_t(n), soft ? 0u : 1u};
   const ops::Grid grid =
       ops::linearGrid(engine_.caps(), ops::ceilDiv(uint64_t(tokens * d), uint64_t(ops::elementLocalX(engine_.caps()))), op);
-  // zero_out binds the token tensor in place of the unused mask and code.
-  const Tensor mask = soft ? mask_ : fused, codes = soft ? code(gh, gw) : fused;
-  rec.dispatch(kernel, {Arg::in(fused), Arg::in(dynPatch), Arg::in(mask), Arg::in(codes), Arg::out(gated)}, push,
+  // zero_out binds the token tensor in place of the unused code and mask.
+  const Tensor codes = soft ? codeAndMask(rec, gh, gw) : fused;
+  rec.dispatch(kernel, {Arg::in(fused), Arg::in(dynPatch), Arg::in(codes), Arg::out(gated)}, push,
                grid.x, grid.y, 1, op);
 }
 

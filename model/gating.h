@@ -35,9 +35,9 @@ class TokenGating {
  private:
   Engine& engine_;
   const SparConfig& config_;
-  const Tensor& code(int64_t gh, int64_t gw);
+  const Tensor& codeAndMask(Recorder& rec, int64_t gh, int64_t gw);
   Tensor lnW_, w1_, b1_, w2_, b2_, viewType0_, mask_;
-  std::map<std::pair<int64_t, int64_t>, Tensor> codes_;  // 2D sin-cos code per token grid
+  std::map<std::pair<int64_t, int64_t>, Tensor> codes_;  // 2D sin-cos code and mask token per token grid
   Tensor concat_, hidden_;  // scratch [K*n, 2D] and [K*n, D], kept for the next call of that size
 };
 

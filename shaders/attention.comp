@@ -19,9 +19,9 @@ layout(constant_id = 4) const int QPI = 8;   // queries per invocation
 layout(constant_id = 5) const int KB = 16;   // keys per block (multiple of 4)
 layout(constant_id = 6) const bool CAUSAL = false;
 
-layout(binding = 0) uniform samplerBuffer Q;
-layout(binding = 1) uniform samplerBuffer K;
-layout(binding = 2) uniform samplerBuffer V;
+TEXEL_INPUT(0, Q, 4)
+TEXEL_INPUT(1, K, 4)
+TEXEL_INPUT(2, V, 4)
 layout(binding = 3) writeonly buffer O { OUT_T o[]; };
 
 layout(push_constant) uniform Push {
@@ -57,9 +57,9 @@ void main() {
     [[unroll]] for (int i = 0; i < QPI * KB; ++i) s[i] = 0.0;
     for (int d4 = 0; d4 < DH / 4; ++d4) {
       vec4 qv[QPI];
-      [[unroll]] for (int i = 0; i < QPI; ++i) qv[i] = texelFetch(Q, qTexel[i] + d4);
+      [[unroll]] for (int i = 0; i < QPI; ++i) qv[i] = fetch_Q(qTexel[i] + d4);
       [[unroll]] for (int j = 0; j < KB; ++j) {
-        vec4 kv = texelFetch(K, kBase + min(kb + j, p.Nk - 1) * kRow + d4);
+        vec4 kv = fetch_K(kBase + min(kb + j, p.Nk - 1) * kRow + d4);
         [[unroll]] for (int i = 0; i < QPI; ++i)
           s[i * KB + j] = fma(qv[i].w, kv.w, fma(qv[i].z, kv.z, fma(qv[i].y, kv.y, fma(qv[i].x, kv.x, s[i * KB + j]))));
       }
@@ -96,8 +96,8 @@ void main() {
       int vTexel[4];
       [[unroll]] for (int u = 0; u < 4; ++u) vTexel[u] = vBase + min(kb + j0 + u, p.Nk - 1) * vRow;
       [[unroll]] for (int d4 = 0; d4 < DH / 4; ++d4) {
-        const vec4 v0 = texelFetch(V, vTexel[0] + d4), v1 = texelFetch(V, vTexel[1] + d4);
-        const vec4 v2 = texelFetch(V, vTexel[2] + d4), v3 = texelFetch(V, vTexel[3] + d4);
+        const vec4 v0 = fetch_V(vTexel[0] + d4), v1 = fetch_V(vTexel[1] + d4);
+        const vec4 v2 = fetch_V(vTexel[2] + d4), v3 = fetch_V(vTexel[3] + d4);
         [[unroll]] for (int i = 0; i < QPI; ++i)
           [[unroll]] for (int c = 0; c < 4; ++c) {
             const int a = i * DH + d4 * 4 + c;

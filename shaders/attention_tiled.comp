@@ -20,9 +20,9 @@ layout(constant_id = 3) const int DH = 64;      // head dimension (multiple of 4
 layout(constant_id = 4) const int BKEYS = 32;   // keys per shared-memory block (a multiple of 4)
 layout(constant_id = 5) const bool CAUSAL = false;
 
-layout(binding = 0) uniform samplerBuffer Q;
-layout(binding = 1) uniform samplerBuffer K;
-layout(binding = 2) uniform samplerBuffer V;
+TEXEL_INPUT(0, Q, 4)
+TEXEL_INPUT(1, K, 4)
+TEXEL_INPUT(2, V, 4)
 layout(binding = 3) writeonly buffer O { OUT_T o[]; };
 
 layout(push_constant) uniform Push {
@@ -50,7 +50,7 @@ void main() {
   vec4 qv[D4], acc[D4];
   const int qTexel = (b * p.qBatch + min(q, p.Nq - 1) * p.qStride + p.qOff + head * DH) / 4;
   [[unroll]] for (int d = 0; d < D4; ++d) {
-    qv[d] = texelFetch(Q, qTexel + d);
+    qv[d] = fetch_Q(qTexel + d);
     acc[d] = vec4(0.0);
   }
   const int kBase = (b * p.kBatch + p.kOff + head * DH) / 4, kRow = p.kStride / 4;
@@ -63,8 +63,8 @@ void main() {
     for (int i = int(gl_LocalInvocationID.x); i < BKEYS * D4; i += BQ) {
       const int key = kb + i / D4, d = i % D4;
       const bool inside = key < p.Nk;
-      blockK[i] = inside ? texelFetch(K, kBase + key * kRow + d) : vec4(0.0);
-      blockV[i] = inside ? texelFetch(V, vBase + key * vRow + d) : vec4(0.0);
+      blockK[i] = inside ? fetch_K(kBase + key * kRow + d) : vec4(0.0);
+      blockV[i] = inside ? fetch_V(vBase + key * vRow + d) : vec4(0.0);
     }
     barrier();
     // The block in chunks of KC keys: scores in registers, then one online-softmax step per

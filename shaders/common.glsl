@@ -17,6 +17,24 @@
 #define TO_OUT(v) (v)
 #endif
 
+// Inputs read as texels: fetch_NAME(i) is the vec4 texelFetch gives of texel i, COMPONENTS
+// (1 or 4) floats of an R or RGBA texel. The *_sx twin of every variant of a shader that
+// declares its inputs so (STORAGE_INPUTS=1, made by cmake/EmbedShaders.cmake) reads the same
+// floats from a storage buffer instead, for devices whose texel buffers are too short
+// (65536 texels is all Vulkan guarantees; engine/kernel_plan.h, storageInputs). fp32 only.
+#if defined(STORAGE_INPUTS) && STORAGE_INPUTS
+#define TEXEL_INPUT(BINDING, NAME, COMPONENTS)                                                  \
+  layout(binding = BINDING) readonly buffer NAME##_floats { float NAME##_v[]; };                \
+  vec4 fetch_##NAME(int i) {                                                                    \
+    if ((COMPONENTS) == 4) return vec4(NAME##_v[4 * i], NAME##_v[4 * i + 1], NAME##_v[4 * i + 2], NAME##_v[4 * i + 3]); \
+    return vec4(NAME##_v[i], 0.0, 0.0, 1.0);                                                    \
+  }
+#else
+#define TEXEL_INPUT(BINDING, NAME, COMPONENTS)    \
+  layout(binding = BINDING) uniform samplerBuffer NAME; \
+  vec4 fetch_##NAME(int i) { return texelFetch(NAME, i); }
+#endif
+
 #define ACT_NONE 0
 #define ACT_GELU 1        // exact erf GELU (PyTorch nn.GELU())
 #define ACT_QUICK_GELU 2  // x * sigmoid(1.702 x) (CLIP)

@@ -40,9 +40,9 @@ layout(constant_id = 14) const int SHIFT = 0;
 // tiles, which GPUs want for cache locality).
 layout(constant_id = 15) const bool FLAT = false;
 
-layout(binding = 0) uniform samplerBuffer X;     // TEXEL_X texels
-layout(binding = 1) uniform samplerBuffer W;     // TEXEL_W texels
-layout(binding = 2) uniform samplerBuffer BIAS;  // R texels; bound to w when HAS_BIAS is false
+TEXEL_INPUT(0, X, TEXEL_X)     // TEXEL_X texels
+TEXEL_INPUT(1, W, TEXEL_W)     // TEXEL_W texels
+TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
 // OUT4: y is written as whole vec4s, RX/4 per output row of the block (the host guarantees
 // RX, Wo and outBase multiples of 4). llvmpipe scatters a store whose address is not
 // uniform lane by lane, so one vec4 store costs about what one float store does: with few
@@ -123,7 +123,7 @@ void main() {
         if (TEXEL_X == 4) {
           const int rowTexel = (xOff + rowOff[r]) / 4;
           [[unroll]] for (int t = 0; t < TT; ++t) {
-            const vec4 v = texelFetch(X, rowTexel + texOff[t]);
+            const vec4 v = fetch_X(rowTexel + texOff[t]);
             [[unroll]] for (int j = 0; j < 4; ++j) {
               const int c = 4 * t + j - SHIFT;
               if (c >= 0 && c < TC) tile[(g * TR + r) * TC + c] = rowIn[r] && texIn[t] ? v[j] : 0.0;
@@ -132,7 +132,7 @@ void main() {
         } else {
           [[unroll]] for (int c = 0; c < TC; ++c) {
             if (c % STRIDE >= KW) continue;
-            const float v = texelFetch(X, xOff + rowOff[r] + colOff[c]).x;
+            const float v = fetch_X(xOff + rowOff[r] + colOff[c]).x;
             tile[(g * TR + r) * TC + c] = rowIn[r] && colIn[c] ? v : 0.0;
           }
         }
@@ -144,14 +144,14 @@ void main() {
       if (TEXEL_W == 4) {
         const int t0 = (wOff[c] + ci0 * KK) / 4;
         [[unroll]] for (int t = 0; t < G * KK / 4; ++t) {
-          const vec4 q = texelFetch(W, t0 + t);
+          const vec4 q = fetch_W(t0 + t);
           wv[4 * t] = q.x;
           wv[4 * t + 1] = q.y;
           wv[4 * t + 2] = q.z;
           wv[4 * t + 3] = q.w;
         }
       } else {
-        [[unroll]] for (int t = 0; t < G * KK; ++t) wv[t] = texelFetch(W, wOff[c] + ci0 * KK + t).x;
+        [[unroll]] for (int t = 0; t < G * KK; ++t) wv[t] = fetch_W(wOff[c] + ci0 * KK + t).x;
       }
       [[unroll]] for (int g = 0; g < G; ++g)
         [[unroll]] for (int ky = 0; ky < KH; ++ky)
@@ -169,7 +169,7 @@ void main() {
   [[unroll]] for (int c = 0; c < RC; ++c) {
     const int co = co0 + c;
     if (co >= p.Cout) break;
-    const float b = HAS_BIAS ? texelFetch(BIAS, co - p.biasBase).x : 0.0;
+    const float b = HAS_BIAS ? fetch_BIAS(co - p.biasBase).x : 0.0;
     [[unroll]] for (int py = 0; py < RY; ++py) {
       const int oy = oy0 + py;
       if (oy >= p.Ho) break;

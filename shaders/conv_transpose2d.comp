@@ -28,9 +28,9 @@ layout(constant_id = 10) const bool HAS_BIAS = false;
 // conv2d.comp), so small inputs (16x16: 4 column blocks) still fill a CPU's SIMD lanes.
 layout(constant_id = 11) const bool FLAT = false;
 
-layout(binding = 0) uniform samplerBuffer X;
-layout(binding = 1) uniform samplerBuffer W;
-layout(binding = 2) uniform samplerBuffer BIAS;  // R texels; bound to w when HAS_BIAS is false
+TEXEL_INPUT(0, X, TEXEL_X)
+TEXEL_INPUT(1, W, TEXEL_W)
+TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
 // OUT4: y is written as whole vec4s (the host guarantees RX*S, Wo and outBase multiples of 4):
 // as in conv2d.comp, llvmpipe scatters each store lane by lane, and with few input channels
 // the stores dominate.
@@ -84,21 +84,21 @@ void main() {
     if (TEXEL_X == 4) {
       [[unroll]] for (int r = 0; r < RY; ++r)
         [[unroll]] for (int t = 0; t < RX / 4; ++t) {
-          const vec4 q = texelFetch(X, (xBase + xOff[r * RX + 4 * t]) / 4);
+          const vec4 q = fetch_X((xBase + xOff[r * RX + 4 * t]) / 4);
           [[unroll]] for (int j = 0; j < 4; ++j) v[r * RX + 4 * t + j] = q[j];
         }
     } else {
-      [[unroll]] for (int i = 0; i < RY * RX; ++i) v[i] = texelFetch(X, xBase + xOff[i]).x;
+      [[unroll]] for (int i = 0; i < RY * RX; ++i) v[i] = fetch_X(xBase + xOff[i]).x;
     }
     [[unroll]] for (int c = 0; c < RC; ++c) {
       float wv[SS];
       if (TEXEL_W == 4) {
         [[unroll]] for (int t = 0; t < SS / 4; ++t) {
-          const vec4 q = texelFetch(W, (wBase + wOff[c]) / 4 + t);
+          const vec4 q = fetch_W((wBase + wOff[c]) / 4 + t);
           [[unroll]] for (int j = 0; j < 4; ++j) wv[4 * t + j] = q[j];
         }
       } else {
-        [[unroll]] for (int t = 0; t < SS; ++t) wv[t] = texelFetch(W, wBase + wOff[c] + t).x;
+        [[unroll]] for (int t = 0; t < SS; ++t) wv[t] = fetch_W(wBase + wOff[c] + t).x;
       }
       // acc index: channel, input row, kernel row, input column, kernel column, so that
       // each output row of the block is contiguous.
@@ -117,7 +117,7 @@ void main() {
   [[unroll]] for (int c = 0; c < RC; ++c) {
     const int co = co0 + c;
     if (co >= p.Cout) break;
-    const float b = HAS_BIAS ? texelFetch(BIAS, co - p.biasBase).x : 0.0;
+    const float b = HAS_BIAS ? fetch_BIAS(co - p.biasBase).x : 0.0;
     [[unroll]] for (int row = 0; row < RY * S; ++row) {
       const int oy = iy0 * S + row;
       if (oy >= Ho) break;

@@ -12,7 +12,7 @@
 
 layout(local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in;
 
-layout(binding = 0) uniform samplerBuffer table;
+TEXEL_INPUT(0, table, 1)
 layout(binding = 1) readonly buffer Ids { int ids[]; };
 layout(binding = 2) writeonly buffer Out { float outv[]; };
 
@@ -30,7 +30,7 @@ void main() {
   const int t = int(i / uint(p.dim)), d = int(i % uint(p.dim));
   const int id = ids[t];
   if (id >= p.rowBegin && id < p.rowBegin + p.rowCount) {
-    outv[i] = texelFetch(table, p.tableBase + (id - p.rowBegin) * p.dim + d).x;
+    outv[i] = fetch_table(p.tableBase + (id - p.rowBegin) * p.dim + d).x;
   } else if (p.zeroInvalid != 0 && (id < 0 || id >= p.vocab)) {
     outv[i] = 0.0;
   }

@@ -21,9 +21,9 @@ layout(constant_id = 6) const int ACT = ACT_NONE;  // fused epilogue activation
 layout(constant_id = 7) const bool HAS_BIAS = false;
 layout(constant_id = 8) const int KU = 2;          // k texels per loop iteration
 
-layout(binding = 0) uniform samplerBuffer X;
-layout(binding = 1) uniform samplerBuffer W;
-layout(binding = 2) uniform samplerBuffer BIAS;  // R texels; bound to w when HAS_BIAS is false
+TEXEL_INPUT(0, X, TEXEL_K)
+TEXEL_INPUT(1, W, TEXEL_K)
+TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
 layout(binding = 3) writeonly buffer Y { OUT_T y[]; };
 
 layout(push_constant) uniform Push {
@@ -52,9 +52,9 @@ void main() {
 #define GEMM_STEP(kk)                                                          \
   {                                                                            \
     vec4 a[RM];                                                                \
-    [[unroll]] for (int r = 0; r < RM; ++r) a[r] = texelFetch(X, xRow[r] + (kk)); \
+    [[unroll]] for (int r = 0; r < RM; ++r) a[r] = fetch_X(xRow[r] + (kk)); \
     [[unroll]] for (int c = 0; c < RN; ++c) {                                  \
-      vec4 w = texelFetch(W, wRow[c] + (kk));                                  \
+      vec4 w = fetch_W(wRow[c] + (kk));                                  \
       [[unroll]] for (int r = 0; r < RM; ++r) {                                \
         float s = acc[r * RN + c];                                             \
         [[unroll]] for (int j = 0; j < TEXEL_K; ++j) s = fma(a[r][j], w[j], s); \
@@ -75,7 +75,7 @@ void main() {
       const int n = n0 + c;
       if (n >= p.N) break;
       float v = acc[r * RN + c];
-      if (HAS_BIAS) v += texelFetch(BIAS, n).x;
+      if (HAS_BIAS) v += fetch_BIAS(n).x;
       y[b * p.yBatch + m * p.ldy + n] = TO_OUT(activate(v, ACT));
     }
   }

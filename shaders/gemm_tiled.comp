@@ -51,9 +51,9 @@ layout(constant_id = 11) const int KH = 1;        // CONV: kernel height, width,
 layout(constant_id = 12) const int KW = 1;
 layout(constant_id = 13) const int STRIDE = 1;
 
-layout(binding = 0) uniform samplerBuffer X;     // A (CONV: the image, R texels)
-layout(binding = 1) uniform samplerBuffer W;
-layout(binding = 2) uniform samplerBuffer BIAS;  // R texels; bound to w when HAS_BIAS is false
+TEXEL_INPUT(0, X, (CONV == 1 ? 1 : TEXEL_K))     // A (CONV: the image, R texels)
+TEXEL_INPUT(1, W, TEXEL_K)
+TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
 layout(binding = 3) writeonly buffer Y { OUT_T y[]; };
 
 #if CONV
@@ -107,7 +107,7 @@ float loadA(int img, int m, int k) {
   const int oy = m / p.Wo, ox = m - oy * p.Wo;
   const int iy = oy * STRIDE - p.padY + ky, ix = ox * STRIDE - p.padX + kx;
   if (iy < 0 || iy >= p.H || ix < 0 || ix >= p.W) return 0.0;
-  return texelFetch(X, p.inBase + (img * p.Cin + ci) * p.H * p.W + iy * p.W + ix).x;
+  return fetch_X(p.inBase + (img * p.Cin + ci) * p.H * p.W + iy * p.W + ix).x;
 #else
   return 0.0;  // not used: the linear path copies whole texels (copyTiles)
 #endif
@@ -132,7 +132,7 @@ void copyTiles(int img, int m0, int n0, int k0) {
     const int r = i / texelsPerRow, kt = i - r * texelsPerRow;
     const int m = m0 + r;
     vec4 v = vec4(0.0);
-    if (m < p.M && kt0 + kt < p.K) v = texelFetch(X, img * p.xBatch + m * p.ldx + kt0 + kt);
+    if (m < p.M && kt0 + kt < p.K) v = fetch_X(img * p.xBatch + m * p.ldx + kt0 + kt);
     [[unroll]] for (int c = 0; c < TEXEL_K; ++c) tileA[(kt * TEXEL_K + c) * AS + r] = TO_TILE(v[c]);
   }
 #endif
@@ -147,7 +147,7 @@ void copyTiles(int img, int m0, int n0, int k0) {
     const int r = i / wTexelsPerRow, kt = i - r * wTexelsPerRow;
     const int n = n0 + r;
     vec4 v = vec4(0.0);
-    if (n < colsN() && wk0 + kt < kTexels) v = texelFetch(W, wBase + wBatch + n * wLd + wk0 + kt);
+    if (n < colsN() && wk0 + kt < kTexels) v = fetch_W(wBase + wBatch + n * wLd + wk0 + kt);
     [[unroll]] for (int c = 0; c < TEXEL_K; ++c) tileW[(kt * TEXEL_K + c) * WS + r] = TO_TILE(v[c]);
   }
 }
@@ -209,10 +209,10 @@ void main() {
       if (n >= colsN()) break;
       float v = acc[i * TN + j];
 #if CONV
-      if (HAS_BIAS) v += texelFetch(BIAS, p.biasBase + n).x;
+      if (HAS_BIAS) v += fetch_BIAS(p.biasBase + n).x;
       y[p.outBase + (img * p.Cout + n) * rowsM() + m] = TO_OUT(activate(v, ACT));
 #else
-      if (HAS_BIAS) v += texelFetch(BIAS, n).x;
+      if (HAS_BIAS) v += fetch_BIAS(n).x;
       y[img * p.yBatch + m * p.ldy + n] = TO_OUT(activate(v, ACT));
 #endif
     }

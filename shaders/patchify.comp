@@ -15,7 +15,7 @@
 layout(local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in;
 layout(constant_id = 3) const int RX = 4;  // consecutive outputs per invocation
 
-layout(binding = 0) uniform samplerBuffer X;
+TEXEL_INPUT(0, X, 1)
 layout(binding = 1) writeonly buffer Y { float y[]; };
 
 layout(push_constant) uniform Push {
@@ -45,7 +45,7 @@ void main() {
   [[unroll]] for (int j = 0; j < RX; ++j) {
     const int f = i0 + j;
     if (f >= F) break;
-    y[outStart + f] = texelFetch(X, imageStart + (c * p.H + ph) * p.W + pw).x;
+    y[outStart + f] = fetch_X(imageStart + (c * p.H + ph) * p.W + pw).x;
     if (++c == p.C) {
       c = 0;
       if (++pw == p.P) { pw = 0; ++ph; }
@@ -63,7 +63,7 @@ void main() {
   [[unroll]] for (int j = 0; j < RX; ++j) {
     const int x = i0 + j;
     if (x >= p.W) break;
-    y[outStart + x] = texelFetch(X, rowStart + ww * F + pw * p.C).x;
+    y[outStart + x] = fetch_X(rowStart + ww * F + pw * p.C).x;
     if (++pw == p.P) { pw = 0; ++ww; }
   }
 #endif

@@ -13,7 +13,7 @@ layout(local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in;
 layout(constant_id = 3) const int RX = 4;  // consecutive output columns per invocation
 layout(constant_id = 4) const int RC = 4;  // channels per invocation
 
-layout(binding = 0) uniform samplerBuffer X;
+TEXEL_INPUT(0, X, 1)
 layout(binding = 1) writeonly buffer Y { float y[]; };
 
 layout(push_constant) uniform Push {
@@ -44,7 +44,7 @@ void main() {
     int row = ((n * p.C + ch) * p.H + oy * p.K) * p.W - p.inBase;
     for (int ky = 0; ky < p.K; ++ky, row += p.W)
       for (int kx = 0; kx < p.K; ++kx)
-        [[unroll]] for (int i = 0; i < RX; ++i) sum[i] += texelFetch(X, row + col[i] + kx).x;
+        [[unroll]] for (int i = 0; i < RX; ++i) sum[i] += fetch_X(row + col[i] + kx).x;
     const int outRow = ((n * p.C + ch) * p.Ho + oy) * p.Wo - p.outBase;
     [[unroll]] for (int i = 0; i < RX; ++i) {
       if (ox0 + i >= p.Wo) break;

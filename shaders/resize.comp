@@ -19,7 +19,7 @@ layout(constant_id = 3) const int RX = 4;  // consecutive output columns per inv
 layout(constant_id = 4) const int RC = 4;  // channels per invocation
 layout(constant_id = 5) const bool ALIGN_CORNERS = false;
 
-layout(binding = 0) uniform samplerBuffer X;
+TEXEL_INPUT(0, X, 1)
 layout(binding = 1) writeonly buffer Y { float y[]; };
 
 layout(push_constant) uniform Push {
@@ -68,8 +68,8 @@ void main() {
     const int outRow = ((n * p.C + ch) * p.Ho + oy) * p.Wo - p.outBase;
     [[unroll]] for (int i = 0; i < RX; ++i) {
       if (ox0 + i >= p.Wo) break;
-      const float a = texelFetch(X, r0 + x0[i]).x, b = texelFetch(X, r0 + x1[i]).x;
-      const float d = texelFetch(X, r1 + x0[i]).x, e = texelFetch(X, r1 + x1[i]).x;
+      const float a = fetch_X(r0 + x0[i]).x, b = fetch_X(r0 + x1[i]).x;
+      const float d = fetch_X(r1 + x0[i]).x, e = fetch_X(r1 + x1[i]).x;
       const float top = fma(lx[i], b - a, a), bottom = fma(lx[i], e - d, d);
       y[outRow + ox0 + i] = fma(ly, bottom - top, top);
     }

@@ -8,6 +8,8 @@
 
 #include "engine/engine.h"
 #include "engine/error.h"
+#include "engine/ops/copy2d.h"
+#include "engine/recorder.h"
 #include "engine/ops/op_support.h"
 
 namespace spar::ops {
@@ -20,14 +22,33 @@ struct BoundRange {
   int32_t base = 0;
 };
 
+// Where a binding may start, in bytes. A texel input may be bound as a storage buffer
+// instead (KernelPlan::storageInputs), so its start satisfies both alignments (powers of two:
+// the larger is a multiple of the smaller).
+inline uint64_t bindingAlignment(const DeviceCaps& caps, bool texel) {
+  const uint64_t storage = caps.minStorageBufferOffsetAlignment;
+  return std::max<uint64_t>(4, texel ? std::max<uint64_t>(caps.minTexelBufferOffsetAlignment, storage) : storage);
+}
+
 // Largest slack, in elements, that aligning a binding's start adds.
 inline int64_t alignmentSlack(const DeviceCaps& caps, bool texel) {
-  const uint64_t align = std::max<uint64_t>(4, texel ? caps.minTexelBufferOffsetAlignment : caps.minStorageBufferOffsetAlignment);
-  return static_cast<int64_t>(align / 4);
+  return static_cast<int64_t>(bindingAlignment(caps, texel) / 4);
+}
+
+// t itself where the device can bind it from its first element, else (fp32) a copy of it in a
+// tensor of its own, recorded on rec: a view into the middle of an activation (one view's
+// tokens past a class token) may start where a device with 256-byte alignment cannot bind.
+inline Tensor alignedInput(Recorder& rec, const Tensor& t, bool texel) {
+  if (!t.defined() || t.dtype() != DType::F32 || t.byteOffset() % bindingAlignment(rec.engine().caps(), texel) == 0)
+    return t;
+  Tensor copy = rec.engine().tensor(t.shape(), t.dtype());
+  const int64_t n = t.numel();
+  copy2d(rec, t.reshape({n}), n, 0, copy.reshape({n}), n, 0, 1, n);
+  return copy;
 }
 
 inline BoundRange bindRange(const DeviceCaps& caps, const Tensor& t, int64_t begin, int64_t end, bool texel) {
-  const uint64_t align = std::max<uint64_t>(4, texel ? caps.minTexelBufferOffsetAlignment : caps.minStorageBufferOffsetAlignment);
+  const uint64_t align = bindingAlignment(caps, texel);
   if (t.byteOffset() % 4) throw Error("tensor " + t.describe() + " is not 4-byte aligned");
   const uint64_t beginByte = t.byteOffset() + static_cast<uint64_t>(begin) * 4;
   const uint64_t startByte = beginByte / align * align;
@@ -40,9 +61,18 @@ inline BoundRange bindRange(const DeviceCaps& caps, const Tensor& t, int64_t beg
 
 // Elements one binding may cover: storage buffers by the device's range, texel buffers by
 // their element count.
+// (texel inputs bound as storage buffers, KernelPlan::storageInputs, by the storage range).
 inline int64_t bindingElements(Engine& engine, bool texel) {
-  return texel ? static_cast<int64_t>(std::min<uint64_t>(engine.caps().maxTexelBufferElements, INT32_MAX))
-               : static_cast<int64_t>(std::min<uint64_t>(engine.device().bindingRangeLimit() / 4, INT32_MAX));
+  return texel && !engine.plan().storageInputs
+             ? static_cast<int64_t>(std::min<uint64_t>(engine.caps().maxTexelBufferElements, INT32_MAX))
+             : static_cast<int64_t>(std::min<uint64_t>(engine.device().bindingRangeLimit() / 4, INT32_MAX));
+}
+
+// Texels of `components` floats one texel input may hold (bound as a texel buffer, or as a
+// storage buffer of floats where the plan says so).
+inline uint64_t texelInputLimit(Engine& engine, int components) {
+  return engine.plan().storageInputs ? engine.device().bindingRangeLimit() / (4 * uint64_t(components))
+                                     : engine.caps().maxTexelBufferElements;
 }
 
 // Largest number of work units per dispatch such that `units` units of `perUnit` elements

@@ -37,7 +37,7 @@ void conv2dAsGemm(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor&
   const BoundRange br = bias.defined() ? bindRange(caps, bias, 0, Cout, true) : wr;
   // Weight rows as RGBA texels when they are whole texels from a texel-aligned start.
   const int texelK = depth % 4 == 0 && wr.base % 4 == 0 ? 4 : 1;
-  if (wr.view.numel() / texelK > int64_t(caps.maxTexelBufferElements))
+  if (uint64_t(wr.view.numel() / texelK) > ops::texelInputLimit(engine, texelK))
     throw Error("conv2d: weight " + w.describe() + " exceeds the device's texel-buffer size");
   const Kernel& kernel = engine.kernel({"conv2d_tiled_f32",
                                         {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
@@ -143,7 +143,7 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   const int64_t kk = KH * KW;
   const bool rgba = (Cin * kk) % 4 == 0 && wr.base % 4 == 0;
   const int G = rgba ? int(4 / std::gcd<int64_t>(kk, 4)) : 1;
-  if (wr.view.numel() / (rgba ? 4 : 1) > int64_t(caps.maxTexelBufferElements))
+  if (uint64_t(wr.view.numel() / (rgba ? 4 : 1)) > ops::texelInputLimit(engine, rgba ? 4 : 1))
     throw Error("conv2d: weight " + w.describe() + " exceeds the device's texel-buffer size");
   // Input rows as RGBA texels (4 columns each) when rows and every tile start stay on texel
   // boundaries: W and cols*stride multiples of 4 and x starting on a texel.

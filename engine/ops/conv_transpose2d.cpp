@@ -70,7 +70,7 @@ void convTranspose2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tens
   const BoundRange br = bias.defined() ? bindRange(caps, bias, 0, Cout, true) : wr;
   const bool rgbaW = (k * k) % 4 == 0 && wr.base % 4 == 0;
   const bool rgbaX = W % 4 == 0 && tiles.cols % 4 == 0 && x.byteOffset() % 16 == 0;
-  if (wr.view.numel() / (rgbaW ? 4 : 1) > int64_t(caps.maxTexelBufferElements))
+  if (uint64_t(wr.view.numel() / (rgbaW ? 4 : 1)) > ops::texelInputLimit(engine, rgbaW ? 4 : 1))
     throw Error("convTranspose2d: weight " + w.describe() + " exceeds the device's texel-buffer size");
   // Workgroups of one row of invocations walk the blocks of a plane in one flat order (unless
   // a huge plane would need more workgroups along x than the device allows: then 2-D).

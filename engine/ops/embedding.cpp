@@ -32,7 +32,7 @@ void embedding(Recorder& rec, const Tensor& table, const Tensor& ids, const Tens
 
   // Row ranges of the table that fit one texel binding whose start is aligned for the device.
   const uint64_t es = dtypeSize(table.dtype());
-  const uint64_t align = std::max<uint64_t>(es, caps.minTexelBufferOffsetAlignment);
+  const uint64_t align = std::max<uint64_t>(es, ops::bindingAlignment(caps, true));
   const int64_t slack = static_cast<int64_t>(align / es);
   const int64_t rowsPerBinding = (ops::bindingElements(engine, true) - slack) / D;
   if (rowsPerBinding < 1) throw Error(op + ": one table row exceeds a texel binding");

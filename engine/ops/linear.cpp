@@ -8,6 +8,7 @@
 #include "engine/engine.h"
 #include "engine/error.h"
 #include "engine/kernel_plan.h"
+#include "engine/ops/binding_range.h"
 #include "engine/ops/cpu_tiles.h"
 #include "engine/ops/op_support.h"
 
@@ -106,7 +107,24 @@ GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, do
   return {4, 4, 16, 16, 1};
 }
 
+namespace {
+void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y, Activation act);
+}  // namespace
+
+// Inputs and output that start where the device cannot bind them go through tensors of their own.
 void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y, Activation act) {
+  const uint64_t storageAlign = std::max<uint64_t>(1, rec.engine().caps().minStorageBufferOffsetAlignment);
+  if (y.defined() && y.dtype() == DType::F32 && y.byteOffset() % storageAlign) {
+    const Tensor out = rec.engine().tensor(y.shape(), y.dtype());
+    linearBound(rec, ops::alignedInput(rec, x, true), w, ops::alignedInput(rec, bias, true), out, act);
+    copy2d(rec, out.reshape({out.numel()}), out.numel(), 0, y.reshape({y.numel()}), y.numel(), 0, 1, y.numel());
+    return;
+  }
+  linearBound(rec, ops::alignedInput(rec, x, true), w, ops::alignedInput(rec, bias, true), y, act);
+}
+
+namespace {
+void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y, Activation act) {
   Engine& engine = rec.engine();
   const DeviceCaps& caps = engine.caps();
   if (w.rank() != 2 && w.rank() != 3) throw Error("linear: weight must be [N, K] or [B, N, K], got " + w.describe());
@@ -145,18 +163,19 @@ void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   // Chunk starts are multiples of steps that keep every binding's offset where the device
   // can bind it (the tensors themselves start aligned).
   const uint64_t ySize = dtypeSize(y.dtype()), xSize = dtypeSize(x.dtype()), wSize = dtypeSize(w.dtype());
-  const uint64_t tAlign = std::max<uint64_t>(1, caps.minTexelBufferOffsetAlignment);
+  const uint64_t tAlign = ops::bindingAlignment(caps, true);
   const uint64_t sAlign = std::max<uint64_t>(1, caps.minStorageBufferOffsetAlignment);
   auto stepFor = [](uint64_t bytesPerUnit, uint64_t align) { return align / std::gcd(bytesPerUnit, align); };
   const uint64_t stepM = std::lcm(stepFor(uint64_t(K) * xSize, tAlign), stepFor(uint64_t(N) * ySize, sAlign));
   const uint64_t stepN = std::lcm(std::lcm(stepFor(ySize, sAlign), stepFor(uint64_t(K) * wSize, tAlign)), stepFor(4, tAlign));
+  const uint64_t texelLimit = ops::texelInputLimit(engine, texelK);
   int64_t chunkN = N;
-  if (uint64_t(N) * uint64_t(kTexels) > caps.maxTexelBufferElements) {
-    chunkN = static_cast<int64_t>(caps.maxTexelBufferElements / uint64_t(kTexels) / stepN * stepN);
+  if (uint64_t(N) * uint64_t(kTexels) > texelLimit) {
+    chunkN = static_cast<int64_t>(texelLimit / uint64_t(kTexels) / stepN * stepN);
     if (chunkN <= 0) throw Error("linear: one row of weight " + w.describe() + " exceeds the device's texel-buffer size");
   }
   const uint64_t rowsByY = engine.device().bindingRangeLimit() / (uint64_t(N) * ySize);
-  const uint64_t rowsByX = caps.maxTexelBufferElements / uint64_t(kTexels);
+  const uint64_t rowsByX = texelLimit / uint64_t(kTexels);
   int64_t chunk = static_cast<int64_t>(std::min<uint64_t>(rowsByY, rowsByX));
   if (chunk < M) chunk = static_cast<int64_t>(uint64_t(chunk) / stepM * stepM);
   if (chunk <= 0) throw Error("linear: one row of " + y.describe() + " exceeds the device's binding limits");
@@ -170,7 +189,7 @@ void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
       // Without a bias the binding is a placeholder never read: the weight, or one element of
       // it where the weight as R texels would be longer than a texel binding.
       const Tensor bPart = bias.defined() ? (cols == N ? biasArg : b1.view(n0, {cols}))
-                           : uint64_t(wPart.numel()) <= caps.maxTexelBufferElements ? wPart
+                           : uint64_t(wPart.numel()) <= ops::texelInputLimit(engine, 1) ? wPart
                                                                                     : wPart.reshape({wPart.numel()}).view(0, {1});
       rec.dispatch(kernel,
                    {Arg::texel(x2.view(m0 * K, {rows, K}), texelK), Arg::texel(wPart, texelK), Arg::texel(bPart, 1),
@@ -179,5 +198,7 @@ void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
     }
   }
 }
+
+}  // namespace
 
 }  // namespace spar
