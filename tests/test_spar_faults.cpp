@@ -120,6 +120,12 @@ TEST(spar_faults, RequestLargerThanTheDeviceIsRefusedBeforeWork) {
   expectCleanFailure(r, "this request needs at least " + std::to_string(needMiB + 1) + " MiB of device memory",
                      "memory limit below the estimate");
   EXPECT_EQ(r.err.find("spar: encoding"), std::string::npos) << r.err;  // no work began
+  // The same with a device-limit profile whose memory is below the need: the error names it.
+  const fs::path profile = scratch() / "small_board.json";
+  std::ofstream(profile) << "{\"name\": \"small-board\", \"deviceMemoryBytes\": " << ((needMiB - 1) << 20) << "}";
+  const CommandResult p = render("SPAR_DEVICE_LIMITS=" + profile.string());
+  expectCleanFailure(p, "(the memory of device-limit profile small-board)", "profile memory below the estimate");
+  EXPECT_EQ(p.err.find("spar: encoding"), std::string::npos) << p.err;
 }
 
 // Between the estimate and the peak: it runs out during the work, as on a smaller device, and
