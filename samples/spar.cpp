@@ -4,6 +4,7 @@
 //   spar render --model M.spar --jobs JOBS.jsonl [--shard I/N] [common options]
 //   spar eval --model M.spar --scenes DIR [--views 2,3,4] [--precision fp32|fp16] [--size HxW]
 //             [--no-gating | --assume-static] [--max-scenes N] [--device D] --out result.json
+//   spar selftest [--device D] [--json]   (exit 0 only if every check passed)
 // Exit codes: 0 done, 1 something found wrong on the way (files, model, device), 2 a command
 // line that cannot mean anything. Every error is one line "spar: error: <message>" on stderr.
 #include <CLI/CLI.hpp>
@@ -19,6 +20,7 @@
 #include "samples/spar_cli/eval_command.h"
 #include "samples/spar_cli/render_command.h"
 #include "samples/spar_cli/render_jobs.h"
+#include "samples/spar_cli/selftest_command.h"
 
 namespace {
 
@@ -152,11 +154,27 @@ int main(int argc, char** argv) {
                            ->type_name("I/N");
   evalCmd->add_option("--out", e.out, "result JSON file (written whole: temporary name, then rename)")->required();
 
+  SelftestArgs st;
+  CLI::App* selftest = app.add_subcommand(
+      "selftest",
+      "Check the engine on this device and driver: the device's limits (after SPAR_DEVICE_LIMITS), the kernel "
+      "plan, every op family on odd and stiff shapes against float64 on the host, the validation layer's "
+      "messages; exit 0 only if everything passed");
+  selftest->add_option("--device", st.device, "Vulkan device index or part of its name");
+  selftest->add_flag("--json", st.json, "the report as JSON on stdout");
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     if (e.get_exit_code() == 0) return app.exit(e);  // --help
     return fail(std::string(e.what()) + " (see --help)", kExitUsage);
+  }
+  if (selftest->parsed()) {
+    try {
+      return runSelftest(st) ? kExitOk : kExitRuntime;
+    } catch (const std::exception& err) {
+      return fail(err.what(), kExitRuntime);
+    }
   }
   if (evalCmd->parsed()) {
     if (maxScenes->count() > 0 && e.maxScenes < 1)

@@ -1,0 +1,243 @@
+// The checks of `spar selftest` (selftest_checks.h). Shapes are odd (no multiple of a tile or a
+// vector width), one linear crosses a texel binding of 65536 texels, and the stiff ones are the
+// engineering notes' cases: LayerNorm rows of mean 1e4 and variance 1e-6, softmax logits of
+// +-1e4, GELU at +-1e4 and near 0, attention with logits of about 1e3. Thresholds are those the
+// op tests use (tests/test_<op>.cpp).
+#include "samples/spar_cli/selftest_checks.h"
+
+#include <chrono>
+#include <cmath>
+#include <random>
+
+#include "engine/ops/attention.h"
+#include "engine/ops/conv2d.h"
+#include "engine/ops/linear.h"
+#include "engine/ops/norm.h"
+#include "engine/ops/reduce_channels.h"
+#include "engine/ops/unary.h"
+
+namespace spar::cli {
+namespace {
+
+std::vector<float> uniform(size_t n, float lo, float hi, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> d(lo, hi);
+  std::vector<float> v(n);
+  for (float& x : v) x = d(rng);
+  return v;
+}
+
+double gelu(double x) { return 0.5 * x * std::erfc(-x / std::sqrt(2.0)); }
+
+void measure(SelftestCheck& c, const std::vector<float>& got, const std::vector<double>& want) {
+  double err = 0, ref = 0;
+  for (size_t i = 0; i < want.size(); ++i) {
+    if (!std::isfinite(got[i])) c.finite = false;
+    const double d = double(got[i]) - want[i];
+    err += d * d;
+    ref += want[i] * want[i];
+    c.maxAbs = std::max(c.maxAbs, std::abs(d));
+  }
+  c.nmse = ref > 0 ? err / ref : err;
+}
+
+// Runs `work` (recording into a fresh recorder, returning the output tensor), times it and
+// compares the output with `want`.
+SelftestCheck check(Engine& engine, std::string name, std::string family, double maxNmse, double maxAbs,
+                    const std::function<Tensor(Recorder&)>& work, const std::function<std::vector<double>()>& want) {
+  SelftestCheck c{std::move(name), std::move(family), 0, 0, maxNmse, maxAbs};
+  try {
+    const auto t0 = std::chrono::steady_clock::now();
+    Recorder rec(engine);
+    const Tensor out = work(rec);
+    rec.run();
+    c.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+    measure(c, engine.download(out), want());
+  } catch (const std::exception& e) {
+    c.error = e.what();
+  }
+  return c;
+}
+
+SelftestCheck linearCheck(Engine& engine, int64_t M, int64_t N, int64_t K, bool gelu_, uint32_t seed) {
+  const auto x = uniform(size_t(M * K), -1, 1, seed), w = uniform(size_t(N * K), -0.1f, 0.1f, seed + 1),
+             b = uniform(size_t(N), -1, 1, seed + 2);
+  const std::string name = "linear " + std::to_string(M) + "x" + std::to_string(N) + "x" + std::to_string(K) + " +bias" +
+                           (gelu_ ? " GELU" : "");
+  return check(
+      engine, name, familyName(engine.plan().gemm), 1e-9, 1e-4,
+      [&](Recorder& rec) {
+        Tensor tx = engine.fromFloats({M, K}, x), tw = engine.fromFloats({N, K}, w), tb = engine.fromFloats({N}, b);
+        Tensor y = engine.tensor({M, N});
+        linear(rec, tx, tw, tb, y, gelu_ ? Activation::Gelu : Activation::None);
+        return y;
+      },
+      [&] {
+        std::vector<double> y(size_t(M * N));
+        for (int64_t m = 0; m < M; ++m)
+          for (int64_t n = 0; n < N; ++n) {
+            double s = b[size_t(n)];
+            for (int64_t k = 0; k < K; ++k) s += double(x[size_t(m * K + k)]) * double(w[size_t(n * K + k)]);
+            y[size_t(m * N + n)] = gelu_ ? gelu(s) : s;
+          }
+        return y;
+      });
+}
+
+SelftestCheck attentionCheck(Engine& engine) {
+  const int64_t N = 37, heads = 3, dh = 64, C = heads * dh;
+  // q scaled so that logits reach about 1e3: one key dominates each row.
+  const auto q = uniform(size_t(N * C), -4, 4, 31), k = uniform(size_t(N * C), -4, 4, 32), v = uniform(size_t(N * C), -1, 1, 33);
+  return check(
+      engine, "attention 3 heads x 37 tokens x 64, logits ~1e3", familyName(engine.plan().attention), 1e-9, 1e-4,
+      [&](Recorder& rec) {
+        Tensor tq = engine.fromFloats({N, C}, q), tk = engine.fromFloats({N, C}, k), tv = engine.fromFloats({N, C}, v);
+        Tensor out = engine.tensor({N, C});
+        attention(rec, {tq, 0}, {tk, 0}, {tv, 0}, {out, 0}, int(heads), int(dh));
+        return out;
+      },
+      [&] {
+        std::vector<double> out(size_t(N * C));
+        const double scale = 1.0 / std::sqrt(double(dh));
+        for (int64_t h = 0; h < heads; ++h)
+          for (int64_t i = 0; i < N; ++i) {
+            std::vector<double> logit(static_cast<size_t>(N));
+            double top = -INFINITY;
+            for (int64_t j = 0; j < N; ++j) {
+              double s = 0;
+              for (int64_t d = 0; d < dh; ++d) s += double(q[size_t(i * C + h * dh + d)]) * double(k[size_t(j * C + h * dh + d)]);
+              logit[size_t(j)] = s * scale;
+              top = std::max(top, logit[size_t(j)]);
+            }
+            double sum = 0;
+            for (double& l : logit) sum += (l = std::exp(l - top));
+            for (int64_t d = 0; d < dh; ++d) {
+              double acc = 0;
+              for (int64_t j = 0; j < N; ++j) acc += logit[size_t(j)] * double(v[size_t(j * C + h * dh + d)]);
+              out[size_t(i * C + h * dh + d)] = acc / sum;
+            }
+          }
+        return out;
+      });
+}
+
+SelftestCheck layerNormCheck(Engine& engine) {
+  const int64_t rows = 37, d = 257;
+  std::mt19937 rng(41);
+  std::normal_distribution<float> dist(1e4f, 1e-3f);
+  std::vector<float> x(size_t(rows * d));
+  for (float& v : x) v = dist(rng);
+  const auto w = uniform(size_t(d), 0.5f, 1.5f, 42), b = uniform(size_t(d), -1, 1, 43);
+  return check(
+      engine, "layernorm 37x257, rows of mean 1e4 and variance 1e-6", "-", 1e-9, 1e-4,
+      [&](Recorder& rec) {
+        Tensor tx = engine.fromFloats({rows, d}, x), tw = engine.fromFloats({d}, w), tb = engine.fromFloats({d}, b);
+        Tensor y = engine.tensor({rows, d});
+        layerNorm(rec, tx, tw, tb, y, 1e-12f);
+        return y;
+      },
+      [&] {
+        std::vector<double> y(size_t(rows * d));
+        for (int64_t r = 0; r < rows; ++r) {
+          double mean = 0, var = 0;
+          for (int64_t i = 0; i < d; ++i) mean += x[size_t(r * d + i)];
+          mean /= double(d);
+          for (int64_t i = 0; i < d; ++i) var += (x[size_t(r * d + i)] - mean) * (x[size_t(r * d + i)] - mean);
+          var /= double(d);
+          for (int64_t i = 0; i < d; ++i)
+            y[size_t(r * d + i)] = (x[size_t(r * d + i)] - mean) / std::sqrt(var + 1e-12) * w[size_t(i)] + b[size_t(i)];
+        }
+        return y;
+      });
+}
+
+SelftestCheck softmaxCheck(Engine& engine) {
+  const int64_t rows = 33, n = 1001;
+  auto x = uniform(size_t(rows * n), -1e4f, 1e4f, 51);
+  return check(
+      engine, "softmax 33x1001, logits of +-1e4", "-", 1e-9, 1e-6,
+      [&](Recorder& rec) {
+        Tensor tx = engine.fromFloats({rows, n}, x);
+        Tensor y = engine.tensor({rows, n});
+        softmax(rec, tx, y);
+        return y;
+      },
+      [&] {
+        std::vector<double> y(size_t(rows * n));
+        for (int64_t r = 0; r < rows; ++r) {
+          double top = -INFINITY, sum = 0;
+          for (int64_t i = 0; i < n; ++i) top = std::max(top, double(x[size_t(r * n + i)]));
+          for (int64_t i = 0; i < n; ++i) sum += std::exp(double(x[size_t(r * n + i)]) - top);
+          for (int64_t i = 0; i < n; ++i) y[size_t(r * n + i)] = std::exp(double(x[size_t(r * n + i)]) - top) / sum;
+        }
+        return y;
+      });
+}
+
+SelftestCheck geluCheck(Engine& engine) {
+  std::vector<float> x = uniform(997, -6, 6, 61);
+  for (float v : {1e4f, -1e4f, 0.0f, 1e-30f, -1e-30f, -20.0f}) x.push_back(v);
+  const int64_t n = int64_t(x.size());
+  return check(
+      engine, "GELU of 1003 values, +-1e4 and near 0", "-", 1e-10, 2e-3,  // 2e-3: an ulp of 1e4 is 9.8e-4
+      [&](Recorder& rec) {
+        Tensor tx = engine.fromFloats({n}, x);
+        Tensor y = engine.tensor({n});
+        activate(rec, Activation::Gelu, tx, y);
+        return y;
+      },
+      [&] {
+        std::vector<double> y(x.size());
+        for (size_t i = 0; i < x.size(); ++i) y[i] = gelu(x[i]);
+        return y;
+      });
+}
+
+SelftestCheck conv2dCheck(Engine& engine) {
+  const int64_t Cin = 5, H = 37, W = 29, Cout = 7, KH = 3, KW = 3;
+  const auto x = uniform(size_t(Cin * H * W), -1, 1, 71), w = uniform(size_t(Cout * Cin * KH * KW), -0.3f, 0.3f, 72),
+             b = uniform(size_t(Cout), -1, 1, 73);
+  return check(
+      engine, "conv2d 3x3 pad 1, 5->7 channels at 37x29", familyName(engine.plan().conv), 1e-9, 1e-4,
+      [&](Recorder& rec) {
+        Tensor tx = engine.fromFloats({1, Cin, H, W}, x), tw = engine.fromFloats({Cout, Cin, KH, KW}, w),
+               tb = engine.fromFloats({Cout}, b);
+        Tensor y = engine.tensor({1, Cout, H, W});
+        conv2d(rec, tx, tw, tb, y, {1, 1, 1, Activation::None});
+        return y;
+      },
+      [&] {
+        std::vector<double> y(size_t(Cout * H * W));
+        for (int64_t co = 0; co < Cout; ++co)
+          for (int64_t oy = 0; oy < H; ++oy)
+            for (int64_t ox = 0; ox < W; ++ox) {
+              double s = b[size_t(co)];
+              for (int64_t ci = 0; ci < Cin; ++ci)
+                for (int64_t ky = 0; ky < KH; ++ky)
+                  for (int64_t kx = 0; kx < KW; ++kx) {
+                    const int64_t iy = oy + ky - 1, ix = ox + kx - 1;
+                    if (iy < 0 || iy >= H || ix < 0 || ix >= W) continue;
+                    s += double(x[size_t((ci * H + iy) * W + ix)]) * double(w[size_t(((co * Cin + ci) * KH + ky) * KW + kx)]);
+                  }
+              y[size_t((co * H + oy) * W + ox)] = s;
+            }
+        return y;
+      });
+}
+
+}  // namespace
+
+std::vector<SelftestCheck> runSelftestChecks(Engine& engine) {
+  std::vector<SelftestCheck> checks;
+  checks.push_back(linearCheck(engine, 77, 150, 72, true, 11));
+  // 768 x 518 weights are 397824 R texels: more than the 65536 Vulkan guarantees a texel binding.
+  checks.push_back(linearCheck(engine, 130, 768, 518, false, 21));
+  checks.push_back(attentionCheck(engine));
+  checks.push_back(layerNormCheck(engine));
+  checks.push_back(softmaxCheck(engine));
+  checks.push_back(geluCheck(engine));
+  checks.push_back(conv2dCheck(engine));
+  return checks;
+}
+
+}  // namespace spar::cli

@@ -1,0 +1,20 @@
+// spar selftest: what a user runs to check the engine on their device and driver. Prints the
+// device, driver, limits (after any device-limit profile) and the kernel plan, then runs every
+// op family the plan uses on odd and stiff shapes against float64 computed on the host
+// (samples/spar_cli/selftest_checks.cpp), each check's error, threshold and time, the validation
+// layer's messages, and a verdict. Exit 0 only if every check passed and the layer (when
+// installed) said nothing.
+#pragma once
+#include <string>
+
+namespace spar::cli {
+
+struct SelftestArgs {
+  std::string device;  // --device
+  bool json = false;   // --json: the report as JSON on stdout instead of the table
+};
+
+// Returns true when everything passed.
+bool runSelftest(const SelftestArgs& args);
+
+}  // namespace spar::cli
