@@ -36,9 +36,9 @@ layout(constant_id = 20) const uint CM_M = 16;
 layout(constant_id = 21) const uint CM_N = 16;
 layout(constant_id = 22) const uint CM_K = 16;
 
-layout(binding = 0) uniform samplerBuffer Q;
-layout(binding = 1) uniform samplerBuffer K;
-layout(binding = 2) uniform samplerBuffer V;
+layout(binding = 0) uniform textureBuffer Q;
+layout(binding = 1) uniform textureBuffer K;
+layout(binding = 2) uniform textureBuffer V;
 layout(binding = 3) writeonly buffer O { OUT_T o[]; };
 
 layout(push_constant) uniform Push {

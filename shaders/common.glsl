@@ -1,6 +1,10 @@
 // Shared by every kernel: output element type, activation functions.
 // Conventions: constant_id 0-2 are the workgroup size; shapes come as push constants.
 #extension GL_EXT_control_flow_attributes : enable
+// Texel buffers as textureBuffer read with texelFetch, no sampler: a samplerBuffer compiles to a
+// sampled image of Dim Buffer, which SPIR-V 1.6 (Vulkan 1.3 and later drivers) no longer allows
+// and the validation layer reports on such devices.
+#extension GL_EXT_samplerless_texture_functions : require
 
 #ifndef OUT_F16
 #define OUT_F16 0
@@ -31,7 +35,7 @@
   }
 #else
 #define TEXEL_INPUT(BINDING, NAME, COMPONENTS)    \
-  layout(binding = BINDING) uniform samplerBuffer NAME; \
+  layout(binding = BINDING) uniform textureBuffer NAME; \
   vec4 fetch_##NAME(int i) { return texelFetch(NAME, i); }
 #endif
 

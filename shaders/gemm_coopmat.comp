@@ -38,9 +38,9 @@ layout(constant_id = 20) const uint CM_M = 16;
 layout(constant_id = 21) const uint CM_N = 16;
 layout(constant_id = 22) const uint CM_K = 16;
 
-layout(binding = 0) uniform samplerBuffer X;
-layout(binding = 1) uniform samplerBuffer W;
-layout(binding = 2) uniform samplerBuffer BIAS;  // R texels; bound to w when HAS_BIAS is false
+layout(binding = 0) uniform textureBuffer X;
+layout(binding = 1) uniform textureBuffer W;
+layout(binding = 2) uniform textureBuffer BIAS;  // R texels; bound to w when HAS_BIAS is false
 layout(binding = 3) writeonly buffer Y { OUT_T y[]; };
 
 layout(push_constant) uniform Push {

@@ -18,7 +18,7 @@ TEST(spar_selftest, PassesAndPrintsTheDeviceLimitsPlanAndVerdict) {
   const CommandResult r = runValidated({SPAR_CLI, "selftest"}, scratch());
   ASSERT_EQ(r.code, 0) << r.out << r.err;
   for (const char* part : {"device ", "limits ", "plan\n", "linear 130x768x518", "softmax 33x1001", "conv2d 3x3",
-                           "validation layer: on, 0 messages", "verdict: PASS (7 of 7 checks passed)"})
+                           "validation layer: on, 0 messages", "linear 67x130x96, fp16 weights", "verdict: PASS (8 of 8 checks passed)"})
     EXPECT_NE(r.out.find(part), std::string::npos) << part << "\n" << r.out;
 }
 
@@ -30,7 +30,7 @@ TEST(spar_selftest, JsonUnderTheVulkanMinimumProfile) {
   EXPECT_NE(doc.at("profile").get<std::string>().find("vulkan-1.2-min"), std::string::npos);
   EXPECT_EQ(doc.at("limits").at("max_texel_buffer_elements").get<uint64_t>(), 65536u);
   EXPECT_EQ(doc.at("validation").at("messages").get<int>(), 0);
-  ASSERT_EQ(doc.at("checks").size(), 7u);
+  ASSERT_EQ(doc.at("checks").size(), 7u);  // no fp16 weights under this profile
   for (const auto& c : doc.at("checks")) {
     EXPECT_TRUE(c.at("passed").get<bool>()) << c.dump();
     EXPECT_LE(c.at("nmse").get<double>(), c.at("max_nmse").get<double>()) << c.dump();
@@ -46,7 +46,7 @@ TEST(spar_selftest, AFailingOpFailsTheVerdict) {
   const CommandResult r = runValidated({SPAR_CLI, "selftest"}, scratch(), "SPAR_FAULT_ALLOCATION=1");
   EXPECT_EQ(r.code, 1) << r.out << r.err;
   EXPECT_NE(r.out.find("FAIL  linear 77x150x72"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("verdict: FAIL (6 of 7 checks passed)"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("verdict: FAIL (7 of 8 checks passed)"), std::string::npos) << r.out;
 }
 
 }  // namespace

@@ -84,6 +84,33 @@ SelftestCheck linearCheck(Engine& engine, int64_t M, int64_t N, int64_t K, bool 
       });
 }
 
+// fp16 weight matrices (the fp16 precision): the plan's fp16 GEMM family (fp16 arithmetic or
+// cooperative matrices where the device has them), against float64 of the fp16-rounded weights.
+SelftestCheck linearF16Check(Engine& engine) {
+  const int64_t M = 67, N = 130, K = 96;
+  const auto x = uniform(size_t(M * K), -1, 1, 81), w = uniform(size_t(N * K), -0.1f, 0.1f, 82);
+  std::vector<float> wRounded;
+  return check(
+      engine, "linear 67x130x96, fp16 weights", familyName(engine.plan().gemmF16), 1e-6, 2e-3,
+      [&](Recorder& rec) {
+        Tensor tx = engine.fromFloats({M, K}, x), tw = engine.fromFloats({N, K}, w, DType::F16);
+        wRounded = engine.download(tw);
+        Tensor y = engine.tensor({M, N});
+        linear(rec, tx, tw, Tensor(), y);
+        return y;
+      },
+      [&] {
+        std::vector<double> y(size_t(M * N));
+        for (int64_t m = 0; m < M; ++m)
+          for (int64_t n = 0; n < N; ++n) {
+            double s = 0;
+            for (int64_t k = 0; k < K; ++k) s += double(x[size_t(m * K + k)]) * double(wRounded[size_t(n * K + k)]);
+            y[size_t(m * N + n)] = s;
+          }
+        return y;
+      });
+}
+
 SelftestCheck attentionCheck(Engine& engine) {
   const int64_t N = 37, heads = 3, dh = 64, C = heads * dh;
   // q scaled so that logits reach about 1e3: one key dominates each row.
@@ -232,6 +259,8 @@ std::vector<SelftestCheck> runSelftestChecks(Engine& engine) {
   checks.push_back(linearCheck(engine, 77, 150, 72, true, 11));
   // 768 x 518 weights are 397824 R texels: more than the 65536 Vulkan guarantees a texel binding.
   checks.push_back(linearCheck(engine, 130, 768, 518, false, 21));
+  // fp16 weights where the device can read them (elsewhere the engine keeps weights fp32).
+  if (engine.caps().supportsFp16Storage() && !engine.plan().storageInputs) checks.push_back(linearF16Check(engine));
   checks.push_back(attentionCheck(engine));
   checks.push_back(layerNormCheck(engine));
   checks.push_back(softmaxCheck(engine));
