@@ -2,7 +2,7 @@
 # The C++ tests again under AddressSanitizer + UndefinedBehaviorSanitizer (CI's second build,
 # ./build-asan): the host code of the engine, model, file formats, image I/O and the `spar` CLI
 # (its tests run the sanitized binary). A reduced set, for CI's time: the op and runtime tests,
-# the file readers, the tiny-model pipeline tests, hostile input, non-finite values, faults and
+# the file readers (device-limit JSON files too), the tiny-model pipeline tests, spar selftest, hostile input, non-finite values, faults and
 # the --path outputs; the model tests against the PyTorch reference's full goldens and the
 # benchmarks run only in the Release build. The Vulkan driver (lavapipe) and the validation
 # layer are not instrumented.
@@ -14,7 +14,7 @@ targets=(spar test_runtime test_linear test_attention test_conv2d test_conv_tran
          test_binary test_pool test_resize test_rope test_embedding test_patchify test_copy2d test_reduce_channels
          test_count_nonfinite test_engine_options test_packed_model test_npy test_cameras test_colmap
          test_bpe_tokenizer test_image_prep test_spar_pipeline test_spar_nonfinite test_spar_hostile_input
-         test_spar_faults test_spar_render_outputs test_kernel_plan)
+         test_spar_faults test_spar_render_outputs test_kernel_plan test_device_limits test_spar_selftest)
 # No ccache: a fresh CI machine starts with an empty cache, and this build's flags differ from
 # the Release build's (measured 2026-12-03 on spar_engine + spar_model: 0 of 53 hits after the
 # Release build, and a cold cache made the Release build 43 -> 48 s).
