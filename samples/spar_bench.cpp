@@ -3,6 +3,7 @@
 // the op's kernels cost: pipeline creation and the driver's build at the first dispatch
 // (compile time, kept apart from run time). --json prints one JSON object. --model M.spar times
 // the whole SPAR pipeline instead, stage by stage, on synthetic inputs (samples/bench_model.h).
+#include "samples/spar_cli/selftest_command.h"
 #include <CLI/CLI.hpp>
 #include <algorithm>
 #include <cstdio>
@@ -27,6 +28,11 @@ int main(int argc, char** argv) {
                "say which kernel family and tiles each op uses on the device, and why, and exit (on a GPU "
                "this may first measure the GEMM tiles; kept in kernel-choice.json beside the pipeline cache)");
   app.add_flag("--large", large, "also the 4096x4096x4096 GEMMs (default on GPUs)");
+  bool selftest = false;
+  app.add_flag("--selftest", selftest,
+               "run `spar selftest` (the device, limits, plan and op checks against float64, with the validation "
+               "layer where installed) and exit 0 only if it passed: the same code, in the program the GPU "
+               "check's bundle carries (it needs no image library)");
   spar::bench::ModelBenchArgs m;
   std::string size;
   auto* modelOpt = app.add_option("--model", m.model,
@@ -47,6 +53,7 @@ int main(int argc, char** argv) {
       for (const auto& d : spar::Device::listDevices()) std::cout << d << "\n";
       return 0;
     }
+    if (selftest) return spar::cli::runSelftest({device, json}) ? 0 : 1;
     spar::EngineOptions options;
     options.device = device;
     options.verbose = !json;

@@ -20,6 +20,7 @@
 # used, and every program runs under the validation layer where the tests ask for it.
 # Steps of `run` (each with its own time limit; a failing step is reported, the rest go on):
 #   1. spar-bench --list-kernels: the device, the kernel plan and why (the GEMM tiles measured)
+#      then spar-bench --selftest: spar selftest on the device's driver (selftest.log)
 #   2. the op tests and test_kernel_plan, test_coopmat (validation layer on, zero messages)
 #   3. spar-bench: every op case (4096^3 GEMMs on a GPU) with the plan, JSON
 #   4. gpu_reference_bench.py --ops: cuBLAS GEMM (TF32 off) and SDPA on the same GPU
@@ -168,6 +169,9 @@ plan=()
 say "device check: $($bin spar-bench --list-devices 2>&1 | tr '\n' ' ')"
 step kernels 120 "${plan[@]}" $bin spar-bench --list-kernels --json
 cp "$out/kernels.log" "$out/kernels.json" 2>/dev/null
+# spar selftest on the device's own driver and plan (spar-bench --selftest: the same checks as
+# `spar selftest`, in a program of the bundle): its table is selftest.log, exit 0 = passed.
+step selftest 120 "${plan[@]}" $bin spar-bench --selftest
 
 mkdir -p "$out/tests"
 # The op tests' goldens that need no model (transformer blocks, Plucker rays: CTest's fixture

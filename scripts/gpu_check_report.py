@@ -77,6 +77,11 @@ def main(argv):
     md.append("Steps: " + ", ".join(f"{k} {'ok' if v == 0 else v if isinstance(v, str) else f'exit {v}'}"
                                     for k, v in steps.items()))
     md += ["", "## Kernel plan", ""] + [f"    {line}" for line in kernels.get("kernels", [])]
+    # spar selftest on the device (spar-bench --selftest): its table as it printed it.
+    selftest_log = os.path.join(out, "selftest.log")
+    selftest = open(selftest_log, errors="replace").read().splitlines() if os.path.exists(selftest_log) else []
+    if selftest:
+        md += ["", "## spar selftest", ""] + [f"    {line}" for line in selftest]
     md += ["", "## Tests (validation layer on: a test fails on any message it did not provoke on purpose)", "",
            "| program | tests | failed |", "|---|---|---|"]
     for r in test_rows:
@@ -134,7 +139,8 @@ def main(argv):
     md += ["", "## Issue 15's bars", "", "| bar | engine / PyTorch speed | met |", "|---|---|---|"]
     for b in bars:
         md.append(f"| {b['bar']} | {fmt(b['share'])} | {'yes' if b['met'] else 'no'} |")
-    doc = {"device": kernels.get("device"), "kernels": kernels.get("kernels"), "steps": steps, "tests": test_rows,
+    verdict = next((l for l in reversed(selftest) if l.startswith("verdict:")), None)
+    doc = {"device": kernels.get("device"), "kernels": kernels.get("kernels"), "selftest": verdict, "steps": steps, "tests": test_rows,
            "ops": rows, "model": {"engine_fp32": models["fp32"],
            "engine_fp16": models["fp16"], "reference": ref_model}, "bars": bars}
     with open(os.path.join(out, "report.json"), "w") as f:

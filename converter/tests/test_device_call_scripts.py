@@ -33,12 +33,12 @@ OP_TESTS = ["test_linear", "test_attention", "test_conv2d", "test_conv_transpose
             "test_count_nonfinite", "test_kernel_plan", "test_plucker_rays"]
 MODEL_TESTS = ["test_dino_v3", "test_cv_drp"]
 BINS = ["spar-bench"] + OP_TESTS + ["test_coopmat"] + MODEL_TESTS
-STEP_LIMITS = {"kernels": 120, "op-goldens": 120, "reference-ops": 240, "reference-model": 420, "report": 60}  # others 300 s
+STEP_LIMITS = {"kernels": 120, "selftest": 120, "op-goldens": 120, "reference-ops": 240, "reference-model": 420, "report": 60}  # others 300 s
 
 
 def check_steps(coopmat, report=True):
     """gpu-check.sh run's steps in order (test_coopmat where the device has cooperative matrices)."""
-    return (["kernels", "op-goldens"] + [f"test-{t}" for t in OP_TESTS] + (["test-test_coopmat"] if coopmat else []) +
+    return (["kernels", "selftest", "op-goldens"] + [f"test-{t}" for t in OP_TESTS] + (["test-test_coopmat"] if coopmat else []) +
             ["bench-ops", "reference-ops", "make-model", "bench-model-fp32", "bench-model-fp16", "reference-model",
              "goldens"] + [f"test-{t}" for t in MODEL_TESTS] + (["report"] if report else []))
 
@@ -123,6 +123,7 @@ case $name in
     case "$*" in
       *--list-devices*) echo "0: Stub GPU";;
       *--list-kernels*) echo '{"device": "Stub GPU", "kernels": ["linear, fp16 weights: gemm_coopmat.comp"]}';;
+      *--selftest*) echo "verdict: PASS (8 of 8 checks passed)";;
       *--model*) ms=12.5; case "$*" in *fp16*) ms=7.5;; esac
         echo "model: stub"
         echo "{\"stages\": [{\"name\": \"renderer\", \"gpu_ms\": $ms}], \"total\": {\"gpu_ms\": $ms}}";;
@@ -459,7 +460,7 @@ def test_check_skips_steps_past_its_deadline(tmp_path):
     steps = json.load(open(os.path.join(out, "report.json")))["steps"]
     assert steps == dict({n: "skipped" for n in names}, report=0)  # (the report's own step, run before)
     md = open(os.path.join(out, "report.md")).read()
-    assert "Steps: kernels skipped, op-goldens skipped, test-test_linear skipped, " in md
+    assert "Steps: kernels skipped, selftest skipped, op-goldens skipped, test-test_linear skipped, " in md
 
 
 @pytest.mark.parametrize("mode", ["--cpu", "--cpu-coopmat"])
@@ -483,7 +484,8 @@ def test_check_cpu_runs_every_step(tmp_path, mode):
     plan = {"kernels": "coopmat", "measure": "1"} if coop else {"kernels": "", "measure": ""}
     model = f"spar-bench --model {repo.check_work}/model.spar --views 4 --targets 4 --precision"
     assert [c for c, s in runs["spar-bench"]] == [
-        "spar-bench --list-devices", "spar-bench --list-kernels --json", "spar-bench --json --repeat 2 --only _f32",
+        "spar-bench --list-devices", "spar-bench --list-kernels --json", "spar-bench --selftest",
+        "spar-bench --json --repeat 2 --only _f32",
         f"{model} fp32 --repeat 2 --json", f"{model} fp16 --repeat 2 --json"]
     for cmd, seen in runs["spar-bench"][1:]:
         assert {k: seen[k] for k in plan} == plan, cmd
@@ -716,7 +718,8 @@ def test_session_check_used_our_own_driver_manifest(session):
     icd = os.path.join(repo.check_work, "nvidia_icd.json")
     assert json.load(open(icd))["ICD"]["library_path"] == f"{nv}/usr/lib/x86_64-linux-gnu/libGLX_nvidia.so.0"
     seen = [line.split(" | ")[1] for line in repo.records("bin ")]
-    assert len(seen) == len(BINS) - 1 + 5 and all(f"driver={icd} icd={icd} " in s for s in seen)
+    # the test programs once each, spar-bench 6 times (devices, kernels, selftest, ops, model fp32 and fp16)
+    assert len(seen) == len(BINS) - 1 + 6 and all(f"driver={icd} icd={icd} " in s for s in seen)
     assert set(repo.records("ld ")) == {f"{repo.check_work}/runtime:{nv}/usr/local/nvidia/lib:"
                                         f"{nv}/usr/lib/x86_64-linux-gnu"}
 
@@ -733,6 +736,7 @@ def test_session_unpack_gives_the_report(session):
     assert sorted(t["program"] for t in r["tests"]) == sorted(BINS[1:])
     assert all(t["failures"] == 0 and t["tests"] == 3 for t in r["tests"])
     assert any("gemm_coopmat.comp" in line for line in r["kernels"])
+    assert r["selftest"] == "verdict: PASS (8 of 8 checks passed)"
     assert r["model"]["engine_fp32"]["total"]["gpu_ms"] == 12.5 and r["model"]["engine_fp16"]["total"]["gpu_ms"] == 7.5
     assert r["model"]["reference"]["modes"]["fp32"]["total_ms"] == 40.0
     assert [(o["op"], o["engine_ms"], o["torch_ms"]) for o in r["ops"]] == [("gemm_f32", 2.0, 4.0)]
