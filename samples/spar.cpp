@@ -158,10 +158,14 @@ int main(int argc, char** argv) {
   CLI::App* selftest = app.add_subcommand(
       "selftest",
       "Check the engine on this device and driver: the device's limits (after SPAR_DEVICE_LIMITS), the kernel "
-      "plan, every op family on odd and stiff shapes against float64 on the host, the validation layer's "
-      "messages; exit 0 only if everything passed");
+      "plan, every op family on odd and stiff shapes against float64 on the host, the self-test model stage by "
+      "stage against its float64 reference outputs, the validation layer's messages; exit 0 only if everything "
+      "passed");
   selftest->add_option("--device", st.device, "Vulkan device index or part of its name");
   selftest->add_flag("--json", st.json, "the report as JSON on stdout");
+  selftest->add_option("--model-dir", st.model,
+                       "the self-test model's directory (default: $SPAR_SELFTEST_DATA, else share/spar/selftest "
+                       "of the installed package, else the source tree's samples/data/selftest)");
 
   try {
     app.parse(argc, argv);

@@ -33,6 +33,9 @@ int main(int argc, char** argv) {
                "run `spar selftest` (the device, limits, plan and op checks against float64, with the validation "
                "layer where installed) and exit 0 only if it passed: the same code, in the program the GPU "
                "check's bundle carries (it needs no image library)");
+  std::string selftestModel;
+  app.add_option("--selftest-model-dir", selftestModel, "with --selftest: the self-test model's directory")
+      ->needs(app.get_option("--selftest"));
   spar::bench::ModelBenchArgs m;
   std::string size;
   auto* modelOpt = app.add_option("--model", m.model,
@@ -53,7 +56,7 @@ int main(int argc, char** argv) {
       for (const auto& d : spar::Device::listDevices()) std::cout << d << "\n";
       return 0;
     }
-    if (selftest) return spar::cli::runSelftest({device, json}) ? 0 : 1;
+    if (selftest) return spar::cli::runSelftest({device, json, selftestModel}) ? 0 : 1;
     spar::EngineOptions options;
     options.device = device;
     options.verbose = !json;

@@ -170,8 +170,9 @@ say "device check: $($bin spar-bench --list-devices 2>&1 | tr '\n' ' ')"
 step kernels 120 "${plan[@]}" $bin spar-bench --list-kernels --json
 cp "$out/kernels.log" "$out/kernels.json" 2>/dev/null
 # spar selftest on the device's own driver and plan (spar-bench --selftest: the same checks as
-# `spar selftest`, in a program of the bundle): its table is selftest.log, exit 0 = passed.
-step selftest 120 "${plan[@]}" $bin spar-bench --selftest
+# `spar selftest`, in a program of the bundle; the self-test model from the tree carried there):
+# its table is selftest.log, exit 0 = passed.
+step selftest 120 "${plan[@]}" $bin spar-bench --selftest --selftest-model-dir "$root/samples/data/selftest"
 
 mkdir -p "$out/tests"
 # The op tests' goldens that need no model (transformer blocks, Plucker rays: CTest's fixture

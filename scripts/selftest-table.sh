@@ -2,7 +2,8 @@
 # `spar selftest` on each lavapipe this machine can run (the system's Mesa 22.3, 25.0 from
 # bookworm-backports: scripts/newer-lavapipe.sh, 26.1 from trixie-backports with cooperative
 # matrices: scripts/coopmat-lavapipe.sh) and under each device-limit profile: one markdown table
-# row each (verdict, checks passed, validation messages, wall time).
+# row each (verdict, checks passed: the op checks and the self-test model's stages, validation
+# messages, wall time).
 #
 #   bash scripts/selftest-table.sh [SPAR]     (default build/samples/spar; network for the drivers)
 set -euo pipefail
@@ -31,7 +32,7 @@ try:
 except Exception:
     print(f"| ? | {profile} | no report (exit {code}) | | | {wall:.1f} s |")
     sys.exit(0)
-checks = d["checks"]
+checks = d["checks"] + d.get("model", {}).get("checks", [])
 ok = sum(c["passed"] for c in checks)
 print(f"| {d['driver'].split(' (')[0]} | {profile} | {'PASS' if d['passed'] else 'FAIL'} (exit {code}) | "
       f"{ok}/{len(checks)} | {d['validation']['messages']} | {wall:.1f} s |")

@@ -3,7 +3,8 @@
 # (examples/render_one_view) configured with find_package(spar) against that prefix only, built,
 # and run on the shipped model and scene under the validation layer. Checks that the example
 # links libspar and nothing of the engine's private dependencies, and that the view it wrote
-# has the model's size and is not blank.
+# has the model's size and is not blank; the installed `spar selftest` passes with the
+# self-test model installed beside it.
 #   install_example.sh BUILD_DIR SOURCE_DIR WORK_DIR
 set -eu
 build=$1 src=$2 work=$3
@@ -13,6 +14,17 @@ cmake --install "$build" --prefix "$work/prefix" > "$work/install.log"
 test -f "$work/prefix/include/spar/spar.h"
 test -f "$work/prefix/lib/pkgconfig/spar.pc"
 test -x "$work/prefix/bin/spar"
+# The installed `spar selftest` passes and runs the self-test model installed with it (not the
+# source tree's: SPAR_SELFTEST_DATA unset, share/spar/selftest beside its bin/).
+env -u SPAR_SELFTEST_DATA SPAR_VALIDATION=1 "$work/prefix/bin/spar" selftest --json > "$work/selftest.json"
+/usr/bin/python3 - "$work/selftest.json" "$work/prefix/share/spar/selftest" <<'PY'
+import json, sys
+doc = json.load(open(sys.argv[1]))
+assert doc["passed"], "installed spar selftest failed"
+assert doc["model"]["dir"] == sys.argv[2], doc["model"]["dir"]
+assert len(doc["model"]["checks"]) == 14 and all(c["passed"] for c in doc["model"]["checks"])
+print("installed spar selftest: passed, model from", doc["model"]["dir"])
+PY
 if ls "$work/prefix/include/spar" | grep -qv '\.h$'; then echo "non-header in include/spar"; exit 1; fi
 if grep '#include' "$work/prefix/include/spar/"*.h | grep -v '"spar/\|<[a-z_]*>'; then
   echo "a public header includes something other than spar/ and the standard library"; exit 1

@@ -1,6 +1,6 @@
 // Runs the photometric pipeline on one golden case (tests/golden_support.h) and compares every
 // stage the pipeline keeps with the reference's float64 golden of the same name, each with its
-// own NMSE threshold. Shared by test_spar_pipeline (the plain cases) and test_spar_stiff.
+// own NMSE threshold (model/stage_tolerances.h). Shared by test_spar_pipeline (the plain cases) and test_spar_stiff.
 #pragma once
 #include <map>
 #include <string>
@@ -9,13 +9,9 @@
 #include "engine/engine.h"
 #include "golden_support.h"
 #include "model/spar_pipeline.h"
+#include "model/stage_tolerances.h"
 
 namespace spar::test {
-
-struct StageCheck {
-  const char* name;
-  double maxNmse;
-};
 
 struct CaseOptions {
   std::string model;           // packed model path ("" = the tiny model)
@@ -32,7 +28,7 @@ struct CaseOptions {
   // Stage -> NMSE threshold replacing the fp32 one (test_spar_precision's fp16 table).
   std::map<std::string, double> thresholds;
   // Mask pixels may differ where the reference's probability is this close to the threshold.
-  double maskTieBand = 1e-4;
+  double maskTieBand = kMaskTieBand;
 };
 
 // Runs the case and checks all stages; returns the pipeline's stage times for further checks.

@@ -1,11 +1,13 @@
 // spar selftest (samples/spar_cli/selftest_command.h): on this device it passes (exit 0, every
-// check within its threshold, no validation message) as it is and under a device-limit
-// profile, prints the device, limits, plan and a verdict, gives the same as JSON,
-// and fails (exit 1, the verdict FAIL, the failing check named) when an op cannot run.
+// op check and every stage of the self-test model within its threshold, no validation message)
+// as it is and under a device-limit profile, prints the device, limits, plan and a verdict,
+// gives the same as JSON, and fails (exit 1, the verdict FAIL, the failing check named) when an
+// op cannot run, when a stage's output is off, and when the self-test model is missing.
 #include <gtest/gtest.h>
 
 #include <nlohmann/json.hpp>
 
+#include "formats/npy.h"
 #include "tests/cli_test_support.h"
 #include "tests/test_support.h"
 
@@ -18,7 +20,9 @@ TEST(spar_selftest, PassesAndPrintsTheDeviceLimitsPlanAndVerdict) {
   const CommandResult r = runValidated({SPAR_CLI, "selftest"}, scratch());
   ASSERT_EQ(r.code, 0) << r.out << r.err;
   for (const char* part : {"device ", "limits ", "plan\n", "linear 130x768x518", "softmax 33x1001", "conv2d 3x3",
-                           "validation layer: on, 0 messages", "linear 67x130x96, fp16 weights", "verdict: PASS (8 of 8 checks passed)"})
+                           "validation layer: on, 0 messages", "linear 67x130x96, fp16 weights",
+                           "model img_tokens 1x5x16x64", "model cv_drp_input.binary", " pixels differ (",
+                           "model rgb 1x2x3x64x64", "verdict: PASS (22 of 22 checks passed)"})
     EXPECT_NE(r.out.find(part), std::string::npos) << part << "\n" << r.out;
 }
 
@@ -42,6 +46,19 @@ TEST(spar_selftest, JsonUnderARaspberryPiProfile) {
     EXPECT_GT(c.at("ms").get<double>(), 0.0) << c.dump();
   }
   EXPECT_FALSE(doc.at("plan").empty());
+  // The self-test model: every stage it ships a reference of, each passed; the masks mixed.
+  const auto& model = doc.at("model").at("checks");
+  ASSERT_EQ(model.size(), 14u) << doc.at("model").dump();
+  for (const auto& c : model) {
+    EXPECT_TRUE(c.at("passed").get<bool>()) << c.dump();
+    EXPECT_GT(c.at("ms").get<double>(), 0.0) << c.dump();
+    if (c.at("name").get<std::string>().find(".binary") != std::string::npos) {
+      EXPECT_EQ(c.at("detail").get<std::string>().rfind("0 of ", 0), 0u) << c.dump();
+      EXPECT_EQ(c.at("detail").get<std::string>().find(" 0 dynamic"), std::string::npos) << c.dump();
+    } else {
+      EXPECT_LE(c.at("nmse").get<double>(), c.at("max_nmse").get<double>()) << c.dump();
+    }
+  }
 }
 
 TEST(spar_selftest, AFailingOpFailsTheVerdict) {
@@ -49,7 +66,32 @@ TEST(spar_selftest, AFailingOpFailsTheVerdict) {
   const CommandResult r = runValidated({SPAR_CLI, "selftest"}, scratch(), "SPAR_FAULT_ALLOCATION=1");
   EXPECT_EQ(r.code, 1) << r.out << r.err;
   EXPECT_NE(r.out.find("FAIL  linear 77x150x72"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("verdict: FAIL (7 of 8 checks passed)"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("verdict: FAIL (21 of 22 checks passed)"), std::string::npos) << r.out;
+}
+
+// A stage whose output is 1% off its reference fails that stage alone (here rgb, as a driver
+// that miscomputes the renderer's last layer would); a directory without the model is one
+// failing line naming where it looked.
+TEST(spar_selftest, AStageOffItsReferenceOrAMissingModelFailsTheVerdict) {
+  const std::filesystem::path model = scratch() / "off_model";
+  std::filesystem::remove_all(model);
+  std::filesystem::copy(SPAR_SELFTEST_SOURCE_DATA, model, std::filesystem::copy_options::recursive);
+  const std::string rgbFile = (model / "reference" / "rgb.npy").string();
+  NpyArray rgb = readNpy(rgbFile);
+  std::vector<double> v = rgb.toDoubles();
+  for (double& x : v) x *= 1.01;
+  writeNpy(rgbFile, rgb.shape, v.data());
+  CommandResult r = runValidated({SPAR_CLI, "selftest", "--model-dir", model.string()}, scratch());
+  EXPECT_EQ(r.code, 1) << r.out << r.err;
+  EXPECT_NE(r.out.find("FAIL  model rgb 1x2x3x64x64"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("pass  model decoder_out"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("verdict: FAIL (21 of 22 checks passed)"), std::string::npos) << r.out;
+
+  r = runValidated({SPAR_CLI, "selftest", "--model-dir", (scratch() / "nowhere").string()}, scratch());
+  EXPECT_EQ(r.code, 1) << r.out << r.err;
+  EXPECT_NE(r.out.find("FAIL  model"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("the self-test model is not in " + (scratch() / "nowhere").string()), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("verdict: FAIL (8 of 9 checks passed)"), std::string::npos) << r.out;
 }
 
 }  // namespace

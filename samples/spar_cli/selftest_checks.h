@@ -17,6 +17,7 @@ struct SelftestCheck {
   double ms = 0;                         // wall time of the check's device work, build included
   bool finite = true;
   std::string error;  // an exception's message, when the op failed to run
+  std::string detail; // shown instead of the error columns (a motion mask: pixels differing)
   bool passed() const { return error.empty() && finite && nmse <= maxNmse && maxAbs <= maxAbsLimit; }
 };
 

@@ -2,17 +2,44 @@
 // (selftest_checks.cpp) and a verdict, as a table or as JSON.
 #include "samples/spar_cli/selftest_command.h"
 
+#include <cmath>
 #include <cstdio>
 #include <iostream>
 #include <nlohmann/json.hpp>
 
 #include "engine/engine.h"
 #include "samples/spar_cli/selftest_checks.h"
+#include "samples/spar_cli/selftest_model.h"
 
 namespace spar::cli {
 namespace {
 
 std::string mib(uint64_t b) { return std::to_string(b >> 20) + " MiB"; }
+
+nlohmann::ordered_json checkJson(const SelftestCheck& c) {
+  auto bound = [](double v) { return std::isinf(v) ? nlohmann::ordered_json() : nlohmann::ordered_json(v); };
+  return {{"name", c.name}, {"family", c.family}, {"nmse", c.nmse}, {"max_abs", c.maxAbs},
+          {"max_nmse", c.maxNmse}, {"max_abs_limit", bound(c.maxAbsLimit)}, {"detail", c.detail}, {"ms", c.ms},
+          {"finite", c.finite}, {"error", c.error}, {"passed", c.passed()}};
+}
+
+void printCheck(const SelftestCheck& c) {
+  if (!c.error.empty()) {
+    std::printf("  FAIL  %-52s error: %s\n", c.name.c_str(), c.error.c_str());
+    return;
+  }
+  const char* verdict = c.passed() ? "pass" : "FAIL";
+  const char* nonFinite = c.finite ? "" : "  NON-FINITE";
+  if (!c.detail.empty()) {
+    std::printf("  %s  %-52s %-20s %s%s  %8.1f ms\n", verdict, c.name.c_str(), c.family.c_str(), c.detail.c_str(),
+                nonFinite, c.ms);
+    return;
+  }
+  char absBound[32] = "-";
+  if (!std::isinf(c.maxAbsLimit)) std::snprintf(absBound, sizeof absBound, "<= %.0e", c.maxAbsLimit);
+  std::printf("  %s  %-52s %-20s nmse %.1e (<= %.0e)  max abs %.1e (%s)%s  %8.1f ms\n", verdict, c.name.c_str(),
+              c.family.c_str(), c.nmse, c.maxNmse, c.maxAbs, absBound, nonFinite, c.ms);
+}
 
 nlohmann::ordered_json limitsJson(const DeviceCaps& c) {
   return {{"max_texel_buffer_elements", c.maxTexelBufferElements},
@@ -53,10 +80,22 @@ bool runSelftest(const SelftestArgs& args) {
   const DeviceCaps& caps = engine->caps();
   const std::vector<std::string> plan = describePlan(engine->plan(), caps);
   const std::vector<SelftestCheck> checks = runSelftestChecks(*engine);
+  const std::string modelDir = findSelftestModel(args.model);
+  std::vector<SelftestCheck> modelChecks;
+  if (modelDir.empty()) {
+    SelftestCheck missing{"model", "-"};
+    missing.error = "the self-test model is not in " + selftestModelSearchPath(args.model) +
+                    " (reinstall the package, or --model-dir DIR)";
+    modelChecks.push_back(std::move(missing));
+  } else {
+    modelChecks = runSelftestModel(*engine, modelDir);
+  }
   const size_t messages = engine->device().validationMessageCount();
   size_t passed = 0;
   for (const SelftestCheck& c : checks) passed += c.passed();
-  const bool ok = passed == checks.size() && messages == 0;
+  for (const SelftestCheck& c : modelChecks) passed += c.passed();
+  const size_t total = checks.size() + modelChecks.size();
+  const bool ok = passed == total && messages == 0;
 
   if (args.json) {
     nlohmann::ordered_json doc;
@@ -67,10 +106,9 @@ bool runSelftest(const SelftestArgs& args) {
     doc["limits"] = limitsJson(caps);
     doc["plan"] = plan;
     doc["checks"] = nlohmann::ordered_json::array();
-    for (const SelftestCheck& c : checks)
-      doc["checks"].push_back({{"name", c.name}, {"family", c.family}, {"nmse", c.nmse}, {"max_abs", c.maxAbs},
-                               {"max_nmse", c.maxNmse}, {"max_abs_limit", c.maxAbsLimit}, {"ms", c.ms},
-                               {"finite", c.finite}, {"error", c.error}, {"passed", c.passed()}});
+    for (const SelftestCheck& c : checks) doc["checks"].push_back(checkJson(c));
+    doc["model"] = {{"dir", modelDir}, {"checks", nlohmann::ordered_json::array()}};
+    for (const SelftestCheck& c : modelChecks) doc["model"]["checks"].push_back(checkJson(c));
     doc["validation"] = {{"enabled", options.validation}, {"messages", messages}};
     doc["passed"] = ok;
     std::cout << doc.dump(1) << "\n";
@@ -92,20 +130,15 @@ bool runSelftest(const SelftestArgs& args) {
   std::printf("plan\n");
   for (const std::string& line : plan) std::printf("  %s\n", line.c_str());
   std::printf("checks (against float64 on the host)\n");
-  for (const SelftestCheck& c : checks) {
-    if (!c.error.empty()) {
-      std::printf("  FAIL  %-52s error: %s\n", c.name.c_str(), c.error.c_str());
-      continue;
-    }
-    std::printf("  %s  %-52s %-20s nmse %.1e (<= %.0e)  max abs %.1e (<= %.0e)%s  %8.1f ms\n", c.passed() ? "pass" : "FAIL",
-                c.name.c_str(), c.family.c_str(), c.nmse, c.maxNmse, c.maxAbs, c.maxAbsLimit,
-                c.finite ? "" : "  NON-FINITE", c.ms);
-  }
+  for (const SelftestCheck& c : checks) printCheck(c);
+  std::printf("model %s (stage by stage against the PyTorch reference in float64; time: the stage's)\n",
+              modelDir.empty() ? "not found" : modelDir.c_str());
+  for (const SelftestCheck& c : modelChecks) printCheck(c);
   if (options.validation)
     std::printf("validation layer: on, %zu message%s\n", messages, messages == 1 ? "" : "s");
   else
     std::printf("validation layer: %s\n", validationNote.c_str());
-  std::printf("verdict: %s (%zu of %zu checks passed%s)\n", ok ? "PASS" : "FAIL", passed, checks.size(),
+  std::printf("verdict: %s (%zu of %zu checks passed%s)\n", ok ? "PASS" : "FAIL", passed, total,
               messages ? ", validation messages" : "");
   return ok;
 }

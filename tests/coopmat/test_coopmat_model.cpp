@@ -23,7 +23,6 @@ TEST_F(CoopMatModelTest, TinyModelWithFp16WeightsMatchesGoldens) {
   CaseOptions o;
   o.weightType = DType::F16;
   o.thresholds = fp16WeightThresholds();
-  o.maskTieBand = 1e-4;
   runGoldenCase(eng(), "interleaved", o);
 }
 

@@ -1,0 +1,178 @@
+// The self-test model (selftest_model.h).
+#include "samples/spar_cli/selftest_model.h"
+
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <nlohmann/json.hpp>
+
+#include "engine/error.h"
+#include "formats/npy.h"
+#include "model/packed_model.h"
+#include "model/spar_pipeline.h"
+#include "model/stage_tolerances.h"
+
+namespace spar::cli {
+namespace fs = std::filesystem;
+namespace {
+
+constexpr double kUnbounded = std::numeric_limits<double>::infinity();
+
+// The pipeline stage (SparPipeline's stage names, model/spar_pipeline.cpp) that makes each
+// output the self-test compares: its time is that stage's.
+const std::map<std::string, std::string>& stageOf() {
+  static const std::map<std::string, std::string> table = {
+      {"img_tokens", "image_tokens"}, {"cam_tokens", "pose_estimator"}, {"c2w", "pose_estimator"},
+      {"fxfycxcy", "pose_estimator"}, {"ray_tokens", "rays"},           {"dino", "dino_v3"},
+      {"cv_drp_input.prob", "cv_drp"}, {"cv_drp_input.binary", "cv_drp"}, {"cv_drp_target.prob", "cv_drp"},
+      {"cv_drp_target.binary", "cv_drp"}, {"gated_tokens", "gating"},   {"scene_tokens", "scene_encoder"},
+      {"decoder_out", "renderer"},     {"rgb", "renderer"},
+  };
+  return table;
+}
+
+std::string shapeText(const std::vector<int64_t>& shape) {
+  std::string s;
+  for (int64_t d : shape) s += (s.empty() ? "" : "x") + std::to_string(d);
+  return s;
+}
+
+bool endsWith(const std::string& s, const std::string& tail) {
+  return s.size() >= tail.size() && s.compare(s.size() - tail.size(), tail.size(), tail) == 0;
+}
+
+// An output against the reference: NMSE, max abs, finiteness.
+void compareValues(SelftestCheck& c, const std::vector<float>& got, const std::vector<double>& want) {
+  double err = 0, ref = 0;
+  for (size_t i = 0; i < want.size(); ++i) {
+    if (!std::isfinite(got[i])) c.finite = false;
+    const double d = double(got[i]) - want[i];
+    err += d * d;
+    ref += want[i] * want[i];
+    c.maxAbs = std::max(c.maxAbs, std::abs(d));
+  }
+  c.nmse = ref > 0 ? err / ref : err;
+}
+
+// A motion mask: the engine's P(dynamic) > threshold against the reference's mask, identical
+// but for near-ties (model/stage_tolerances.h).
+void compareMask(SelftestCheck& c, const std::vector<float>& prob, const std::vector<double>& wantProb,
+                 const std::vector<double>& wantMask, double threshold) {
+  size_t differ = 0, ties = 0, dynamic = 0;
+  for (size_t i = 0; i < wantMask.size(); ++i) {
+    if (!std::isfinite(prob[i])) c.finite = false;
+    const bool mine = prob[i] > threshold, theirs = wantMask[i] != 0.0;
+    dynamic += theirs;
+    if (mine == theirs) continue;
+    if (std::abs(wantProb[i] - threshold) < kMaskTieBand) ++ties;
+    else ++differ;
+  }
+  c.nmse = double(differ);  // the count of differing pixels, required 0
+  c.detail = std::to_string(differ) + " of " + std::to_string(wantMask.size()) + " pixels differ (" +
+             std::to_string(ties) + " near-ties; " + std::to_string(dynamic) + " dynamic)";
+}
+
+nlohmann::json readManifest(const fs::path& dir) {
+  std::ifstream in(dir / "manifest.json");
+  if (!in) throw Error("cannot read " + (dir / "manifest.json").string());
+  try {
+    return nlohmann::json::parse(in);
+  } catch (const std::exception& e) {
+    throw Error((dir / "manifest.json").string() + ": not JSON (" + e.what() + ")");
+  }
+}
+
+}  // namespace
+
+std::string selftestModelSearchPath(const std::string& explicitDir) {
+  if (!explicitDir.empty()) return explicitDir;
+  std::string path;
+  if (const char* env = std::getenv("SPAR_SELFTEST_DATA"); env && *env) path += std::string(env) + ":";
+  std::error_code ec;
+  const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
+  if (!ec) path += (exe.parent_path().parent_path() / "share" / "spar" / "selftest").string() + ":";
+#ifdef SPAR_SELFTEST_SOURCE_DATA
+  path += SPAR_SELFTEST_SOURCE_DATA;
+#endif
+  if (!path.empty() && path.back() == ':') path.pop_back();
+  return path;
+}
+
+std::string findSelftestModel(const std::string& explicitDir) {
+  const std::string path = selftestModelSearchPath(explicitDir);
+  size_t start = 0;
+  while (start <= path.size()) {
+    const size_t end = explicitDir.empty() ? std::min(path.find(':', start), path.size()) : path.size();
+    const std::string dir = path.substr(start, end - start);
+    std::error_code ec;
+    if (!dir.empty() && fs::is_regular_file(fs::path(dir) / "manifest.json", ec)) return dir;
+    start = end + 1;
+  }
+  return "";
+}
+
+std::vector<SelftestCheck> runSelftestModel(Engine& engine, const std::string& dirName) {
+  std::vector<SelftestCheck> checks;
+  const fs::path dir(dirName);
+  try {
+    const nlohmann::json manifest = readManifest(dir);
+    const PackedModel model = PackedModel::open((dir / "model.spar").string());
+    SparPipeline pipe(engine, model, {.profile = true, .keepIntermediates = true});
+    const SparConfig& config = pipe.config();
+    const std::vector<std::string> stages = manifest.at("stages").get<std::vector<std::string>>();
+    SparRequest request;
+    const int64_t views = manifest.at("views").get<int64_t>();
+    request.images = readNpy((dir / "images.npy").string(), {views, 3, config.imageHeight, config.imageWidth}).toFloats();
+    request.plan.views = views;
+    request.plan.inputs = manifest.at("inputs").get<std::vector<int64_t>>();
+    request.plan.targets = manifest.at("targets").get<std::vector<int64_t>>();
+    for (const std::string& s : stages) request.targetMotion |= s.rfind("cv_drp_target.", 0) == 0;
+    pipe.encode(request);
+    pipe.renderTargets();
+
+    std::map<std::string, double> stageMs;
+    for (const StageTime& t : pipe.stageTimes()) stageMs[t.name] += t.wallMs;
+    for (const std::string& name : stages) {
+      const auto stage = stageOf().find(name);
+      SelftestCheck c{"model " + name, stage == stageOf().end() ? "-" : stage->second};
+      c.maxAbsLimit = kUnbounded;  // the model tests bound NMSE; max abs is reported
+      try {
+        const NpyArray want = readNpy((dir / "reference" / (name + ".npy")).string());
+        c.name += " " + shapeText(want.shape);
+        if (stage != stageOf().end()) c.ms = stageMs[stage->second];
+        if (endsWith(name, ".binary")) {
+          const std::string prob = name.substr(0, name.size() - 7) + ".prob";
+          const std::vector<float> got = engine.download(pipe.intermediate(prob));
+          const std::vector<double> wantProb = readNpy((dir / "reference" / (prob + ".npy")).string()).toDoubles();
+          if (got.size() != size_t(want.numel()) || wantProb.size() != got.size())
+            throw Error(name + ": " + std::to_string(got.size()) + " pixels, the reference has " +
+                        std::to_string(want.numel()));
+          c.maxNmse = 0;
+          compareMask(c, got, wantProb, want.toDoubles(), config.maskThreshold);
+        } else {
+          const std::vector<float> got = engine.download(pipe.intermediate(name));
+          if (got.size() != size_t(want.numel()))
+            throw Error(name + ": " + std::to_string(got.size()) + " values, the reference has " +
+                        std::to_string(want.numel()));
+          c.maxNmse = fp32StageNmseBound(name);
+          compareValues(c, got, want.toDoubles());
+        }
+      } catch (const std::exception& e) {
+        c.error = e.what();
+      }
+      checks.push_back(std::move(c));
+    }
+  } catch (const std::exception& e) {
+    SelftestCheck c{"model " + dir.string(), "-"};
+    c.error = e.what();
+    checks.push_back(std::move(c));
+  }
+  return checks;
+}
+
+}  // namespace spar::cli
