@@ -14,7 +14,7 @@ writes OUT_DIR/
     images.npy        the five prepared input frames [5, 3, 64, 64] (float32: what the engine reads)
     reference/*.npy   the PyTorch reference's float64 output of the stages `spar selftest` checks
     manifest.json     inputs, targets, the stages in pipeline order, and how this was made
-Deterministic: the same torch makes the same files. Needs Debian's python3-torch; the engine
+Deterministic: the same torch makes the same files (tests/CMakeLists.txt: selftest_model_remade). Needs Debian's python3-torch; the engine
 and its tests need only what this writes.
 """
 import json
@@ -88,8 +88,16 @@ def main(argv):
         stage = out + ".tmp"
         shutil.rmtree(stage, ignore_errors=True)
         os.makedirs(os.path.join(stage, "reference"))
-        if convert(["-q", "--fp16", ck, "--config", cfg_path, "-o", os.path.join(stage, "model.spar")]) != 0:
-            raise SystemExit("make_selftest_model: spar-convert failed")
+        # From the work directory with relative names: the pack records its sources' paths, and a
+        # temporary directory's name would make every run's file differ.
+        here = os.getcwd()
+        os.chdir(work)
+        try:
+            if convert(["-q", "--fp16", "selftest.pt", "--config", "selftest.json", "-o",
+                        os.path.join(stage, "model.spar")]) != 0:
+                raise SystemExit("make_selftest_model: spar-convert failed")
+        finally:
+            os.chdir(here)
         goldens = os.path.join(work, "goldens")
         if reference(goldens_args + ["--out", goldens]) != 0:
             raise SystemExit("make_selftest_model: spar-reference goldens failed")
