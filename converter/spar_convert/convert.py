@@ -26,8 +26,8 @@ import zlib
 
 import numpy as np
 
-from .model_config import (SparConfig, backbone_config, read_config_file, resolve_config,
-                           stated_image_size)
+from .model_config import (PRESETS, SparConfig, backbone_config, matching_preset, read_config_file,
+                           resolve_config, stated_image_size)
 from .safetensors_file import SafetensorsError, TensorSpec, write_safetensors
 from .torch_checkpoint import CheckpointError, open_checkpoint, open_torchscript
 
@@ -303,6 +303,11 @@ _STACKS = {
     "dino": ("blocks",),
     "clip": ("transformer.resblocks",),
 }
+
+
+def _spar_shapes(inp):
+    """name -> shape of the checkpoint's SPAR tensors."""
+    return {k: tuple(ref.shape) for k, ref in inp.spar.tensors.items()}
 
 
 def _shape(src, key, ndim=None):
@@ -989,9 +994,21 @@ def convert(args, out=None):
     try:
         notes, stderr_notes = [], []
         stated = None
+        config_from = args.config  # where the configuration came from, as the notes say it
         if args.config:
             cfg, stated = load_config(args.config)
             how = "from %s" % args.config
+            note = dino_sizes_from_tensors(cfg, inp)
+            if note:
+                stderr_notes.append(note)
+        elif matching_preset(_spar_shapes(inp)):
+            # The rule spar-reference follows too (model_config.matching_preset): the preset
+            # whose sizes the tensors have is the configuration, image size included.
+            preset = matching_preset(_spar_shapes(inp))
+            cfg = PRESETS[preset]()
+            stated = (cfg.image_height, cfg.image_width)
+            config_from = "the %s preset" % preset
+            how = "the %s preset (the checkpoint's tensor sizes are its)" % preset
             note = dino_sizes_from_tensors(cfg, inp)
             if note:
                 stderr_notes.append(note)
@@ -1005,7 +1022,7 @@ def convert(args, out=None):
             size_from = "--size"
             if stated and tuple(stated) != tuple(args.size):
                 stderr_notes.append("--size %dx%d replaces the %dx%d of %s"
-                                    % (args.size + stated + (args.config,)))
+                                    % (args.size + stated + (config_from,)))
             cfg.image_height, cfg.image_width = args.size
         elif stated:
             size_from = "config"
@@ -1013,7 +1030,7 @@ def convert(args, out=None):
             size_from = "default"
         size_text = "%dx%d" % (cfg.image_height, cfg.image_width)
         notes.append("image size %s (HxW) from %s" % (size_text, {
-            "--size": "--size", "config": args.config,
+            "--size": "--size", "config": config_from,
             "default": "nowhere: the official default"}[size_from]))
         if inp.dino_norm:
             for key in ("mean", "std"):
@@ -1052,7 +1069,7 @@ def convert(args, out=None):
             "components": components,
             "sources": {k: v for k, v in inp.source_of.items()},
             "files": [{"role": r, "path": os.path.basename(p), "bytes": n} for r, p, n in inp.files],
-            "config_from": "file" if args.config else "inferred",
+            "config_from": "file" if args.config else ("preset" if config_from else "inferred"),
             "image_size_from": size_from,
             "kept": {e.name: e.sources[0] for e in entries if e.kind == "kept"},
             "folded": {e.name: e.sources for e in entries if e.kind in ("folded", "created")},

@@ -434,6 +434,49 @@ def tiny() -> SparConfig:
 PRESETS = {"full": full, "tiny": tiny}
 
 
+def tensor_signature(cfg: SparConfig) -> Dict[str, Any]:
+    """The tensor sizes that tell SPAR configurations apart: a few shapes ("name": shape, None
+    for a tensor the configuration has not) and layer counts ("n:stack": layers)."""
+    p, d = cfg.patch_size, cfg.d
+    return {
+        "scene_code": (cfg.scene_tokens, d),
+        "image_tokenizer.1.weight": (d, cfg.image_channels * p * p),
+        "n:transformer_encoder": cfg.encoder_n_layer,
+        "n:transformer_encoder_geom": cfg.encoder_geom_n_layer,
+        "n:transformer_decoder": cfg.decoder_n_layer,
+        "n:cv_drp.estimator.transformer_layers": cfg.cv_drp_n_layer,
+        "transformer_encoder.0.attn.q_norm.weight": (cfg.d_head,) if cfg.use_qk_norm else None,
+        "semantic_proj.weight": (d, cfg.semantic_dim + 6) if cfg.use_lseg else None,
+    }
+
+
+def checkpoint_signature(shapes: Dict[str, Tuple[int, ...]], keys) -> Dict[str, Any]:
+    """The same keys as tensor_signature, read from a checkpoint's SPAR tensors (name -> shape)."""
+    sig: Dict[str, Any] = {}
+    for k in keys:
+        if k.startswith("n:"):
+            pre = k[2:] + "."
+            idx = {int(x[len(pre):].split(".")[0]) for x in shapes
+                   if x.startswith(pre) and x[len(pre):].split(".")[0].isdigit()}
+            sig[k] = len(idx)
+        else:
+            sig[k] = tuple(shapes[k]) if k in shapes else None
+    return sig
+
+
+def matching_preset(shapes: Dict[str, Tuple[int, ...]]) -> Optional[str]:
+    """The preset whose tensor sizes a checkpoint without a configuration has, or None.
+
+    The one rule of both tools (spar-convert, spar-reference) for such a checkpoint: a preset it
+    matches is its configuration, image size included (tiny: 128x128); otherwise the sizes come
+    from its tensors and the image size, which no tensor holds, is the official 256x256."""
+    for name, make in PRESETS.items():
+        want = tensor_signature(make())
+        if checkpoint_signature(shapes, want) == want:
+            return name
+    return None
+
+
 def get_config(name_or_path: str) -> SparConfig:
     """A preset name (``full``, ``tiny``) or a YAML/JSON path."""
     if name_or_path in PRESETS:

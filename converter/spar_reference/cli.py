@@ -197,45 +197,17 @@ def load_checkpoint(path: str) -> Dict[str, Any]:
     return sd
 
 
-def _preset_signature(cfg) -> Dict[str, Any]:
-    p, d = cfg.patch_size, cfg.d
-    sig = {
-        "scene_code": (cfg.scene_tokens, d),
-        "image_tokenizer.1.weight": (d, cfg.image_channels * p * p),
-        "n:transformer_encoder": cfg.encoder_n_layer,
-        "n:transformer_encoder_geom": cfg.encoder_geom_n_layer,
-        "n:transformer_decoder": cfg.decoder_n_layer,
-        "n:cv_drp.estimator.transformer_layers": cfg.cv_drp_n_layer,
-        "transformer_encoder.0.attn.q_norm.weight": (cfg.d_head,) if cfg.use_qk_norm else None,
-        "semantic_proj.weight": (d, cfg.semantic_dim + 6) if cfg.use_lseg else None,
-    }
-    return sig
-
-
-def _state_signature(sd: Dict[str, Any], keys) -> Dict[str, Any]:
-    sig = {}
-    for k in keys:
-        if k.startswith("n:"):
-            pre = k[2:] + "."
-            idx = {int(x[len(pre):].split(".")[0]) for x in sd
-                   if x.startswith(pre) and x[len(pre):].split(".")[0].isdigit()}
-            sig[k] = len(idx)
-        else:
-            sig[k] = tuple(sd[k].shape) if k in sd else None
-    return sig
-
-
 def infer_config(sd: Dict[str, Any], path: str):
-    """The config of a checkpoint: the preset (tiny, full) whose tensor sizes the checkpoint
-    matches (image size and the other sizes the tensors do not carry come from the preset);
-    else the converter's inference from the tensors (spar_convert.convert.infer_config: the
-    sizes the tensors do not carry, image size included, are the official defaults)."""
+    """The config of a checkpoint, by the rule spar-convert follows too
+    (spar_convert.model_config.matching_preset): the preset (tiny, full) whose tensor sizes the
+    checkpoint matches (image size and the other sizes the tensors do not carry come from the
+    preset); else the converter's inference from the tensors (spar_convert.convert.infer_config:
+    the sizes the tensors do not carry, image size included, are the official defaults)."""
     from . import config as config_mod
-    for name, make in config_mod.PRESETS.items():
-        cfg = make()
-        want = _preset_signature(cfg)
-        if _state_signature(sd, want) == want:
-            return cfg
+    from spar_convert.model_config import matching_preset
+    preset = matching_preset({k: tuple(v.shape) for k, v in sd.items()})
+    if preset:
+        return config_mod.PRESETS[preset]()
     try:
         from types import SimpleNamespace
         from spar_convert.convert import infer_config as convert_infer, read_inputs
@@ -294,8 +266,9 @@ def build_model(cfg, sd: Dict[str, Any], float64: bool):
         raise CliError("checkpoint has no DINOv3 weights (_dino_v3.*): this tool needs a "
                        "training checkpoint that carries them")
     # cheap size check first: building a full-size model takes a while
-    want = _preset_signature(cfg)
-    got = _state_signature(sd, want)
+    from spar_convert.model_config import checkpoint_signature, tensor_signature
+    want = tensor_signature(cfg)
+    got = checkpoint_signature({k: tuple(v.shape) for k, v in sd.items()}, want)
     diff = [k for k in want if want[k] != got[k]]
     if diff:
         k = diff[0]

@@ -97,7 +97,7 @@ def f32(work):
 
 
 # ----------------------------------------------------------------------------- conversion
-def test_metadata_and_inferred_config(f32):
+def test_metadata_and_inferred_config(f32, work):
     out, so, f, meta, cfg, rec = f32
     assert meta["format"] == "spar-vulkan" and meta["format_version"] == "1"
     want = tiny().to_dict()
@@ -106,7 +106,17 @@ def test_metadata_and_inferred_config(f32):
     assert without(cfg, skip) == without(want, skip)
     assert json.loads(meta["components"]) == {"spar": True, "dino": True, "lseg": True,
                                               "clip": False, "bpe": False}
-    assert "configuration inferred" in so and "MB in" in so and "MB out" in so
+    # a checkpoint with the tiny preset's sizes takes that preset (as spar-reference does) ...
+    assert "configuration the tiny preset" in so and "MB in" in so and "MB out" in so
+    # ... and the inference from its tensors, what a checkpoint of no preset gets, agrees
+    from types import SimpleNamespace
+    from spar_convert.convert import infer_config, read_inputs
+    inp = read_inputs(SimpleNamespace(checkpoint=str(work["ckpt"]), dino=None, lseg=None, clip=None, bpe=None))
+    try:
+        inferred = infer_config(inp, []).validate().to_dict()
+    finally:
+        inp.close()
+    assert without(inferred, skip) == without(want, skip)
     for word in ("kept", "folded", "dropped", "converted"):
         assert word in so
 
@@ -442,9 +452,22 @@ def test_official_yaml_gives_size_and_dino_tensors_give_heads_depth(sized):
     assert "image size 128x128 (HxW) from" in so
 
 
-def test_unknown_image_size_warns_and_size_flag_sets_it(sized):
+def test_image_size_rule_is_the_reference_s_and_unknown_size_warns(sized, work):
+    from spar_reference.cli import get_config
+    # no --config, the tiny preset's tensor sizes: the preset's configuration and 128x128, the
+    # size spar-reference renders the same file at (one rule: model_config.matching_preset)
+    out = sized["dir"] / "preset.spar"
+    rc, so, se = run(work["ckpt"], "-o", out, "-q")
+    assert rc == 0 and "warning" not in se, se
+    cfg, rec = read(out)[2:]
+    assert (cfg["image_height"], cfg["image_width"]) == (128, 128)
+    assert (rec["config_from"], rec["image_size_from"]) == ("preset", "config")
+    ref = get_config(None, work["sd"], str(work["ckpt"]))
+    assert (ref.image_height, ref.image_width) == (128, 128)
+    # sizes of no preset (this checkpoint has no semantic branch): the official default, said
+    # on stderr (even with -q), recorded as such; the reference infers the same size
     d, ck = sized["dir"], sized["ckpt"]
-    # no --config: the default, said on stderr (even with -q), recorded as such
+    assert get_config(None, torch.load(ck)["model"], str(ck)).image_height == 256
     out = d / "nosize.spar"
     rc, so, se = run(ck, "-o", out, "-q")
     assert rc == 0, se
