@@ -32,6 +32,13 @@ fi
 cmake -S "$src/examples/render_one_view" -B "$work/build" -DCMAKE_BUILD_TYPE=Release \
       -DCMAKE_PREFIX_PATH="$work/prefix" > "$work/configure.log"
 cmake --build "$work/build" > "$work/build.log"
+# The same example built as the README's pkg-config line does, from the pkg-config file alone
+# (its prefix relative to its own place, not the build's configured one).
+flags=$(PKG_CONFIG_PATH="$work/prefix/lib/pkgconfig" pkg-config --cflags --libs spar)
+echo "pkg-config: $flags"
+case "$flags" in *"$work/prefix/lib/pkgconfig/../../include"*) ;; *) echo "pkg-config: not the scratch prefix"; exit 1;; esac
+c++ -O1 "$src/examples/render_one_view/render_one_view.cpp" $flags -o "$work/render_one_view_pc"
+LD_LIBRARY_PATH="$work/prefix/lib" "$work/render_one_view_pc" 2>&1 | grep -q "usage" || { echo "pkg-config build does not run"; exit 1; }
 needed=$(readelf -d "$work/build/render_one_view" | grep NEEDED)
 echo "$needed"
 echo "$needed" | grep -q 'libspar\.so'
