@@ -303,4 +303,24 @@ ojson camerasJson(const CamerasDocument& doc) {
   return d;
 }
 
+CameraD estimatedCamera(const Encoded& e, int64_t i) {
+  if (i < 0 || size_t(i + 1) * 16 > e.c2w.size() || size_t(i + 1) * 4 > e.fxfycxcy.size())
+    throw Error("no estimated camera " + std::to_string(i) + " (" + std::to_string(e.c2w.size() / 16) + " views encoded)");
+  CameraD c;
+  for (int k = 0; k < 16; ++k) c.c2w[k] = e.c2w[size_t(i) * 16 + k];
+  for (int k = 0; k < 4; ++k) c.k[k] = e.fxfycxcy[size_t(i) * 4 + k];
+  return c;
+}
+
+std::vector<CameraD> inputCameraPath(const Encoded& e, const std::vector<int64_t>& inputs, int n) {
+  if (inputs.empty()) throw Error("a camera path needs at least 1 input camera to follow");
+  std::vector<Mat4d> c2w;
+  for (int64_t i : inputs) c2w.push_back(estimatedCamera(e, i).c2w);
+  const auto path = interpolatePath(c2w, n);
+  const std::array<double, 4> k = estimatedCamera(e, inputs.front()).k;
+  std::vector<CameraD> cams(path.size());
+  for (size_t j = 0; j < path.size(); ++j) cams[j] = {path[j], k};
+  return cams;
+}
+
 }  // namespace spar

@@ -66,6 +66,12 @@ std::array<double, 4> slerp(const std::array<double, 4>& q0, const std::array<do
 // Throws spar::Error for N < 1 or no cameras.
 std::vector<Mat4d> interpolatePath(const std::vector<Mat4d>& c2w, int n);
 
+// Camera i of an encoded request (the estimated one), in double.
+CameraD estimatedCamera(const Encoded& encoded, int64_t i);
+// The reference's --path: N cameras along the estimated input cameras (interpolatePath), all
+// with the first input's intrinsics. Throws spar::Error for N < 1 or no inputs.
+std::vector<CameraD> inputCameraPath(const Encoded& encoded, const std::vector<int64_t>& inputs, int n);
+
 // One frame of cameras.json (cameras.camera_entry): `extra` first (file_path, index, role ...),
 // then transform_matrix (OpenGL), fl_x, fl_y, cx, cy (pixels of w x h), w, h,
 // intrinsics_normalized {fx, fy, cx, cy}, c2w_opencv. Keys keep this order.

@@ -7,6 +7,7 @@ packages=(
   libvulkan-dev vulkan-tools mesa-vulkan-drivers vulkan-validationlayers glslang-tools
   libglm-dev libopenimageio-dev openimageio-tools
   libgtest-dev nlohmann-json3-dev libcli11-dev libfmt-dev zlib1g-dev libicu-dev fonts-dejavu-core
+  pybind11-dev python3-dev
   ffmpeg
   python3 python3-numpy python3-torch python3-yaml python3-pytest python3-pil libopenblas0-pthread
 )

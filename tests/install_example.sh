@@ -32,6 +32,12 @@ fi
 cmake -S "$src/examples/render_one_view" -B "$work/build" -DCMAKE_BUILD_TYPE=Release \
       -DCMAKE_PREFIX_PATH="$work/prefix" > "$work/configure.log"
 cmake --build "$work/build" > "$work/build.log"
+# `import spar` from the prefix with the README's one line (PYTHONPATH), from another directory.
+(cd "$work" && PYTHONPATH="$work/prefix/lib/python3/dist-packages" /usr/bin/python3 -c "
+import spar
+m = spar.Model.open('$work/prefix/share/spar/spar_rooms.spar')
+assert m.image_size == (128, 128) and spar.__file__.startswith('$work/prefix/'), spar.__file__
+print('import spar from', spar.__file__)")
 # The same example built as the README's pkg-config line does, from the pkg-config file alone
 # (its prefix relative to its own place, not the build's configured one).
 flags=$(PKG_CONFIG_PATH="$work/prefix/lib/pkgconfig" pkg-config --cflags --libs spar)

@@ -12,7 +12,9 @@
 // Only what a request needs runs (no motion prediction with assumeStatic, no semantic head
 // unless semanticFeatures). A Session is not thread-safe; the Context and Model must outlive it.
 #pragma once
+#include <cstdint>
 #include <memory>
+#include <string>
 #include <vector>
 
 #include "spar/context.h"
@@ -43,6 +45,14 @@ class SPAR_API Session {
   // The semantic features [R, C, H/2, W/2] of the last render call (requests with
   // semanticFeatures on a semantic model; else empty).
   std::vector<float> features();
+  // Open-vocabulary label maps of the last render call: per rendered view, the index of the
+  // prompt whose CLIP text embedding best matches each pixel's semantic feature (first maximum),
+  // [H/2 * W/2] row-major. Needs a request with semanticFeatures and a model that carries CLIP's
+  // tokenizer (spar-convert --bpe); the prompts' embeddings are kept for the next call with the
+  // same prompts. Prompts longer than CLIP's 77 tokens are cut there, each with a line in
+  // *warnings when given. Throws spar::Error (one line).
+  std::vector<std::vector<int32_t>> labelMaps(const std::vector<std::string>& prompts,
+                                              std::vector<std::string>* warnings = nullptr);
 
   // Stages that ran since construction, in order.
   const std::vector<StageTime>& stageTimes() const;

@@ -1,5 +1,6 @@
 // SPAR on Vulkan: the whole public interface (link spar::spar; pkg-config spar).
 #pragma once
+#include "spar/cameras.h"
 #include "spar/context.h"
 #include "spar/engine_options.h"
 #include "spar/error.h"

@@ -20,7 +20,8 @@
 #include "samples/spar_cli/staged_dir.h"
 #include "samples/spar_cli/eval_metrics.h"
 #include "samples/spar_cli/eval_scenes.h"
-#include "samples/spar_cli/label_text.h"
+#include "text/prompt_labels.h"
+#include "samples/spar_cli/warnings.h"
 #include "samples/spar_cli/progress.h"
 #include "samples/spar_cli/render_outputs.h"
 
@@ -156,7 +157,11 @@ void runEval(const EvalArgs& a) {
   const bool semantic = cfg.semanticDecoding();
   const std::vector<std::string>& classNames = scenes.front().classNames;
   std::vector<int32_t> promptIds;
-  if (semantic) promptIds = tokenizePrompts(model, classNames);
+  if (semantic) {
+    const TokenizedPrompts tokenized = tokenizePrompts(model, classNames);
+    warnAboutPrompts(tokenized, classNames.size());
+    promptIds = tokenized.ids;
+  }
 
   const size_t plane = size_t(h) * size_t(w);
   std::vector<KResult> results(ks.size());

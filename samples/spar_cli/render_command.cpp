@@ -10,7 +10,7 @@
 #include "engine/memory.h"
 #include "engine/recorder.h"
 #include "formats/cameras.h"
-#include "formats/colmap.h"
+#include "formats/camera_files.h"
 #include "imaging/image_prep.h"
 #include "model/camera_checks.h"
 #include "model/memory_estimate.h"
@@ -19,7 +19,7 @@
 #include "model/spar_pipeline.h"
 #include "samples/spar_cli/errors.h"
 #include "samples/spar_cli/kernel_report.h"
-#include "samples/spar_cli/label_text.h"
+#include "text/prompt_labels.h"
 #include "samples/spar_cli/progress.h"
 #include "samples/spar_cli/render_outputs.h"
 #include "samples/spar_cli/staged_dir.h"
@@ -116,7 +116,9 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
                   "not available");
   }
   if (a.labels) {
-    v.labelIds = tokenizePrompts(*v.model, v.labels);
+    const TokenizedPrompts tokenized = tokenizePrompts(*v.model, v.labels);
+    warnAboutPrompts(tokenized, v.labels.size());
+    v.labelIds = tokenized.ids;
   }
 
   t = Clock::now();
@@ -129,14 +131,9 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
     v.images.insert(v.images.end(), img.begin(), img.end());
   }
   if (!a.cameras.empty()) {
-    // A COLMAP text model (a directory or its images.txt), else a nerfstudio transforms.json.
-    if (isColmapPath(a.cameras)) {
-      ColmapCameras m = readColmap(a.cameras, w, h);
-      if (!m.warning.empty()) std::fprintf(stderr, "spar: warning: %s\n", m.warning.c_str());
-      v.cameras = std::move(m.cameras);
-    } else {
-      v.cameras = readTransforms(a.cameras, w, h);
-    }
+    std::string warning;
+    v.cameras = readCameraFile(a.cameras, w, h, &warning);
+    if (!warning.empty()) std::fprintf(stderr, "spar: warning: %s\n", warning.c_str());
     // Refused here, before any device work, with the frame named (the engine checks again).
     const RenderCameras rc = toRenderCameras(v.cameras);
     for (size_t i = 0; i < rc.size(); ++i)
@@ -145,27 +142,6 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
   }
   v.prepareMs = msSince(t);
   return v;
-}
-
-CameraD estimatedCamera(const SparEncoded& e, int64_t i) {
-  CameraD c;
-  for (int k = 0; k < 16; ++k) c.c2w[k] = e.c2w[size_t(i) * 16 + k];
-  for (int k = 0; k < 4; ++k) c.k[k] = e.fxfycxcy[size_t(i) * 4 + k];
-  return c;
-}
-
-// The reference's --path: N cameras along the estimated input cameras, all with the first
-// input's intrinsics.
-RenderCameras pathCameras(const SparEncoded& e, const std::vector<int64_t>& inputs, int n) {
-  std::vector<Mat4d> c2w;
-  for (int64_t i : inputs) c2w.push_back(estimatedCamera(e, i).c2w);
-  const auto path = interpolatePath(c2w, n);
-  std::vector<CameraD> cams(path.size());
-  for (size_t j = 0; j < path.size(); ++j) {
-    cams[j].c2w = path[j];
-    cams[j].k = estimatedCamera(e, inputs.front()).k;
-  }
-  return toRenderCameras(cams);
 }
 
 std::string viewsText(const PlannedViews& p) {
@@ -262,7 +238,7 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
       text = encodePrompts(engine, *v.model, cfg, po.weightType, v.labelIds, int64_t(v.labels.size()));
     }
     RenderCameras renderCams;
-    if (mode == "path") renderCams = pathCameras(enc, v.views.inputs, *a.path);
+    if (mode == "path") renderCams = toRenderCameras(inputCameraPath(enc, v.views.inputs, *a.path));
     if (mode == "cameras") renderCams = toRenderCameras(v.cameras);
     const int64_t count = mode == "targets" ? int64_t(v.views.targets.size()) : int64_t(renderCams.size());
 

@@ -3,7 +3,7 @@
 #include <cstdio>
 
 #include "model/spar_config.h"
-#include "text/bpe_tokenizer.h"
+#include "text/prompt_labels.h"
 
 namespace spar::cli {
 
@@ -29,15 +29,10 @@ void warnIfManyViews(const SparConfig& config, size_t views, size_t inputs) {
          std::to_string(trained) + " views a scene; results far outside that are untested");
 }
 
-void warnAboutPrompts(const BpeTokenizer& tokenizer, const std::vector<std::string>& prompts) {
-  for (const std::string& p : prompts) {
-    const size_t tokens = tokenizer.encode(p).size() + 2;  // with start and end
-    if (tokens > size_t(BpeTokenizer::kContextLength))
-      warn("prompt '" + (p.size() > 40 ? p.substr(0, 40) + "..." : p) + "' is " + std::to_string(tokens) +
-           " tokens: CLIP reads the first " + std::to_string(BpeTokenizer::kContextLength));
-  }
-  if (prompts.size() > 20)
-    warn(std::to_string(prompts.size()) + " labels: the palette has 20 well-separated colours; labels 21 and on "
+void warnAboutPrompts(const TokenizedPrompts& prompts, size_t count) {
+  for (const std::string& w : prompts.warnings) warn(w);
+  if (count > 20)
+    warn(std::to_string(count) + " labels: the palette has 20 well-separated colours; labels 21 and on "
          "get colours of their own, which may look alike");
 }
 

@@ -6,8 +6,8 @@
 #include <vector>
 
 namespace spar {
-class BpeTokenizer;
 struct SparConfig;
+struct TokenizedPrompts;
 }  // namespace spar
 
 namespace spar::cli {
@@ -18,8 +18,8 @@ void warn(const std::string& message);
 void warnIfTiny(const std::string& file, int width, int height, int modelWidth, int modelHeight);
 // More views than the checkpoint's configuration was trained with (num_views), when it says.
 void warnIfManyViews(const SparConfig& config, size_t views, size_t inputs);
-// Prompts longer than CLIP's 77 tokens (cut there), and more labels than the palette's 20
-// well-separated colours.
-void warnAboutPrompts(const BpeTokenizer& tokenizer, const std::vector<std::string>& prompts);
+// Prompts longer than CLIP's 77 tokens (cut there: the tokenizer's warnings), and more labels
+// (`count`) than the palette's 20 well-separated colours.
+void warnAboutPrompts(const TokenizedPrompts& prompts, size_t count);
 
 }  // namespace spar::cli

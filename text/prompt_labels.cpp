@@ -1,4 +1,4 @@
-#include "samples/spar_cli/label_text.h"
+#include "text/prompt_labels.h"
 
 #include <chrono>
 
@@ -8,16 +8,23 @@
 #include "model/clip_text.h"
 #include "model/label_maps.h"
 #include "model/transformer_block.h"
-#include "samples/spar_cli/warnings.h"
 
-namespace spar::cli {
+namespace spar {
 
-std::vector<int32_t> tokenizePrompts(const PackedModel& model, const std::vector<std::string>& prompts) {
+TokenizedPrompts tokenizePrompts(const PackedModel& model, const std::vector<std::string>& prompts) {
   if (!model.has(BpeTokenizer::kPackedName))
     throw Error(model.path() + ": no CLIP text encoder tokenizer (pack the model with spar-convert --bpe)");
   const BpeTokenizer tokenizer = BpeTokenizer::fromModel(model);
-  warnAboutPrompts(tokenizer, prompts);
-  return tokenizer.tokenize(prompts);
+  TokenizedPrompts out;
+  for (const std::string& p : prompts) {
+    const size_t tokens = tokenizer.encode(p).size() + 2;  // with start and end
+    if (tokens > size_t(BpeTokenizer::kContextLength))
+      out.warnings.push_back("prompt '" + (p.size() > 40 ? p.substr(0, 40) + "..." : p) + "' is " +
+                             std::to_string(tokens) + " tokens: CLIP reads the first " +
+                             std::to_string(BpeTokenizer::kContextLength));
+  }
+  out.ids = tokenizer.tokenize(prompts);
+  return out;
 }
 
 PromptEmbeddings encodePrompts(Engine& engine, const PackedModel& model, const SparConfig& config, DType weightType,
@@ -60,4 +67,4 @@ LabelMapsOut computeLabelMaps(Engine& engine, const Tensor& features, const Prom
   return out;
 }
 
-}  // namespace spar::cli
+}  // namespace spar

@@ -1,6 +1,7 @@
-// Open-vocabulary labels for the `spar` subcommands (render --labels, eval): prompts through
-// CLIP's text encoder on the device once, then label maps from any number of rendered views'
-// semantic features (model/clip_text.*, model/label_maps.*).
+// Open-vocabulary labels from text prompts: the prompts through CLIP's text encoder on the
+// device once, then label maps from any number of rendered views' semantic features
+// (model/clip_text.*, model/label_maps.*; here beside the tokenizer they start from). Used by spar::Session::labelMaps (the public API),
+// `spar render --labels` and `spar eval`.
 #pragma once
 #include <cstdint>
 #include <memory>
@@ -12,10 +13,15 @@
 #include "model/spar_config.h"
 #include "model/weight_set.h"
 
-namespace spar::cli {
+namespace spar {
 
-// CLIP token ids [P, 77] of the prompts; throws spar::Error when the model has no tokenizer.
-std::vector<int32_t> tokenizePrompts(const PackedModel& model, const std::vector<std::string>& prompts);
+// CLIP token ids [P, 77] of the prompts, and a warning for each prompt longer than CLIP reads;
+// throws spar::Error when the model has no tokenizer.
+struct TokenizedPrompts {
+  std::vector<int32_t> ids;
+  std::vector<std::string> warnings;
+};
+TokenizedPrompts tokenizePrompts(const PackedModel& model, const std::vector<std::string>& prompts);
 
 // The prompts' text embeddings [P, E] on the device. The text encoder's weights live in their
 // own WeightSet, loaded only when labels are asked for.
@@ -37,4 +43,4 @@ struct LabelMapsOut {
 LabelMapsOut computeLabelMaps(Engine& engine, const Tensor& features, const PromptEmbeddings& prompts,
                               std::vector<float>* scores = nullptr);
 
-}  // namespace spar::cli
+}  // namespace spar

@@ -1,0 +1,174 @@
+"""`import spar` (python/spar_module.cpp): the Python path gives the bytes `spar render` gives,
+every bad argument is a spar.Error, device work releases the GIL, and two sessions on one
+context run from two threads. Run by CTest (py_spar_module) with PYTHONPATH=build/python and
+SPAR_CLI=the built spar; the validation layer on (its message count is checked)."""
+import json
+import os
+import subprocess
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import spar
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+SHIPPED = os.path.join(ROOT, "samples", "data", "spar_rooms.spar")
+SCENE = os.path.join(ROOT, "samples", "data", "scenes", "scene_1000002")
+SELFTEST = os.path.join(ROOT, "samples", "data", "selftest")  # a small photometric model
+FRAMES = [os.path.join(SCENE, "rgb_0%d.png" % i) for i in (0, 2, 4, 7)]
+LABELS = ["wall", "floor", "sofa", "window"]
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    c = spar.Context(validation=True)
+    yield c
+    assert c.validation_messages == 0
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    return spar.Model.open(SHIPPED)
+
+
+@pytest.fixture(scope="module")
+def small():
+    return spar.Model.open(os.path.join(SELFTEST, "model.spar")), np.load(os.path.join(SELFTEST, "images.npy"))
+
+
+def test_same_bytes_and_labels_as_spar_render(ctx, shipped, tmp_path):
+    out = tmp_path / "cli"
+    subprocess.run([os.environ["SPAR_CLI"], "render", "--model", SHIPPED, "--frames", *FRAMES, "--inputs", "0,2,3",
+                    "--labels", ",".join(LABELS), "--out", str(out)], check=True, capture_output=True)
+    h, w = shipped.image_size
+    images = np.stack([spar.load_image(f, h, w) for f in FRAMES])
+    assert images.shape == (4, 3, h, w) and images.dtype == np.float32
+    with spar.Session(ctx, shipped) as s:
+        enc = s.encode(images, inputs=[0, 2, 3], semantic_features=True)
+        assert enc["c2w"].shape == (4, 4, 4) and enc["motion_input"].shape == (3, h, w)
+        rgb = s.render_targets()
+        assert rgb.shape == (1, 3, h, w)
+        spar.write_png(str(tmp_path / "view.png"), rgb[0])
+        assert (tmp_path / "view.png").read_bytes() == (out / "view_00.png").read_bytes()
+        # the label maps: the shares the CLI reports, to its rounding
+        maps = s.label_maps(LABELS)
+        assert maps.shape == (1, h // 2, w // 2) and maps.dtype == np.int32
+        shares = np.bincount(maps.ravel(), minlength=len(LABELS)) / maps.size
+        cli = {l["label"]: l["share"] for l in json.load(open(out / "labels_00.json"))["labels"]}
+        for i, label in enumerate(LABELS):
+            assert abs(shares[i] - cli[label]) < 1e-3, (label, shares[i], cli[label])
+        feats = s.features()
+        assert feats.shape[0] == 1 and feats.shape[2:] == (h // 2, w // 2)
+        # a path through the input cameras, as --path makes it
+        c2w, k = spar.path_cameras(enc, [0, 2, 3], 3)
+        assert c2w.shape == (3, 4, 4) and k.shape == (3, 4)
+        assert s.render(c2w, k).shape == (3, 3, h, w)
+        names = [t["name"] for t in s.stage_times()]
+        assert "renderer" in names and "cv_drp" in names
+
+
+def test_bad_arguments_are_spar_errors(ctx, small):
+    model, images = small
+    with pytest.raises(spar.Error, match="no such file|cannot|not found"):
+        spar.Model.open("/nonexistent/model.spar")
+    s = spar.Session(ctx, model)
+    cases = {
+        "dtype float64, expected float32": lambda: s.encode(images.astype(np.float64)),
+        "shape": lambda: s.encode(images.transpose(0, 2, 3, 1).copy()),
+        "NaN or infinite": lambda: s.encode(np.where(np.arange(images.size).reshape(images.shape) == 7, np.nan,
+                                                     images).astype(np.float32)),
+        "NumPy float32 array": lambda: s.encode([[1.0, 2.0]]),
+        "outside the sequence": lambda: s.encode(images, inputs=[0, 9]),
+    }
+    for message, call in cases.items():
+        with pytest.raises(spar.Error, match=message):
+            call()
+    s.encode(images, inputs=[0, 2, 4])
+    with pytest.raises(spar.Error, match="c2w: shape"):
+        s.render(np.zeros((2, 3, 4), np.float32), np.zeros((2, 4), np.float32))
+    with pytest.raises(spar.Error, match="semantic branch"):
+        s.render_targets()
+        s.label_maps(["wall"])
+    s.close()
+    with pytest.raises(spar.Error, match="closed"):
+        s.render_targets()
+    with pytest.raises(spar.Error, match="closed"):
+        s.encode(images)
+    # one line each
+    try:
+        spar.Model.open("/nonexistent/model.spar")
+    except spar.Error as e:
+        assert "\n" not in str(e)
+
+
+def test_device_work_releases_the_gil(ctx, small):
+    model, images = small
+    counted = [0]
+    stop = threading.Event()
+
+    def count():
+        while not stop.is_set():
+            counted[0] += 1
+
+    with spar.Session(ctx, model) as s:
+        s.encode(images)  # kernels built once: the timed call below is device work alone
+        t = threading.Thread(target=count)
+        t.start()
+        time.sleep(0.05)
+        before = counted[0]
+        start = time.perf_counter()
+        for _ in range(3):
+            s.encode(images)
+            s.render_targets()
+        seconds = time.perf_counter() - start
+        during = counted[0] - before
+        stop.set()
+        t.join()
+    # Holding the GIL through the calls would leave the counter still (a few switches at most).
+    assert during > 1000, (during, seconds)
+
+
+def test_two_threads_two_sessions_one_context(ctx, small):
+    model, images = small
+    want = {}
+    for inputs in ([0, 2, 4], [1, 3]):
+        with spar.Session(ctx, model) as s:
+            s.encode(images, inputs=inputs)
+            want[tuple(inputs)] = s.render_targets()
+    got, errors = {}, []
+
+    def run(inputs):
+        try:
+            with spar.Session(ctx, model) as s:
+                for _ in range(3):
+                    s.encode(images, inputs=inputs)
+                    got[tuple(inputs)] = s.render_targets()
+        except Exception as e:  # reported below, not lost in the thread
+            errors.append(e)
+
+    threads = [threading.Thread(target=run, args=(inputs,)) for inputs in ([0, 2, 4], [1, 3])]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    for key, rgb in want.items():
+        assert np.array_equal(got[key], rgb), key
+
+
+def test_cameras_file_and_help():
+    doc = spar.Session.__doc__ + spar.Session.encode.__doc__
+    assert "encode" in doc and "(V, 3, H, W)" in doc and "motion_input" in doc
+    assert "spar.Error" in spar.__doc__
+    with pytest.raises(spar.Error, match="cameras file not found"):
+        spar.read_cameras("/nonexistent/transforms.json", 64, 64)
+
+
+def test_example_script_runs(tmp_path):
+    r = subprocess.run(["/usr/bin/python3", os.path.join(ROOT, "examples", "python", "render_scene.py"), str(tmp_path)],
+                       capture_output=True, text=True, env=dict(os.environ), timeout=240)
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["path_%02d.png" % i for i in range(8)]
+    assert "labels: wall" in r.stdout
