@@ -88,7 +88,7 @@ fi
 
 if [ "$mode" = build ]; then
   cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=Release -DCMAKE_TOOLCHAIN_FILE="$root/cmake/aarch64-linux-gnu.cmake" \
-        -DSPAR_ARM64_SYSROOT="$sysroot" > "$dir/configure.log"
+        -DSPAR_ARM64_SYSROOT="$sysroot" -DSPAR_PYTHON=OFF > "$dir/configure.log"
   cmake --build "$build" -j"$(nproc)" --target spar spar-bench "${op_tests[@]}"
   file "$build/samples/spar" | cut -d, -f1-2
   exit 0
