@@ -139,7 +139,34 @@ RgbImage loadImageRGB(const std::string& path) {
     for (size_t i = 0; i < n; ++i)
       for (int c = 0; c < 3; ++c) out.pixels[i * 3 + c] = buf[i * nch + src[c]];
   }
+  const int orientation = spec.get_int_attribute("Orientation", 1);
   in->close();
+  return applyOrientation(std::move(out), orientation);
+}
+
+RgbImage applyOrientation(RgbImage image, int orientation) {
+  if (orientation < 2 || orientation > 8) return image;  // 1 (as stored) or not a valid tag
+  const int w = image.width, h = image.height;
+  const bool swap = orientation >= 5;  // transpose, rotations by 90 degrees, transverse
+  RgbImage out;
+  out.width = swap ? h : w;
+  out.height = swap ? w : h;
+  out.pixels.resize(image.pixels.size());
+  for (int y = 0; y < out.height; ++y)
+    for (int x = 0; x < out.width; ++x) {
+      int sx = x, sy = y;  // the stored pixel shown at (x, y)
+      switch (orientation) {
+        case 2: sx = w - 1 - x; break;                    // mirrored left-right
+        case 3: sx = w - 1 - x; sy = h - 1 - y; break;    // rotated 180
+        case 4: sy = h - 1 - y; break;                    // mirrored top-bottom
+        case 5: sx = y; sy = x; break;                    // transposed
+        case 6: sx = y; sy = h - 1 - x; break;            // shown rotated 90 clockwise
+        case 7: sx = w - 1 - y; sy = h - 1 - x; break;    // transverse
+        case 8: sx = w - 1 - y; sy = x; break;            // shown rotated 90 counter-clockwise
+      }
+      for (int c = 0; c < 3; ++c)
+        out.pixels[(size_t(y) * out.width + x) * 3 + c] = image.pixels[(size_t(sy) * w + sx) * 3 + c];
+    }
   return out;
 }
 

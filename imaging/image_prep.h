@@ -24,13 +24,17 @@ constexpr int64_t kMaxImagePixels = int64_t(1) << 27;
 
 // Loads an image (PNG, JPEG, TIFF, BMP, ... whatever OpenImageIO reads) as 8-bit RGB the way
 // PIL's Image.open(path).convert("RGB") gives it for 8-bit files: grey is replicated, alpha is
-// dropped (not composited; PNG alpha is read unassociated), EXIF orientation is not applied.
+// dropped (not composited; PNG alpha is read unassociated), turned as its EXIF orientation says
+// (a phone photo held upright is upright here, as PIL's ImageOps.exif_transpose shows it).
 // Other sample types: 16-bit integers keep their high byte (checked equal to PIL for 16-bit RGB
 // PNGs; PIL opens 16-bit grey PNGs as mode "I" and clips them to 255, which is not reproduced:
 // they keep the high byte too); floats are clamped to [0, 1] and rounded to 8 bits (OpenImageIO's
 // conversion).
 // Throws spar::Error for a missing file, an unreadable or unsupported image, a zero size.
 RgbImage loadImageRGB(const std::string& path);
+// The image as shown under EXIF orientation tag 1-8 (2: mirrored, 3: rotated 180, 6: stored
+// rotated so it shows turned 90 degrees clockwise, ...); other values leave it as stored.
+RgbImage applyOrientation(RgbImage image, int orientation);
 
 // PIL's ImagingResample with the LANCZOS filter on an 8-bit image: separable, horizontal pass
 // (only if the width changes) then vertical pass (only if the height changes), support 3 scaled

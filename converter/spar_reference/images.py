@@ -3,8 +3,9 @@
 
 Preparation rule (the C++ engine must reproduce it exactly):
 
-1. Load with PIL and convert to RGB (``Image.convert("RGB")``: palette, grey, alpha (dropped,
-   not composited) and CMYK images become 8-bit RGB). EXIF orientation is NOT applied.
+1. Load with PIL, turn as the EXIF orientation says (``ImageOps.exif_transpose``: a phone
+   photo held upright is upright), and convert to RGB (``Image.convert("RGB")``: palette, grey,
+   alpha (dropped, not composited) and CMYK images become 8-bit RGB).
 2. Resize with Lanczos (``Image.resize(size, Image.LANCZOS)``, PIL's 3-lobe Lanczos with its
    separable two-pass filter and support scaled to the downscale factor) so that the image
    covers the model's H x W: ``s = max(H / h, W / w)`` for an image of w x h pixels, new size
@@ -40,11 +41,11 @@ def crop_geometry(w: int, h: int, out_w: int, out_h: int) -> Tuple[int, int, int
 
 def load_image(path: str, out_h: int, out_w: int, dtype=np.float32) -> np.ndarray:
     """The prepared image [3, out_h, out_w] in [0, 1] (see the module docstring)."""
-    from PIL import Image
+    from PIL import Image, ImageOps
     try:
         with Image.open(path) as im:
             im.load()
-            rgb = im.convert("RGB")
+            rgb = ImageOps.exif_transpose(im).convert("RGB")
     except FileNotFoundError:
         raise ImageError(f"image not found: {path}")
     except Exception as e:  # PIL.UnidentifiedImageError, OSError (truncated), ...

@@ -4,7 +4,7 @@
 Writes into --out a few images (odd sizes, grey, RGBA, JPEG, constant black and white, files
 that are not images) and, for each case of CASES, the reference's prepared input
 (``converter/spar_reference/images.py``'s ``load_image``, PIL's Lanczos) and the 8-bit RGB that
-``Image.convert("RGB")`` gives:
+``ImageOps.exif_transpose(im).convert("RGB")`` gives (JPEGs with every EXIF orientation):
 
     <image file>                 the test image
     <case>.prepared.npy          load_image(<image>, H, W), [3, H, W] '<f4'
@@ -19,7 +19,7 @@ import os
 import sys
 
 import numpy as np
-from PIL import Image
+from PIL import Image, ImageOps
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "converter"))
 from spar_reference.images import load_image  # noqa: E402
@@ -64,6 +64,12 @@ def main(argv=None) -> None:
     for name, im in images.items():
         im.save(os.path.join(out, name), format="PNG")
     Image.fromarray(content(123, 95, 3, 8), "RGB").save(os.path.join(out, "photo_123x95.jpg"), format="JPEG", quality=90)
+    # The same photo with each EXIF orientation (2-8): shown turned or mirrored, prepared so.
+    for o in range(2, 9):
+        exif = Image.Exif()
+        exif[0x0112] = o
+        Image.fromarray(content(123, 95, 3, 8), "RGB").save(os.path.join(out, "photo_123x95_o%d.jpg" % o),
+                                                            format="JPEG", quality=90, exif=exif.tobytes())
     with open(os.path.join(out, "not_an_image.png"), "wb") as f:
         f.write(b"this is not a PNG file\n" * 4)
     with open(os.path.join(out, "rgb_150x180.png"), "rb") as f:
@@ -87,6 +93,7 @@ def main(argv=None) -> None:
         ("rgba_71x90_64", "rgba_71x90.png", 64, 64),
         ("jpeg_123x95_64", "photo_123x95.jpg", 64, 64),
         ("jpeg_123x95_160", "photo_123x95.jpg", 160, 160),
+        *[("jpeg_o%d_64x48" % o, "photo_123x95_o%d.jpg" % o, 64, 48) for o in range(2, 9)],
         ("black_50x70_64", "black_50x70.png", 64, 64),
         ("white_77x33_40", "white_77x33.png", 40, 40),
     ]
@@ -98,7 +105,7 @@ def main(argv=None) -> None:
             f.write(f"{case} {image} {h} {w}\n")
     for image in sorted(set(c[1] for c in cases)):
         with Image.open(os.path.join(out, image)) as im:
-            rgb = np.asarray(im.convert("RGB"), dtype=np.int32)
+            rgb = np.asarray(ImageOps.exif_transpose(im).convert("RGB"), dtype=np.int32)
         np.save(os.path.join(out, os.path.splitext(image)[0] + ".rgb.npy"), rgb)
 
 
