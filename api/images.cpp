@@ -2,6 +2,7 @@
 #include "spar/images.h"
 
 #include "imaging/image_prep.h"
+#include "imaging/video_frames.h"
 #include "spar/error.h"
 
 namespace spar {
@@ -9,6 +10,21 @@ namespace spar {
 std::vector<float> loadImage(const std::string& path, int height, int width) {
   if (height <= 0 || width <= 0) throw Error("loadImage: size must be positive, got " + std::to_string(height) + "x" + std::to_string(width));
   return loadPreparedImage(path, height, width);
+}
+
+std::vector<float> loadVideoFrames(const std::string& path, int height, int width, int count,
+                                   const std::vector<double>& at, std::vector<double>* times) {
+  if (height <= 0 || width <= 0)
+    throw Error("loadVideoFrames: size must be positive, got " + std::to_string(height) + "x" + std::to_string(width));
+  const VideoInfo info = probeVideo(path);
+  const std::vector<double> when = at.empty() ? spreadTimes(info, count) : at;
+  std::vector<float> all;
+  for (const RgbImage& frame : readVideoFrames(path, info, when, height, width)) {
+    const std::vector<float> img = prepareImage(frame, height, width);
+    all.insert(all.end(), img.begin(), img.end());
+  }
+  if (times) *times = when;
+  return all;
 }
 
 void writePng(const std::string& path, const std::vector<float>& rgb, int height, int width) {

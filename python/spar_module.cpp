@@ -356,6 +356,22 @@ PYBIND11_MODULE(spar, m) {
       "An image file prepared as SPAR's reference does (8-bit RGB, Lanczos cover-resize, centre crop, /255): "
       "float32 (3, height, width).");
   m.def(
+      "load_video",
+      [](const std::string& path, int height, int width, int count, const std::vector<double>& at) {
+        std::vector<float> frames;
+        std::vector<double> times;
+        {
+          py::gil_scoped_release free;
+          frames = spar::loadVideoFrames(path, height, width, count, at, &times);
+        }
+        const auto n = py::ssize_t(times.size());
+        return py::make_tuple(toNumpy(std::move(frames), {n, 3, height, width}), toNumpy(std::move(times), {n}));
+      },
+      py::arg("path"), py::arg("height"), py::arg("width"), py::arg("count") = 8, py::arg("at") = std::vector<double>{},
+      "Frames of a video file as `spar render --video` takes them (ffmpeg must be installed): `count` spread "
+      "evenly over the clip, or those shown at the seconds in `at`; turned as its rotation metadata says, "
+      "cover-resized and centre-cropped to height x width. Returns (frames float32 (N, 3, H, W), times (N,)).");
+  m.def(
       "write_png",
       [](const std::string& path, const py::handle& rgb) {
         if (!py::isinstance<py::array>(rgb)) throw spar::Error("rgb: expected a NumPy float32 array");

@@ -75,7 +75,18 @@ int main(int argc, char** argv) {
   frames->excludes(images);
   auto* targets = render->add_option("--targets", a.views.targets, "target views (evaluation: rendered with "
                                                                    "their estimated cameras)");
-  render->add_option("--inputs", inputs, "with --frames: positions of the input views, e.g. 0,3,4");
+  render->add_option("--inputs", inputs, "with --frames or --video: positions of the input views, e.g. 0,3,4");
+  auto* video = render->add_option("--video", a.views.video,
+                                   "take the views from a video file (any format ffmpeg reads; rotation metadata "
+                                   "honoured): --video-frames of them spread evenly over the clip, then as --frames "
+                                   "(default inputs: the model's input view count spread evenly, the rest targets)");
+  video->excludes(images)->excludes(frames);
+  render->add_option("--video-frames", a.views.videoFrames,
+                     "with --video: frames taken, evenly spread (default: the model's view count)")
+      ->needs(video);
+  render->add_option("--video-at", a.views.videoAt, "with --video: the frames at these times, seconds (e.g. 0.5,2,3.25)")
+      ->needs(video)
+      ->type_name("T1,T2,...");
   auto* cameras = render->add_option("--cameras", a.cameras,
                                      "render these cameras instead of the targets (nerfstudio transforms.json, "
                                      "OpenGL camera-to-world in the canonical view's frame; or a COLMAP "
@@ -117,7 +128,7 @@ int main(int argc, char** argv) {
                      "file format of the rendered views: png (8-bit), exr (float32 OpenEXR), exr16 (half "
                      "OpenEXR), npy (float32 3 x H x W): the float formats hold the RGB as computed")
       ->check(CLI::IsMember({"png", "exr", "exr16", "npy"}));
-  render->add_option("--video", a.video,
+  render->add_option("--animation", a.animation,
                      "the --path animation: mp4 (H.264 through ffmpeg, which must be installed), gif, or auto "
                      "(mp4 when ffmpeg is found, else gif; SPAR_FFMPEG names another ffmpeg)")
       ->check(CLI::IsMember({"auto", "mp4", "gif"}));

@@ -265,8 +265,8 @@ std::optional<Outputs> runBoth(const std::string& name, const std::vector<std::s
   Outputs o{scratch() / ("ours_" + name), scratch() / ("ref_" + name)};
   fs::remove_all(o.ours);
   fs::remove_all(o.ref);
-  // --video gif: the reference writes path.gif (path.mp4 is tests/test_spar_render_outputs.cpp's)
-  const RunResult ours = spar(cat({"--model", model, "--video", "gif"}, cat(viewArgs, {"--out", o.ours.string()})));
+  // --animation gif: the reference writes path.gif (path.mp4 is tests/test_spar_render_outputs.cpp's)
+  const RunResult ours = spar(cat({"--model", model, "--animation", "gif"}, cat(viewArgs, {"--out", o.ours.string()})));
   EXPECT_EQ(ours.code, 0) << ours.err;
   const RunResult ref = reference(cat(viewArgs, {"--out", o.ref.string()}), checkpoint, "render", config);
   EXPECT_EQ(ref.code, 0) << ref.err;

@@ -1,10 +1,10 @@
 // The --path animation and long paths of `spar render` (samples/spar_cli/render_outputs.h,
 // animation.h), through the built `spar` (SPAR_CLI) on the tiny photometric fixture, with the
 // validation layer and synchronization validation on (runValidated):
-//  - with ffmpeg installed (scripts/install-deps.sh) the default --video auto writes path.mp4:
+//  - with ffmpeg installed (scripts/install-deps.sh) the default --animation auto writes path.mp4:
 //    H.264, one frame per view, the views' pixels up to H.264's loss; report.json and the last
 //    progress line say which file was written and how;
-//  - without ffmpeg (SPAR_FFMPEG naming none) auto writes path.gif and says why; --video mp4 is
+//  - without ffmpeg (SPAR_FFMPEG naming none) auto writes path.gif and says why; --animation mp4 is
 //    then refused before any work; an ffmpeg that fails gives one error line with its message
 //    and no output directory;
 //  - odd frame sizes are padded to even ones (yuv420p needs them), through FfmpegVideo itself;
@@ -127,10 +127,10 @@ TEST(spar_render_outputs, WithoutFfmpegAutoWritesAGifAndSaysWhy) {
 
 TEST(spar_render_outputs, Mp4WithoutFfmpegIsRefusedBeforeWork) {
   const fs::path out = scratch() / "no_ffmpeg";
-  const CommandResult r = render(out, {"--path", "3", "--video", "mp4"}, "SPAR_FFMPEG=/nonexistent/ffmpeg");
+  const CommandResult r = render(out, {"--path", "3", "--animation", "mp4"}, "SPAR_FFMPEG=/nonexistent/ffmpeg");
   EXPECT_EQ(r.code, 1) << r.err;
   ASSERT_EQ(r.errLines().size(), 1u) << r.err;  // refused before any progress line
-  EXPECT_NE(r.err.find("spar: error: --video mp4 needs ffmpeg"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("spar: error: --animation mp4 needs ffmpeg"), std::string::npos) << r.err;
   expectNoOutput(out);
 }
 

@@ -172,3 +172,21 @@ def test_example_script_runs(tmp_path):
     assert r.returncode == 0, r.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["path_%02d.png" % i for i in range(8)]
     assert "labels: wall" in r.stdout
+
+
+def test_video_frames_as_spar_render_takes_them(ctx, shipped):
+    video = "/usr/share/doc/opencv-doc/examples/data/vtest.avi"
+    h, w = shipped.image_size
+    frames, times = spar.load_video(video, h, w, count=4)
+    assert frames.shape == (4, 3, h, w) and frames.dtype == np.float32
+    assert np.allclose(times, [d * 79.5 / 8 for d in (1, 3, 5, 7)], atol=0.05), times
+    assert 0.0 <= frames.min() and frames.max() <= 1.0 and frames.std() > 0.05
+    at, t2 = spar.load_video(video, h, w, at=[62.0, 62.4])
+    assert at.shape == (2, 3, h, w) and list(t2) == [62.0, 62.4]
+    with spar.Session(ctx, shipped) as s:
+        enc = s.encode(frames, inputs=[0, 3])
+        assert np.isfinite(enc["c2w"]).all() and s.render_targets().shape == (2, 3, h, w)
+    with pytest.raises(spar.Error, match="no frame at 90.000 s"):
+        spar.load_video(video, h, w, at=[90.0])
+    with pytest.raises(spar.Error, match="video not found"):
+        spar.load_video("/nonexistent.mp4", h, w)

@@ -16,8 +16,8 @@ AnimationChoice chooseAnimation(const std::string& video) {
   }
   c.ffmpeg = findFfmpeg();
   if (video == "mp4" && c.ffmpeg.empty())
-    throw Error("--video mp4 needs ffmpeg (Debian: apt-get install ffmpeg; or SPAR_FFMPEG=/path/to/ffmpeg)");
-  if (video != "mp4" && video != "auto") throw Error("--video must be auto, mp4 or gif, got '" + video + "'");
+    throw Error("--animation mp4 needs ffmpeg (Debian: apt-get install ffmpeg; or SPAR_FFMPEG=/path/to/ffmpeg)");
+  if (video != "mp4" && video != "auto") throw Error("--animation must be auto, mp4 or gif, got '" + video + "'");
   c.kind = c.ffmpeg.empty() ? "gif" : "mp4";
   if (c.ffmpeg.empty()) c.note = "ffmpeg not found, so no path.mp4";
   return c;

@@ -22,14 +22,14 @@ class Animation {
   virtual std::string description() const = 0;
 };
 
-// --video: "mp4", "gif", or "auto" (mp4 when ffmpeg is found, else gif).
+// --animation: "mp4", "gif", or "auto" (mp4 when ffmpeg is found, else gif).
 struct AnimationChoice {
   std::string kind;     // "mp4" or "gif"
   std::string ffmpeg;   // the ffmpeg executable, for mp4
   std::string note;     // why auto chose gif ("" otherwise)
 };
 
-// Resolves --video before any work: "mp4" without an ffmpeg is an error (spar::Error).
+// Resolves --animation before any work: "mp4" without an ffmpeg is an error (spar::Error).
 // SPAR_FFMPEG names the executable (default: `ffmpeg` on PATH); "" or a missing file: none.
 AnimationChoice chooseAnimation(const std::string& video);
 

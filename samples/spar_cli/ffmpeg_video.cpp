@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "engine/error.h"
+#include "imaging/child_process.h"
 
 extern char** environ;
 
@@ -24,36 +25,15 @@ namespace spar::cli {
 
 namespace {
 
-bool isExecutable(const std::string& p) {
-  struct stat st;
-  return !p.empty() && ::stat(p.c_str(), &st) == 0 && S_ISREG(st.st_mode) && ::access(p.c_str(), X_OK) == 0;
-}
-
 // The last lines of ffmpeg's log folded into one line (it prints one problem per line).
 std::string logTail(const std::string& log) {
   std::ifstream f(log);
-  std::string line, text;
-  std::vector<std::string> lines;
-  while (std::getline(f, line))
-    if (line.find_first_not_of(" \t\r") != std::string::npos) lines.push_back(line);
-  for (size_t i = lines.size() > 3 ? lines.size() - 3 : 0; i < lines.size(); ++i)
-    text += (text.empty() ? "" : " | ") + lines[i];
-  return text;
+  std::stringstream text;
+  text << f.rdbuf();
+  return lastLines(text.str(), 3);
 }
 
 }  // namespace
-
-std::string findFfmpeg() {
-  if (const char* e = std::getenv("SPAR_FFMPEG")) return isExecutable(e) ? std::string(e) : std::string();
-  const char* path = std::getenv("PATH");
-  std::stringstream dirs(path ? path : "/usr/bin:/bin");
-  std::string dir;
-  while (std::getline(dirs, dir, ':')) {
-    const std::string p = (std::filesystem::path(dir.empty() ? "." : dir) / "ffmpeg").string();
-    if (isExecutable(p)) return p;
-  }
-  return "";
-}
 
 FfmpegVideo::FfmpegVideo(const std::string& ffmpeg, const std::string& path, int fps)
     : ffmpeg_(ffmpeg), path_(path), log_(path + ".log"), fps_(fps) {}

@@ -7,13 +7,13 @@
 
 #include <string>
 
+#include "imaging/child_process.h"
 #include "samples/spar_cli/animation.h"
 
 namespace spar::cli {
 
-// The executable ffmpeg would be run from: SPAR_FFMPEG if set (a path; "" means none), else the
-// first `ffmpeg` on PATH; "" when there is none.
-std::string findFfmpeg();
+// Where ffmpeg is: spar::findFfmpeg (imaging/child_process.h: SPAR_FFMPEG, else PATH).
+using spar::findFfmpeg;
 
 class FfmpegVideo : public Animation {
  public:

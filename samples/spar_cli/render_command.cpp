@@ -12,6 +12,7 @@
 #include "formats/cameras.h"
 #include "formats/camera_files.h"
 #include "imaging/image_prep.h"
+#include "imaging/video_frames.h"
 #include "model/camera_checks.h"
 #include "model/memory_estimate.h"
 #include "model/packed_model.h"
@@ -79,8 +80,11 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
     if (v.labels.empty()) throw UsageError("--labels needs at least one prompt");
   }
   if (a.scores && !a.labels) throw UsageError("--scores needs --labels");
-  if ((a.labels || a.features) && v.views.targets.empty() && !a.path && a.cameras.empty())
-    throw UsageError("--labels / --features need views to render (target views, --path or --cameras)");
+  auto needViewsToRender = [&]() {
+    if ((a.labels || a.features) && v.views.targets.empty() && !a.path && a.cameras.empty())
+      throw UsageError("--labels / --features need views to render (target views, --path or --cameras)");
+  };
+  if (a.views.video.empty()) needViewsToRender();  // a video's plan is known once its frames are
 
   // 2. Files and directories (exit 1), cheapest first: nothing is loaded before all exist.
   for (const auto& f : v.views.files) {
@@ -88,10 +92,14 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
     if (!fs::exists(f, ec)) throw Error("image not found: " + f);
     if (fs::is_directory(f, ec)) throw Error("cannot read image " + f + ": it is a directory");
   }
+  if (!a.views.video.empty()) {
+    std::error_code ec;
+    if (!fs::exists(a.views.video, ec)) throw Error("video not found: " + a.views.video);
+  }
   if (!a.cameras.empty() && !fs::exists(a.cameras)) throw Error("cameras file not found: " + a.cameras);
   if (!fs::exists(a.model)) throw Error("model not found: " + a.model);
   v.outDir = checkOutDir(a.out);
-  if (a.path && *a.path > 1) v.animation = chooseAnimation(a.video);
+  if (a.path && *a.path > 1) v.animation = chooseAnimation(a.animation);
 
   auto t = Clock::now();
   if (shared && shared->model && shared->model->path() == a.model) {
@@ -123,8 +131,29 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
 
   t = Clock::now();
   const int h = v.height, w = v.width;
+  if (!a.views.video.empty()) {
+    // The frames of a video: probed, taken at their times, turned and brought to the model's
+    // size by ffmpeg; then planned as --frames would be.
+    const VideoInfo info = probeVideo(a.views.video);
+    const int64_t frames = a.views.videoFrames ? a.views.videoFrames : v.config.raw.value("num_views", int64_t(4));
+    const std::vector<double> times =
+        a.views.videoAt.empty() ? spreadTimes(info, int(frames)) : parseVideoTimes(a.views.videoAt);
+    std::vector<std::string> names;
+    for (double s : times) {
+      char at[32];
+      std::snprintf(at, sizeof at, "@%.3fs", s);
+      names.push_back(a.views.video + at);
+    }
+    v.views = planVideoViews(a.views, names, v.config.raw.value("num_input_views", int64_t(2)));
+    needViewsToRender();
+    warnIfTiny(a.views.video, info.width, info.height, w, h);
+    for (const RgbImage& frame : readVideoFrames(a.views.video, info, times, h, w)) {
+      const std::vector<float> img = prepareImage(frame, h, w);
+      v.images.insert(v.images.end(), img.begin(), img.end());
+    }
+  }
   warnIfManyViews(v.config, v.views.files.size(), v.views.inputs.size());
-  for (const auto& f : v.views.files) {
+  for (const auto& f : a.views.video.empty() ? v.views.files : std::vector<std::string>{}) {
     const RgbImage rgb = loadImageRGB(f);
     warnIfTiny(f, rgb.width, rgb.height, w, h);
     const std::vector<float> img = prepareImage(rgb, h, w);

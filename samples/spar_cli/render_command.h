@@ -4,7 +4,7 @@
 //   motion_XX.png  P(dynamic) of each input view, 8-bit grey   (not with --assume-static)
 //   mask_XX.png    P(dynamic) > mask threshold as 0 / 255       (not with --assume-static)
 //   path.mp4       with --path: the views (beside their label maps) as an H.264 video, when
-//                  ffmpeg is installed (--video auto|mp4); path.gif otherwise (--video gif)
+//                  ffmpeg is installed (--animation auto|mp4); path.gif otherwise (--animation gif)
 //   cameras.json   every view's estimated camera (nerfstudio convention), order, render cameras
 //   colmap/        the same estimated cameras as a COLMAP text model (formats/colmap.h)
 //   colmap_render/ with --path / --cameras: the rendered cameras as a COLMAP text model
@@ -40,7 +40,7 @@ struct RenderArgs {
   bool features = false;
   bool scores = false;          // with --labels: per-label score maps (scores_XX.npy)
   std::string format = "png";  // --format png | exr | exr16 | npy (view_XX files)
-  std::string video = "auto";  // --video auto | mp4 | gif: the --path animation
+  std::string animation = "auto";  // --animation auto | mp4 | gif: the --path animation
 };
 
 // What consecutive renders of one process share (spar render --jobs): the device with its
