@@ -20,3 +20,4 @@ echo "demo: 24 views along a camera path through the input cameras: $out/view_*.
 echo "      beside their label maps: $(ls "$out"/path.mp4 "$out"/path.gif 2>/dev/null); label maps: $out/labels_*.png / .json;"
 echo "      motion probability and masks of the inputs (frames 0, 4, 7): $out/motion_*.png, $out/mask_*.png;"
 echo "      cameras: $out/cameras.json; stage times: $out/report.json"
+echo "demo: all of it on one page (open it in a browser): $(realpath "$out/index.html")"

@@ -8,6 +8,7 @@ packages=(
   libglm-dev libopenimageio-dev openimageio-tools
   libgtest-dev nlohmann-json3-dev libcli11-dev libfmt-dev zlib1g-dev libicu-dev fonts-dejavu-core
   pybind11-dev python3-dev
+  chromium  # tests open the render page (index.html) in a real browser, headless
   opencv-doc  # real footage for the tests: vtest.avi (people walking), graf1/graf3.png (one wall, two views)
   ffmpeg
   python3 python3-numpy python3-torch python3-yaml python3-pytest python3-pil libopenblas0-pthread

@@ -168,3 +168,66 @@ TEST(shipped_model, QualityOnShippedScenes) {
 
 }  // namespace
 }  // namespace spar::test
+
+namespace spar::test {
+namespace {
+
+// The demo's index.html (samples/spar_cli/index_page.h) in a real browser: headless Chromium
+// (Debian's chromium) loads it from file:// with no console message, every image loads (the
+// page's own count of images with a natural size, left in the DOM Chromium dumps), and the
+// camera plot holds one mark per camera (inputs, targets, the path). A run with a warning shows
+// the CLI's warning text on its page.
+TEST(shipped_model, DemoPageOpensInChromium) {
+  const fs::path scene = kData / "scenes" / "scene_1000002", out = scratch() / "page";
+  fs::remove_all(out);
+  std::vector<std::string> args = {"render", "--model", (kData / "spar_rooms.spar").string(), "--frames"};
+  for (int i = 0; i < 8; ++i) args.push_back((scene / ("rgb_0" + std::to_string(i) + ".png")).string());
+  for (const char* a : {"--inputs", "0,4,7", "--path", "4", "--labels"}) args.push_back(a);
+  args.push_back(kLabels);
+  args.push_back("--out");
+  args.push_back(out.string());
+  const fs::path log = scratch() / "page.log";
+  ASSERT_EQ(runSpar(args, log), 0) << readText(log);
+  ASSERT_TRUE(fs::exists(out / "index.html"));
+  for (int k = 0; k < 3; ++k) EXPECT_TRUE(fs::exists(out / ("input_0" + std::to_string(k) + ".png"))) << k;
+
+  const fs::path profile = scratch() / "chromium-profile";
+  const CommandResult r = runCommand({"chromium", "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+                                      "--user-data-dir=" + profile.string(), "--enable-logging=stderr", "--v=0",
+                                      "--virtual-time-budget=5000", "--dump-dom", "file://" + (out / "index.html").string()},
+                                     scratch());
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.err.find("CONSOLE"), std::string::npos) << r.err;  // console messages (errors, failed loads)
+  auto attribute = [&](const std::string& name) {
+    const size_t at = r.out.find(name + "=\"");
+    return at == std::string::npos ? -1 : std::stoi(r.out.substr(at + name.size() + 2));
+  };
+  // inputs 3 + masks 3 + motion maps 3 + views 4 + label maps 4 (the path video is a <video>)
+  EXPECT_EQ(attribute("data-images-loaded"), 17) << r.out.substr(0, 2000);
+  EXPECT_EQ(attribute("data-images-broken"), 0);
+  size_t marks = 0;
+  for (size_t at = r.out.find("class=\"cam "); at != std::string::npos; at = r.out.find("class=\"cam ", at + 1)) ++marks;
+  const json cameras = readJson(out / "cameras.json");
+  EXPECT_EQ(marks, cameras["frames"].size() + cameras["render_frames"].size());
+  EXPECT_EQ(marks, 8u + 4u);
+  EXPECT_NE(r.out.find("<video src=\"path.mp4\""), std::string::npos);
+  EXPECT_NE(r.out.find("id=\"stage-times\""), std::string::npos);
+
+  // A warning (9 views, the model was trained with 8): the page says what the CLI said.
+  const fs::path warned = scratch() / "page_warned";
+  fs::remove_all(warned);
+  std::vector<std::string> nine = {"render", "--model", (kData / "spar_rooms.spar").string(), "--images"};
+  for (int i = 0; i < 9; ++i) nine.push_back((scene / ("rgb_0" + std::to_string(i % 8) + ".png")).string());
+  for (const char* a : {"--path", "2", "--out"}) nine.push_back(a);
+  nine.push_back(warned.string());
+  const fs::path log2 = scratch() / "page_warned.log";
+  ASSERT_EQ(runSpar(nine, log2), 0) << readText(log2);
+  const std::string err = readText(log2), page = readText(warned / "index.html");
+  const size_t w = err.find("spar: warning: ");
+  ASSERT_NE(w, std::string::npos) << err;
+  const std::string line = err.substr(w + 15, err.find('\n', w) - w - 15);
+  EXPECT_NE(page.find("<li>" + line + "</li>"), std::string::npos) << line;
+}
+
+}  // namespace
+}  // namespace spar::test

@@ -75,7 +75,19 @@ json evalOk(const std::vector<std::string>& args, const fs::path& out) {
   std::printf("%s", r.out.c_str());
   std::ifstream in(out);
   EXPECT_TRUE(in.good()) << out;
-  return in.good() ? json::parse(in) : json();
+  json doc = in.good() ? json::parse(in) : json();
+  // Beside result.json its page (index_page.h): one table row per K of the results.
+  fs::path page = out;
+  page.replace_extension(".html");
+  std::ifstream html(page);
+  EXPECT_TRUE(html.good()) << page;
+  const std::string text((std::istreambuf_iterator<char>(html)), std::istreambuf_iterator<char>());
+  size_t rows = 0;
+  for (size_t at = text.find("<tr><td>"); at != std::string::npos; at = text.find("<tr><td>", at + 1)) ++rows;
+  if (doc.contains("results")) {
+    EXPECT_EQ(rows, doc["results"].size()) << page;
+  }
+  return doc;
 }
 
 void expectInRange(const json& v, const std::string& what, double lo, double hi) {

@@ -78,6 +78,26 @@ std::set<std::string> entries(const fs::path& dir) {
   return names;
 }
 
+// The input views of a run (its cameras.json).
+size_t inputCount(const fs::path& out) {
+  std::ifstream in(out / "cameras.json");
+  const auto doc = nlohmann::json::parse(in);
+  const auto& inputs = doc.at("inputs");
+  return inputs.is_array() ? inputs.size() : inputs.get<size_t>();
+}
+
+// What ours writes beyond the reference's files: index.html, the page, and input_XX.png, the
+// prepared input views it shows (one per input). Removed from `names`; false if any is missing.
+bool erasePage(std::set<std::string>& names, size_t inputs) {
+  bool all = names.erase("index.html") == 1;
+  for (size_t k = 0; k < inputs; ++k) {
+    char f[32];
+    std::snprintf(f, sizeof f, "input_%02zu.png", k);
+    all = names.erase(f) == 1 && all;
+  }
+  return all;
+}
+
 // No DIR.tmp-* next to the output directory.
 void expectNoTemp(const fs::path& out) {
   const std::string prefix = out.filename().string() + ".tmp";
@@ -286,6 +306,7 @@ void compareOutputs(const std::string& name, const Outputs& o, bool assumeStatic
   // has the COLMAP models the reference does not write
   auto names = entries(o.ours);
   EXPECT_EQ(names.erase("colmap"), 1u) << name;
+  EXPECT_TRUE(erasePage(names, inputCount(o.ours))) << name;
   EXPECT_EQ(names.erase("colmap_render"), mode == "targets" ? 0u : 1u) << name;
   EXPECT_EQ(names, entries(o.ref)) << name;
   int views = 0, motions = 0, masks = 0;
@@ -538,6 +559,7 @@ TEST(spar_render, LabelsAndFeaturesMatchReference) {
   ASSERT_TRUE(o);
   auto names = entries(o->ours);
   EXPECT_EQ(names.erase("colmap"), 1u);  // ours also writes the cameras as a COLMAP model
+  EXPECT_TRUE(erasePage(names, inputCount(o->ours)));
   EXPECT_EQ(names, entries(o->ref));
   for (int j = 0; j < 2; ++j) {
     char f[32];

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
+#include <fstream>
 #include <map>
 #include <memory>
 #include <optional>
@@ -22,6 +23,7 @@
 #include "samples/spar_cli/eval_scenes.h"
 #include "text/prompt_labels.h"
 #include "samples/spar_cli/warnings.h"
+#include "samples/spar_cli/index_page.h"
 #include "samples/spar_cli/progress.h"
 #include "samples/spar_cli/render_outputs.h"
 
@@ -99,6 +101,7 @@ std::string cell(std::optional<double> v, const char* format) {
 }  // namespace
 
 void runEval(const EvalArgs& a) {
+  takeWarnings();  // the results page lists this evaluation's warnings only
   const auto start = Clock::now();
   // 1. The command line alone (exit 2).
   if (a.noGating && a.assumeStatic) throw UsageError("--no-gating and --assume-static exclude each other");
@@ -291,6 +294,15 @@ void runEval(const EvalArgs& a) {
     for (const auto& s : scenes) doc["scene_names"].push_back(s.name);
   }
   writeJson(outPath.string(), doc);
+  // Beside it, the same as a page (result.json -> result.html): a table to look at.
+  {
+    fs::path page = outPath;
+    page.replace_extension(".html");
+    if (page != outPath) {
+      std::ofstream html(page, std::ios::binary);
+      html << evalResultsPage(doc, deviceName, takeWarnings());
+    }
+  }
 
   // The table on stdout.
   std::printf("spar eval: %zu scenes of %d frames at %s, %s, %s, %s on %s\n", scenes.size(), frames,

@@ -19,6 +19,7 @@
 #include "model/spar_config.h"
 #include "model/spar_pipeline.h"
 #include "samples/spar_cli/errors.h"
+#include "samples/spar_cli/index_page.h"
 #include "samples/spar_cli/kernel_report.h"
 #include "text/prompt_labels.h"
 #include "samples/spar_cli/progress.h"
@@ -162,7 +163,7 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
   if (!a.cameras.empty()) {
     std::string warning;
     v.cameras = readCameraFile(a.cameras, w, h, &warning);
-    if (!warning.empty()) std::fprintf(stderr, "spar: warning: %s\n", warning.c_str());
+    if (!warning.empty()) warn(warning);
     // Refused here, before any device work, with the frame named (the engine checks again).
     const RenderCameras rc = toRenderCameras(v.cameras);
     for (size_t i = 0; i < rc.size(); ++i)
@@ -184,6 +185,7 @@ RenderContext::RenderContext() = default;
 RenderContext::~RenderContext() = default;
 
 void runRender(const RenderArgs& a, RenderContext* shared) {
+  takeWarnings();  // this render's page lists this render's warnings only
   const auto start = Clock::now();
   Validated v = validate(a, shared);
   const SparConfig& cfg = v.config;
@@ -244,7 +246,7 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
     }
     SparPipeline pipeline(engine, *v.model, po);
     SparRequest req;
-    req.images = std::move(v.images);
+    req.images = v.images;  // a copy: the input views are written beside the outputs (index.html shows them)
     req.height = h;
     req.width = w;
     req.plan.views = int64_t(v.views.files.size());
@@ -349,10 +351,18 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
 
     progress.step("writing " + v.outDir);
     t = Clock::now();
+    // The prepared input views (what the model saw), for the page's inputs with their masks.
+    const size_t plane = size_t(3) * size_t(h) * size_t(w);
+    for (size_t k = 0; k < v.views.inputs.size(); ++k) {
+      char name[32];
+      std::snprintf(name, sizeof name, "input_%02zu.png", k);
+      const float* img = v.images.data() + size_t(v.views.inputs[k]) * plane;
+      writePng((fs::path(staged.path()) / name).string(), img, 3, h, w);
+    }
     const std::vector<float> noMotion;
     writer.finish(a.assumeStatic ? noMotion : enc.motionInput, a.assumeStatic ? 0 : int64_t(v.views.inputs.size()),
                   cfg.maskThreshold, cd);
-    int written = writer.files();
+    int written = writer.files() + int(v.views.inputs.size());
     host.push_back({{"name", "write_outputs"}, {"wall_ms", writeMs + msSince(t)}});
 
     nlohmann::ordered_json stages = nlohmann::ordered_json::array();
@@ -401,6 +411,9 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
     if (!writer.animationFile().empty())
       report["animation"] = {{"file", writer.animationFile()}, {"how", writer.animationDescription()}};
     writeJson((fs::path(staged.path()) / "report.json").string(), report);
+    ++written;
+    // Last: the page that shows it all (index_page.h), with the warnings of this render.
+    writeIndexPage(staged.path(), report, camerasJson(cd), takeWarnings());
     ++written;
     staged.commit();
     char done[64];

@@ -7,11 +7,25 @@
 
 namespace spar::cli {
 
+namespace {
+std::vector<std::string>& printed() {
+  static std::vector<std::string> lines;
+  return lines;
+}
+}  // namespace
+
 void warn(const std::string& message) {
   std::string line = message;
   for (char& c : line)
     if (c == '\n' || c == '\r') c = ' ';
   std::fprintf(stderr, "spar: warning: %s\n", line.c_str());
+  printed().push_back(line);
+}
+
+std::vector<std::string> takeWarnings() {
+  std::vector<std::string> out;
+  out.swap(printed());
+  return out;
 }
 
 void warnIfTiny(const std::string& file, int width, int height, int modelWidth, int modelHeight) {

@@ -13,6 +13,8 @@ struct TokenizedPrompts;
 namespace spar::cli {
 
 void warn(const std::string& message);
+// The warnings warn() printed since the last call (a render's page lists its own).
+std::vector<std::string> takeWarnings();
 
 // An image much smaller than what the model runs at (under a quarter of a side): upscaled.
 void warnIfTiny(const std::string& file, int width, int height, int modelWidth, int modelHeight);

@@ -1,0 +1,272 @@
+// index.html of a `spar render` output (index_page.h).
+#include "samples/spar_cli/index_page.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include "engine/error.h"
+
+namespace spar::cli {
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::ordered_json;
+
+std::string esc(const std::string& s) {
+  std::string o;
+  for (char c : s) {
+    switch (c) {
+      case '&': o += "&amp;"; break;
+      case '<': o += "&lt;"; break;
+      case '>': o += "&gt;"; break;
+      case '"': o += "&quot;"; break;
+      default: o += c;
+    }
+  }
+  return o;
+}
+
+std::string num(double v, const char* fmt = "%.1f") {
+  char b[64];
+  std::snprintf(b, sizeof b, fmt, v);
+  return b;
+}
+
+// The files of `dir` whose names start with `prefix` and end with `suffix`, sorted.
+std::vector<std::string> files(const std::set<std::string>& names, const std::string& prefix, const std::string& suffix) {
+  std::vector<std::string> out;
+  for (const std::string& n : names)
+    if (n.rfind(prefix, 0) == 0 && n.size() >= suffix.size() && n.compare(n.size() - suffix.size(), suffix.size(), suffix) == 0)
+      out.push_back(n);
+  return out;
+}
+
+std::string two(size_t i) {
+  char b[24];
+  std::snprintf(b, sizeof b, "%02zu", i);
+  return b;
+}
+
+const char* kStyle = R"(body{font:14px/1.4 sans-serif;margin:1.5em;color:#222;max-width:1400px}
+h1{font-size:1.4em;margin:0 0 .3em}h2{font-size:1.1em;margin:1.4em 0 .5em;border-bottom:1px solid #ddd}
+.meta{color:#555}.grid{display:flex;flex-wrap:wrap;gap:12px}figure{margin:0}figcaption{font-size:12px;color:#555;max-width:260px}
+img,video{image-rendering:pixelated;width:192px;height:auto;border:1px solid #ccc;display:block}
+.stack{position:relative;width:192px}.stack img.mask{position:absolute;left:0;top:0;filter:url(#mask-red);opacity:.6}.warn li{color:#a40}.swatch{display:inline-block;width:12px;
+height:12px;margin-right:4px;vertical-align:middle;border:1px solid #999}.legend span.l{margin-right:14px;white-space:nowrap}
+svg text{font:11px sans-serif}.input{fill:#1f77b4}.target{fill:#ff7f0e}.render{fill:#2ca02c}
+)";
+
+// Top-down (x right, z forward: OpenCV axes seen from above) plot of every camera: a dot and a
+// short line along its viewing direction; inputs blue, targets orange, rendered cameras green.
+std::string cameraPlot(const json& cameras) {
+  struct Cam {
+    double x, z, dx, dz;
+    std::string role, title;
+  };
+  std::vector<Cam> cams;
+  auto add = [&](const json& f, const std::string& role) {
+    const auto m = f.at("c2w_opencv").get<std::vector<std::vector<double>>>();
+    const double dx = m[0][2], dz = m[2][2], n = std::hypot(dx, dz);
+    std::string title = role + " " + std::to_string(f.value("index", 0));
+    if (f.contains("file_path")) title += ": " + f["file_path"].get<std::string>();
+    cams.push_back({m[0][3], m[2][3], n > 0 ? dx / n : 0, n > 0 ? dz / n : 1, role, title});
+  };
+  for (const auto& f : cameras.value("frames", json::array())) add(f, f.value("role", "input") == "input" ? "input" : "target");
+  for (const auto& f : cameras.value("render_frames", json::array())) add(f, "render");
+  double x0 = 0, x1 = 0, z0 = 0, z1 = 0;
+  for (const Cam& c : cams) {
+    x0 = std::min(x0, c.x), x1 = std::max(x1, c.x), z0 = std::min(z0, c.z), z1 = std::max(z1, c.z);
+  }
+  const double span = std::max({x1 - x0, z1 - z0, 1e-6}), pad = 0.25 * span + 1e-6;
+  const double size = 360, scale = size / (span + 2 * pad);
+  auto px = [&](double x) { return (x - x0 + pad + (span - (x1 - x0)) / 2) * scale; };
+  // z forward points up the page
+  auto pz = [&](double z) { return size - (z - z0 + pad + (span - (z1 - z0)) / 2) * scale; };
+  std::ostringstream s;
+  s << "<svg id=\"camera-plot\" width=\"" << size << "\" height=\"" << size << "\" viewBox=\"0 0 " << size << " "
+    << size << "\" role=\"img\" aria-label=\"cameras seen from above\">"
+    << "<rect width=\"" << size << "\" height=\"" << size << "\" fill=\"#fafafa\" stroke=\"#ccc\"/>";
+  const double arrow = 0.12 * span * scale + 8;
+  for (const Cam& c : cams) {
+    const double x = px(c.x), y = pz(c.z);
+    s << "<line x1=\"" << num(x) << "\" y1=\"" << num(y) << "\" x2=\"" << num(x + c.dx * arrow) << "\" y2=\""
+      << num(y - c.dz * arrow) << "\" stroke=\"#888\"/>";
+    s << "<circle class=\"cam " << c.role << "\" cx=\"" << num(x) << "\" cy=\"" << num(y) << "\" r=\""
+      << (c.role == "render" ? 3 : 5) << "\"><title>" << esc(c.title) << "</title></circle>";
+  }
+  s << "</svg><p class=\"meta\"><span style=\"color:#1f77b4\">● inputs</span> <span style=\"color:#ff7f0e\">● targets"
+    << "</span> <span style=\"color:#2ca02c\">● rendered cameras</span>; seen from above: x right, z (forward) up</p>";
+  return s.str();
+}
+
+// Stage times as horizontal bars: compute (GPU timestamps), driver builds, wall.
+std::string timeBars(const json& report) {
+  const json stages = report.value("stages", json::array());
+  double most = 1e-9;
+  for (const auto& st : stages) most = std::max(most, st.value("wall_ms", 0.0));
+  const double width = 420, row = 18, left = 120;
+  std::ostringstream s;
+  s << "<svg id=\"stage-times\" width=\"" << left + width + 80 << "\" height=\"" << row * (stages.size() + 1) + 8
+    << "\" role=\"img\" aria-label=\"stage times\">";
+  size_t i = 0;
+  for (const auto& st : stages) {
+    const double y = 4 + row * double(i++);
+    const double wall = st.value("wall_ms", 0.0), gpu = st.value("gpu_ms", 0.0), build = st.value("build_ms", 0.0);
+    auto bar = [&](double ms, double offset, const char* colour) {
+      s << "<rect x=\"" << num(left + offset / most * width) << "\" y=\"" << y << "\" width=\"" << num(ms / most * width, "%.2f")
+        << "\" height=\"" << row - 5 << "\" fill=\"" << colour << "\"/>";
+    };
+    s << "<text x=\"0\" y=\"" << y + 11 << "\">" << esc(st.value("name", "")) << "</text>";
+    bar(wall, 0, "#ddd");
+    bar(gpu, 0, "#1f77b4");
+    bar(build, gpu, "#ff7f0e");
+    s << "<text x=\"" << num(left + wall / most * width + 4) << "\" y=\"" << y + 11 << "\">" << num(wall) << " ms</text>";
+  }
+  s << "<text x=\"0\" y=\"" << row * double(stages.size()) + 16 << "\"><tspan fill=\"#1f77b4\">■ compute</tspan>  "
+    << "<tspan fill=\"#ff7f0e\">■ driver builds</tspan>  <tspan fill=\"#999\">■ wall</tspan></text></svg>";
+  return s.str();
+}
+
+}  // namespace
+
+std::string indexPage(const std::string& dir, const json& report, const json& cameras, const std::vector<std::string>& warnings) {
+  std::set<std::string> names;
+  for (const auto& e : fs::directory_iterator(dir)) names.insert(e.path().filename().string());
+  std::ostringstream h;
+  const json views = report.value("views", json::object());
+  const json size = report.value("image_size", json::object());
+  h << "<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>spar render: "
+    << views.value("rendered", 0) << " views</title>\n<style>" << kStyle << "</style></head>\n<body>\n";
+  // The masks (0 / 255 grey) drawn as translucent red over their inputs: luminance -> red's alpha.
+  h << "<svg width=\"0\" height=\"0\" style=\"position:absolute\"><filter id=\"mask-red\"><feColorMatrix "
+       "type=\"matrix\" values=\"0 0 0 0 1  0 0 0 0 0  0 0 0 0 0  0.333 0.333 0.333 0 0\"/></filter></svg>\n";
+  h << "<h1>spar render</h1>\n<p class=\"meta\">model <b>" << esc(report.value("model", "")) << "</b><br>device <b>"
+    << esc(report.value("device", "")) << "</b>, precision <b>" << esc(report.value("precision", "")) << "</b>, "
+    << size.value("height", 0) << "x" << size.value("width", 0) << " (HxW) from " << esc(size.value("from", "")) << "<br>"
+    << views.value("total", 0) << " views: " << views.value("inputs", 0) << " inputs, " << views.value("targets", 0)
+    << " targets; rendered " << views.value("rendered", 0) << " (" << esc(report.value("render", "")) << "), "
+    << num(report.value("total_seconds", 0.0), "%.2f") << " s in all</p>\n";
+
+  h << "<h2>Warnings</h2>\n";
+  if (warnings.empty()) {
+    h << "<p id=\"warnings\">none</p>\n";
+  } else {
+    h << "<ul id=\"warnings\" class=\"warn\">";
+    for (const std::string& w : warnings) h << "<li>" << esc(w) << "</li>";
+    h << "</ul>\n";
+  }
+
+  const json frames = cameras.value("frames", json::array());
+  std::vector<std::string> inputFiles;
+  for (const auto& f : frames)
+    if (f.value("role", "") == "input") inputFiles.push_back(f.value("file_path", ""));
+  const auto inputs = files(names, "input_", ".png");
+  if (!inputs.empty()) {
+    h << "<h2>Inputs, with their motion masks over them</h2>\n<div class=\"grid\">";
+    for (size_t k = 0; k < inputs.size(); ++k) {
+      const std::string mask = "mask_" + two(k) + ".png", motion = "motion_" + two(k) + ".png";
+      h << "<figure><div class=\"stack\"><img src=\"" << inputs[k] << "\" alt=\"input " << k << "\">";
+      if (names.count(mask)) h << "<img class=\"mask\" src=\"" << mask << "\" alt=\"motion mask " << k << "\">";
+      h << "</div>";
+      if (names.count(motion)) h << "<img src=\"" << motion << "\" alt=\"P(dynamic) of input " << k << "\">";
+      h << "<figcaption>input " << k << (k < inputFiles.size() ? ": " + esc(fs::path(inputFiles[k]).filename().string()) : "")
+        << (names.count(mask) ? "; red: moving (mask), grey below: P(dynamic)" : "") << "</figcaption></figure>";
+    }
+    h << "</div>\n";
+  }
+
+  const auto pngViews = files(names, "view_", ".png");
+  const size_t viewCount = size_t(views.value("rendered", 0));
+  h << "<h2>Rendered views</h2>\n";
+  if (names.count("path.mp4"))
+    h << "<p><video src=\"path.mp4\" controls loop muted style=\"width:384px\"></video></p>\n";
+  else if (names.count("path.gif"))
+    h << "<p><img src=\"path.gif\" alt=\"the camera path\" style=\"width:384px\"></p>\n";
+  const auto anyViews = files(names, "view_", "");
+  if (pngViews.empty() && !anyViews.empty())
+    h << "<p>" << viewCount << " views written as " << esc(fs::path(anyViews.front()).extension().string())
+      << " files (float data: not shown here)</p>\n";
+  h << "<div class=\"grid\">";
+  for (size_t j = 0; j < pngViews.size(); ++j) {
+    const std::string labels = "labels_" + two(j) + ".png";
+    h << "<figure><img src=\"" << pngViews[j] << "\" alt=\"view " << j << "\">";
+    if (names.count(labels)) h << "<img src=\"" << labels << "\" alt=\"label map " << j << "\">";
+    h << "<figcaption>view " << j << "</figcaption></figure>";
+  }
+  h << "</div>\n";
+
+  // The legend and each label's share, from the first view's labels JSON (same colours in all).
+  if (names.count("labels_00.json")) {
+    std::ifstream in(fs::path(dir) / "labels_00.json");
+    const json doc = json::parse(in, nullptr, false);
+    if (!doc.is_discarded() && doc.contains("labels")) {
+      h << "<h2>Label maps: legend</h2>\n<p class=\"legend\">";
+      for (const auto& l : doc["labels"]) {
+        const auto c = l.value("colour", std::vector<int>{0, 0, 0});
+        h << "<span class=\"l\"><span class=\"swatch\" style=\"background:rgb(" << c[0] << "," << c[1] << "," << c[2]
+          << ")\"></span>" << esc(l.value("label", "")) << " (" << num(100 * l.value("share", 0.0), "%.0f") << "% of view 0)</span> ";
+      }
+      h << "</p>\n";
+    }
+  }
+
+  h << "<h2>Cameras</h2>\n" << cameraPlot(cameras) << "\n";
+  h << "<h2>Stage times</h2>\n" << timeBars(report) << "\n";
+  // For people and tests alike: how many images loaded (a broken one shows as a count here).
+  h << "<p id=\"loaded\" class=\"meta\"></p>\n<script>addEventListener('load',()=>{let ok=0,bad=0;"
+       "for(const i of document.images)(i.naturalWidth>0?ok++:bad++);document.body.dataset.imagesLoaded=ok;"
+       "document.body.dataset.imagesBroken=bad;document.getElementById('loaded').textContent=ok+' images shown'+"
+       "(bad?', '+bad+' missing':'');});</script>\n</body></html>\n";
+  return h.str();
+}
+
+std::string evalResultsPage(const json& result, const std::string& device, const std::vector<std::string>& warnings) {
+  std::ostringstream h;
+  h << "<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>spar eval</title>\n<style>" << kStyle
+    << "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}</style></head>\n<body>\n"
+    << "<h1>spar eval</h1>\n<p class=\"meta\">model <b>" << esc(result.value("model", "")) << "</b><br>device <b>" << esc(device)
+    << "</b>, precision <b>" << esc(result.value("precision", "")) << "</b>, mode <b>" << esc(result.value("mode", ""))
+    << "</b><br>" << result.value("scenes", 0) << " scenes of " << result.value("frames", 0)
+    << " frames (converter/spar_eval/PROTOCOL.md)</p>\n<h2>Warnings</h2>\n";
+  if (warnings.empty()) {
+    h << "<p id=\"warnings\">none</p>\n";
+  } else {
+    h << "<ul id=\"warnings\" class=\"warn\">";
+    for (const std::string& w : warnings) h << "<li>" << esc(w) << "</li>";
+    h << "</ul>\n";
+  }
+  static const std::vector<std::pair<const char*, const char*>> columns = {
+      {"target_views", "targets"},     {"psnr", "PSNR"},           {"psnr_nearest_input", "PSNR copy"},
+      {"psnr_mean_colour", "PSNR mean"}, {"ssim", "SSIM"},        {"ssim_nearest_input", "SSIM copy"},
+      {"mask_miou", "mask mIoU"},      {"mask_iou_dynamic", "IoU dyn"}, {"mask_recall", "recall"},
+      {"sem_miou", "sem mIoU"},        {"sem_accuracy", "sem acc"}, {"ms_per_scene", "ms/scene"}};
+  h << "<h2>Results (copy: the nearest input copied; mean: its mean colour)</h2>\n<table id=\"results\"><tr><th>K inputs</th>";
+  for (const auto& c : columns) h << "<th>" << c.second << "</th>";
+  h << "</tr>";
+  const json results = result.value("results", json::object());
+  for (const auto& [k, r] : results.items()) {
+    h << "<tr><td>" << esc(k) << "</td>";
+    for (const auto& c : columns) {
+      const json v = r.value(c.first, json());
+      h << "<td>" << (v.is_number() ? num(v.get<double>(), std::string(c.first) == "target_views" ? "%.0f" : "%.3f") : "-")
+        << "</td>";
+    }
+    h << "</tr>";
+  }
+  h << "</table>\n</body></html>\n";
+  return h.str();
+}
+
+void writeIndexPage(const std::string& dir, const json& report, const json& cameras, const std::vector<std::string>& warnings) {
+  const std::string page = indexPage(dir, report, cameras, warnings);
+  std::ofstream out(fs::path(dir) / "index.html", std::ios::binary);
+  out << page;
+  if (!out) throw Error("cannot write " + (fs::path(dir) / "index.html").string());
+}
+
+}  // namespace spar::cli
