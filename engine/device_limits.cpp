@@ -1,6 +1,6 @@
 // DeviceLimits (include/spar/device_limits.h): the named profiles, their JSON form, and how a
 // profile tightens what the engine reads off the device (tightenCaps, engine/device_limits.h).
-// Every value of a named profile is cited in the README's "Device-limit profiles" table.
+// Every value of a named profile is cited in docs/portability.md's "Device-limit profiles" table.
 #include "engine/device_limits.h"
 
 #include <algorithm>

@@ -108,7 +108,7 @@ int main(int argc, char** argv) {
   std::string jobsFile, shardText = "0/1";
   auto* jobsOpt = render->add_option("--jobs", jobsFile,
                                      "many renders in one process (one device, kernels compiled once): a JSON Lines "
-                                     "file, one job a line with its \"out\" and views (README: many scenes)");
+                                     "file, one job a line with its \"out\" and views (docs/many-scenes.md)");
   jobsOpt->excludes(images)->excludes(frames)->excludes(targets)->excludes(outOpt);
   render->add_option("--shard", shardText, "with --jobs: run the jobs whose position is I modulo N")
       ->type_name("I/N")

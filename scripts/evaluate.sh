@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The README's evaluation table: the paper's metrics (converter/spar_eval/PROTOCOL.md) on held-out
+# The evaluation table of docs/evaluation.md: the paper's metrics (converter/spar_eval/PROTOCOL.md) on held-out
 # test scenes, for the trained model, its inference modes and the model trained without the
 # dynamic-region-aware loss, on the engine (`spar eval`) and on the PyTorch reference
 # (`spar-eval-reference`), which must agree to the second decimal (`spar-eval-compare`).

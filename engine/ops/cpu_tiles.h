@@ -1,6 +1,6 @@
 // Which of the measured tile tables a CPU device gets. The register blocks of the kernels
 // (gemm, attention, conv2d, conv_transpose2d) trade run time against how long the driver
-// takes to compile each variant, and llvmpipe generations differ in both (README, "Kernel
+// takes to compile each variant, and llvmpipe generations differ in both (docs/first-run-and-kernels.md, "Kernel
 // choice per device"):
 //   Wide    16 lanes (llvmpipe built for 512-bit vectors): the big blocks every CPU got before
 //           these tables, measured fastest on an earlier AVX-512 machine; not re-measured

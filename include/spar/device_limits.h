@@ -3,7 +3,7 @@
 // The kernel plan, every op's binding splits and the memory budget follow them, so a run on a
 // generous device (lavapipe) exercises what a phone or a board would need. A profile can only
 // tighten: the real device's limits stay the ceiling. Named profiles and their sources:
-// docs in the README ("Device-limit profiles"); engine/device_limits.cpp holds the values.
+// docs in docs/portability.md ("Device-limit profiles"); engine/device_limits.cpp holds the values.
 #pragma once
 #include <cstdint>
 #include <optional>

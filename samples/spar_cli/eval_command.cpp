@@ -288,7 +288,7 @@ void runEval(const EvalArgs& a) {
                      {"frames", frames},
                      {"results", byK}};
   if (a.shards > 1) {
-    // Which part of the test set this is, and its scenes, for combining shards (README).
+    // Which part of the test set this is, and its scenes, for combining shards (docs/many-scenes.md).
     doc["shard"] = {{"index", a.shard}, {"count", a.shards}};
     doc["scene_names"] = ojson::array();
     for (const auto& s : scenes) doc["scene_names"].push_back(s.name);
