@@ -191,3 +191,23 @@ TEST(spar_footage, RotationMetadataIsHonoured) {
 
 }  // namespace
 }  // namespace spar::test
+
+namespace spar::test {
+namespace {
+
+// A jobs file (spar render --jobs, docs/many-scenes.md) takes a video the way --video does.
+TEST(spar_footage, VideoJobInAJobsFile) {
+  const fs::path clip = makeClip("job_clip.mp4"), jobs = scratch() / "jobs.jsonl", out = scratch() / "job_out";
+  fs::remove_all(out);
+  std::ofstream(jobs) << "{\"out\": \"" << out.string() << "\", \"video\": \"" << clip.string()
+                      << "\", \"video_at\": [0.25, 0.75, 1.5], \"inputs\": [0, 2]}\n";
+  const CommandResult r = spar({"render", "--model", kModel.string(), "--jobs", jobs.string()});
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_TRUE(fs::exists(out / "view_00.png"));
+  expectValidCameras(out, 3);
+  EXPECT_NE(readJson(out / "cameras.json")["frames"][1]["file_path"].get<std::string>().find("job_clip.mp4@0.750s"),
+            std::string::npos);
+}
+
+}  // namespace
+}  // namespace spar::test

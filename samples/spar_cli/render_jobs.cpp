@@ -36,11 +36,14 @@ std::vector<std::string> files(const json& j, const char* key, const fs::path& b
 
 RenderArgs jobArgs(const json& j, const RenderArgs& common, const fs::path& base, const std::string& where) {
   if (!j.is_object()) throw UsageError(where + ": a job is a JSON object");
-  static const char* known[] = {"out", "images", "targets", "frames", "inputs", "path", "cameras", "labels"};
+  static const char* known[] = {"out", "images", "targets", "frames", "inputs", "path", "cameras", "labels",
+                                "video", "video_frames", "video_at"};
   for (const auto& [key, value] : j.items()) {
     bool ok = false;
     for (const char* k : known) ok = ok || key == k;
-    if (!ok) throw UsageError(where + ": unknown key \"" + key + "\" (known: out, images, targets, frames, inputs, path, cameras, labels)");
+    if (!ok)
+      throw UsageError(where + ": unknown key \"" + key +
+                       "\" (known: out, images, targets, frames, inputs, path, cameras, labels, video, video_frames, video_at)");
   }
   RenderArgs a = common;
   a.views = {};
@@ -54,6 +57,30 @@ RenderArgs jobArgs(const json& j, const RenderArgs& common, const fs::path& base
   if (j.contains("frames")) {
     if (j.contains("images")) throw UsageError(where + ": \"frames\" and \"images\" exclude each other");
     a.views.frames = files(j, "frames", base, where);
+  }
+  // A video, as --video / --video-frames / --video-at (the rest of the plan as with "frames").
+  if (j.contains("video")) {
+    if (j.contains("images") || j.contains("frames")) throw UsageError(where + ": \"video\" excludes \"images\" and \"frames\"");
+    a.views.video = resolve(base, text(j, "video", where));
+  }
+  if (j.contains("video_frames")) {
+    if (!j["video_frames"].is_number_integer()) throw UsageError(where + ": \"video_frames\" must be a number of frames");
+    a.views.videoFrames = j["video_frames"].get<int>();
+  }
+  if (j.contains("video_at")) {
+    const json& at = j["video_at"];
+    if (at.is_string()) {
+      a.views.videoAt = at.get<std::string>();
+    } else if (at.is_array()) {
+      for (const json& t : at) {
+        if (!t.is_number()) throw UsageError(where + ": \"video_at\" must be \"0.5,2\" or [0.5, 2]");
+        char s[32];
+        std::snprintf(s, sizeof s, "%.17g", t.get<double>());
+        a.views.videoAt += (a.views.videoAt.empty() ? "" : ",") + std::string(s);
+      }
+    } else {
+      throw UsageError(where + ": \"video_at\" must be \"0.5,2\" or [0.5, 2]");
+    }
   }
   if (j.contains("inputs")) {
     const json& in = j["inputs"];
