@@ -48,15 +48,22 @@ json readJson(const fs::path& p) {
   return json::parse(in);
 }
 
-TEST(shipped_model, DemoRender) {
-  const fs::path scene = kData / "scenes" / "scene_1000002", out = scratch() / "demo";
+// The README's demo request (scripts/demo.sh) on a 4-camera path into `out` (emptied first).
+std::vector<std::string> demoRequest(const fs::path& out) {
   fs::remove_all(out);
+  const fs::path scene = kData / "scenes" / "scene_1000002";
   std::vector<std::string> args = {"render", "--model", (kData / "spar_rooms.spar").string(), "--frames"};
   for (int i = 0; i < 8; ++i) args.push_back((scene / ("rgb_0" + std::to_string(i) + ".png")).string());
   for (const char* a : {"--inputs", "0,4,7", "--path", "4", "--labels"}) args.push_back(a);
   args.push_back(kLabels);
   args.push_back("--out");
   args.push_back(out.string());
+  return args;
+}
+
+TEST(shipped_model, DemoRender) {
+  const fs::path out = scratch() / "demo";
+  const std::vector<std::string> args = demoRequest(out);
   const fs::path log = scratch() / "demo.log";
   ASSERT_EQ(runSpar(args, log), 0) << readText(log);
   const std::string text = readText(log);
@@ -179,13 +186,7 @@ namespace {
 // the CLI's warning text on its page.
 TEST(shipped_model, DemoPageOpensInChromium) {
   const fs::path scene = kData / "scenes" / "scene_1000002", out = scratch() / "page";
-  fs::remove_all(out);
-  std::vector<std::string> args = {"render", "--model", (kData / "spar_rooms.spar").string(), "--frames"};
-  for (int i = 0; i < 8; ++i) args.push_back((scene / ("rgb_0" + std::to_string(i) + ".png")).string());
-  for (const char* a : {"--inputs", "0,4,7", "--path", "4", "--labels"}) args.push_back(a);
-  args.push_back(kLabels);
-  args.push_back("--out");
-  args.push_back(out.string());
+  const std::vector<std::string> args = demoRequest(out);
   const fs::path log = scratch() / "page.log";
   ASSERT_EQ(runSpar(args, log), 0) << readText(log);
   ASSERT_TRUE(fs::exists(out / "index.html"));

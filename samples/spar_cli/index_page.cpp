@@ -61,6 +61,14 @@ height:12px;margin-right:4px;vertical-align:middle;border:1px solid #999}.legend
 svg text{font:11px sans-serif}.input{fill:#1f77b4}.target{fill:#ff7f0e}.render{fill:#2ca02c}
 )";
 
+// The run's warnings (the CLI's lines), or "none".
+std::string warningList(const std::vector<std::string>& warnings) {
+  if (warnings.empty()) return "<p id=\"warnings\">none</p>\n";
+  std::string out = "<ul id=\"warnings\" class=\"warn\">";
+  for (const std::string& w : warnings) out += "<li>" + esc(w) + "</li>";
+  return out + "</ul>\n";
+}
+
 // Top-down (x right, z forward: OpenCV axes seen from above) plot of every camera: a dot and a
 // short line along its viewing direction; inputs blue, targets orange, rendered cameras green.
 std::string cameraPlot(const json& cameras) {
@@ -153,13 +161,7 @@ std::string indexPage(const std::string& dir, const json& report, const json& ca
     << num(report.value("total_seconds", 0.0), "%.2f") << " s in all</p>\n";
 
   h << "<h2>Warnings</h2>\n";
-  if (warnings.empty()) {
-    h << "<p id=\"warnings\">none</p>\n";
-  } else {
-    h << "<ul id=\"warnings\" class=\"warn\">";
-    for (const std::string& w : warnings) h << "<li>" << esc(w) << "</li>";
-    h << "</ul>\n";
-  }
+  h << warningList(warnings);
 
   const json frames = cameras.value("frames", json::array());
   std::vector<std::string> inputFiles;
@@ -233,13 +235,7 @@ std::string evalResultsPage(const json& result, const std::string& device, const
     << "</b>, precision <b>" << esc(result.value("precision", "")) << "</b>, mode <b>" << esc(result.value("mode", ""))
     << "</b><br>" << result.value("scenes", 0) << " scenes of " << result.value("frames", 0)
     << " frames (converter/spar_eval/PROTOCOL.md)</p>\n<h2>Warnings</h2>\n";
-  if (warnings.empty()) {
-    h << "<p id=\"warnings\">none</p>\n";
-  } else {
-    h << "<ul id=\"warnings\" class=\"warn\">";
-    for (const std::string& w : warnings) h << "<li>" << esc(w) << "</li>";
-    h << "</ul>\n";
-  }
+  h << warningList(warnings);
   static const std::vector<std::pair<const char*, const char*>> columns = {
       {"target_views", "targets"},     {"psnr", "PSNR"},           {"psnr_nearest_input", "PSNR copy"},
       {"psnr_mean_colour", "PSNR mean"}, {"ssim", "SSIM"},        {"ssim_nearest_input", "SSIM copy"},

@@ -34,6 +34,23 @@ std::vector<std::string> files(const json& j, const char* key, const fs::path& b
   return out;
 }
 
+// "0,2" or [0, 2] (integers) / "0.5,2" or [0.5, 2] (numbers) as the option's comma list.
+std::string commaList(const json& j, const char* key, bool integers, const std::string& where) {
+  const json& v = j[key];
+  const std::string what = where + ": \"" + key + "\" must be " + (integers ? "\"0,2\" or [0, 2]" : "\"0.5,2\" or [0.5, 2]");
+  if (v.is_string()) return v.get<std::string>();
+  if (!v.is_array()) throw UsageError(what);
+  std::string out;
+  for (const json& x : v) {
+    if (integers ? !x.is_number_integer() : !x.is_number()) throw UsageError(what);
+    char s[32];
+    if (integers) std::snprintf(s, sizeof s, "%lld", static_cast<long long>(x.get<int64_t>()));
+    else std::snprintf(s, sizeof s, "%.17g", x.get<double>());
+    out += (out.empty() ? "" : ",") + std::string(s);
+  }
+  return out;
+}
+
 RenderArgs jobArgs(const json& j, const RenderArgs& common, const fs::path& base, const std::string& where) {
   if (!j.is_object()) throw UsageError(where + ": a job is a JSON object");
   static const char* known[] = {"out", "images", "targets", "frames", "inputs", "path", "cameras", "labels",
@@ -67,34 +84,8 @@ RenderArgs jobArgs(const json& j, const RenderArgs& common, const fs::path& base
     if (!j["video_frames"].is_number_integer()) throw UsageError(where + ": \"video_frames\" must be a number of frames");
     a.views.videoFrames = j["video_frames"].get<int>();
   }
-  if (j.contains("video_at")) {
-    const json& at = j["video_at"];
-    if (at.is_string()) {
-      a.views.videoAt = at.get<std::string>();
-    } else if (at.is_array()) {
-      for (const json& t : at) {
-        if (!t.is_number()) throw UsageError(where + ": \"video_at\" must be \"0.5,2\" or [0.5, 2]");
-        char s[32];
-        std::snprintf(s, sizeof s, "%.17g", t.get<double>());
-        a.views.videoAt += (a.views.videoAt.empty() ? "" : ",") + std::string(s);
-      }
-    } else {
-      throw UsageError(where + ": \"video_at\" must be \"0.5,2\" or [0.5, 2]");
-    }
-  }
-  if (j.contains("inputs")) {
-    const json& in = j["inputs"];
-    if (in.is_string()) {
-      a.views.inputs = in.get<std::string>();
-    } else if (in.is_array()) {
-      for (const json& i : in) {
-        if (!i.is_number_integer()) throw UsageError(where + ": \"inputs\" must be \"0,2\" or [0, 2]");
-        a.views.inputs += (a.views.inputs.empty() ? "" : ",") + std::to_string(i.get<int64_t>());
-      }
-    } else {
-      throw UsageError(where + ": \"inputs\" must be \"0,2\" or [0, 2]");
-    }
-  }
+  if (j.contains("video_at")) a.views.videoAt = commaList(j, "video_at", false, where);
+  if (j.contains("inputs")) a.views.inputs = commaList(j, "inputs", true, where);
   if (j.contains("path")) {
     if (!j["path"].is_number_integer()) throw UsageError(where + ": \"path\" must be a number of frames");
     a.path = j["path"].get<int>();

@@ -29,18 +29,6 @@ std::vector<float> uniform(size_t n, float lo, float hi, uint32_t seed) {
 
 double gelu(double x) { return 0.5 * x * std::erfc(-x / std::sqrt(2.0)); }
 
-void measure(SelftestCheck& c, const std::vector<float>& got, const std::vector<double>& want) {
-  double err = 0, ref = 0;
-  for (size_t i = 0; i < want.size(); ++i) {
-    if (!std::isfinite(got[i])) c.finite = false;
-    const double d = double(got[i]) - want[i];
-    err += d * d;
-    ref += want[i] * want[i];
-    c.maxAbs = std::max(c.maxAbs, std::abs(d));
-  }
-  c.nmse = ref > 0 ? err / ref : err;
-}
-
 // Runs `work` (recording into a fresh recorder, returning the output tensor), times it and
 // compares the output with `want`.
 SelftestCheck check(Engine& engine, std::string name, std::string family, double maxNmse, double maxAbs,
@@ -52,7 +40,7 @@ SelftestCheck check(Engine& engine, std::string name, std::string family, double
     const Tensor out = work(rec);
     rec.run();
     c.ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-    measure(c, engine.download(out), want());
+    measureAgainst(c, engine.download(out), want());
   } catch (const std::exception& e) {
     c.error = e.what();
   }
@@ -253,6 +241,18 @@ SelftestCheck conv2dCheck(Engine& engine) {
 }
 
 }  // namespace
+
+void measureAgainst(SelftestCheck& c, const std::vector<float>& got, const std::vector<double>& want) {
+  double err = 0, ref = 0;
+  for (size_t i = 0; i < want.size(); ++i) {
+    if (!std::isfinite(got[i])) c.finite = false;
+    const double d = double(got[i]) - want[i];
+    err += d * d;
+    ref += want[i] * want[i];
+    c.maxAbs = std::max(c.maxAbs, std::abs(d));
+  }
+  c.nmse = ref > 0 ? err / ref : err;
+}
 
 std::vector<SelftestCheck> runSelftestChecks(Engine& engine) {
   std::vector<SelftestCheck> checks;

@@ -21,6 +21,10 @@ struct SelftestCheck {
   bool passed() const { return error.empty() && finite && nmse <= maxNmse && maxAbs <= maxAbsLimit; }
 };
 
+// `got` against float64 `want` into c: NMSE, max abs error, finiteness (the op checks and the
+// self-test model's stages measure alike).
+void measureAgainst(SelftestCheck& c, const std::vector<float>& got, const std::vector<double>& want);
+
 // Runs every check on `engine` (each in its own recorder, in order).
 std::vector<SelftestCheck> runSelftestChecks(Engine& engine);
 

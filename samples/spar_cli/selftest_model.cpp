@@ -46,19 +46,6 @@ bool endsWith(const std::string& s, const std::string& tail) {
   return s.size() >= tail.size() && s.compare(s.size() - tail.size(), tail.size(), tail) == 0;
 }
 
-// An output against the reference: NMSE, max abs, finiteness.
-void compareValues(SelftestCheck& c, const std::vector<float>& got, const std::vector<double>& want) {
-  double err = 0, ref = 0;
-  for (size_t i = 0; i < want.size(); ++i) {
-    if (!std::isfinite(got[i])) c.finite = false;
-    const double d = double(got[i]) - want[i];
-    err += d * d;
-    ref += want[i] * want[i];
-    c.maxAbs = std::max(c.maxAbs, std::abs(d));
-  }
-  c.nmse = ref > 0 ? err / ref : err;
-}
-
 // A motion mask: the engine's P(dynamic) > threshold against the reference's mask, identical
 // but for near-ties (model/stage_tolerances.h).
 void compareMask(SelftestCheck& c, const std::vector<float>& prob, const std::vector<double>& wantProb,
@@ -160,7 +147,7 @@ std::vector<SelftestCheck> runSelftestModel(Engine& engine, const std::string& d
             throw Error(name + ": " + std::to_string(got.size()) + " values, the reference has " +
                         std::to_string(want.numel()));
           c.maxNmse = fp32StageNmseBound(name);
-          compareValues(c, got, want.toDoubles());
+          measureAgainst(c, got, want.toDoubles());
         }
       } catch (const std::exception& e) {
         c.error = e.what();
