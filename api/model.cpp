@@ -21,5 +21,9 @@ int64_t Model::imageWidth() const { return impl_->config.imageWidth; }
 int64_t Model::patchSize() const { return impl_->config.patchSize; }
 bool Model::semantic() const { return impl_->config.semanticDecoding(); }
 bool Model::hasTokenizer() const { return impl_->file.has(BpeTokenizer::kPackedName); }
+std::string Model::demonstrationNote() const {
+  const auto& card = impl_->file.modelCard();
+  return card ? modelCardSentence(*card) : std::string();
+}
 
 }  // namespace spar

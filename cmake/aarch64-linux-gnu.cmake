@@ -1,6 +1,6 @@
 # Cross-compiling for 64-bit ARM Linux (boards, phones' Linux userlands) with Debian's cross
 # toolchain (crossbuild-essential-arm64) against a sysroot of Debian's arm64 packages unpacked
-# without installing them (scripts/arm64.sh: Vulkan loader and headers, lavapipe, OpenImageIO,
+# without installing them (scripts/portability/arm64.sh: Vulkan loader and headers, lavapipe, OpenImageIO,
 # GoogleTest, ...). Tests and programs run under qemu-user (CMAKE_CROSSCOMPILING_EMULATOR).
 #   cmake -S . -B build-arm64 -DCMAKE_TOOLCHAIN_FILE=cmake/aarch64-linux-gnu.cmake -DSPAR_ARM64_SYSROOT=DIR
 set(CMAKE_SYSTEM_NAME Linux)
@@ -11,7 +11,7 @@ if(NOT SPAR_ARM64_SYSROOT)
   set(SPAR_ARM64_SYSROOT "$ENV{SPAR_ARM64_SYSROOT}")
 endif()
 if(NOT IS_DIRECTORY "${SPAR_ARM64_SYSROOT}/usr/include")
-  message(FATAL_ERROR "SPAR_ARM64_SYSROOT='${SPAR_ARM64_SYSROOT}' is not an arm64 sysroot (bash scripts/arm64.sh setup)")
+  message(FATAL_ERROR "SPAR_ARM64_SYSROOT='${SPAR_ARM64_SYSROOT}' is not an arm64 sysroot (bash scripts/portability/arm64.sh setup)")
 endif()
 # Passed on to try_compile projects (the compiler checks), which read this file again.
 list(APPEND CMAKE_TRY_COMPILE_PLATFORM_VARIABLES SPAR_ARM64_SYSROOT)

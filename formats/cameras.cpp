@@ -1,5 +1,5 @@
 // Host-side camera math of the `spar` command; see cameras.h. The formulas and their order of
-// operations follow converter/spar_reference/cameras.py so that results agree with the
+// operations follow reference/spar_reference/cameras.py so that results agree with the
 // reference to rounding (the tests compare at 1e-12).
 #include "formats/cameras.h"
 

@@ -1,5 +1,5 @@
 // Camera conventions of the `spar` command, the same as the reference's command-line tool
-// (converter/spar_reference/cameras.py):
+// (reference/spar_reference/cameras.py):
 //
 // SPAR's cameras: c2w 4x4 in OpenCV axes (x right, y down, z forward) in the canonical view's
 // frame; intrinsics normalized by the model's image size (fx/W, fy/H, cx/W, cy/H).

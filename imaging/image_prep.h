@@ -1,4 +1,4 @@
-// Image preparation of the reference (converter/spar_reference/images.py), on the CPU:
+// Image preparation of the reference (reference/spar_reference/images.py), on the CPU:
 // load any common image format through OpenImageIO as 8-bit RGB, resize with a bit-exact
 // reproduction of PIL's Image.resize(..., Image.LANCZOS) on 8-bit images, centre crop, /255 into
 // a [3, H, W] float buffer; and PNG output with the reference's rounding rule.

@@ -56,7 +56,7 @@ void writeFileAtomically(const std::string& path, const std::string& bytes) {
 }  // namespace
 
 const std::string& legendFont() {
-  // DejaVu Sans from Debian's fonts-dejavu-core (scripts/install-deps.sh); "" when absent.
+  // DejaVu Sans from Debian's fonts-dejavu-core (scripts/setup/install-deps.sh); "" when absent.
   static const std::string font = [] {
     const char* path = "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf";
     return std::filesystem::exists(path) ? std::string(path) : std::string();

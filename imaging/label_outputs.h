@@ -1,5 +1,5 @@
 // The label outputs of `spar render --labels`, as the reference writes them
-// (converter/spar_reference/cli.py write_render, images.py save_label_map / palette_colour):
+// (reference/spar_reference/cli.py write_render, images.py save_label_map / palette_colour):
 //
 //   labels_XX.png   the map [h, w] in palette colours, scaled (nearest, PIL's rule) to the
 //                   model's H x W, above a legend strip: 14 rows per label on black, each a

@@ -1,5 +1,5 @@
 // CLIP's text encoder (the ViT-B/32 text tower SPAR's labels use) on the engine.
-// Reference: converter/spar_reference/clip_text.py (CLIPTextEncoder), OpenAI's key layout under
+// Reference: reference/spar_reference/clip_text.py (CLIPTextEncoder), OpenAI's key layout under
 // "clip." in the packed file (converter/FORMAT.md):
 //
 //   ids [P, 77] (text/bpe_tokenizer.h)

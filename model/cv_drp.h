@@ -1,5 +1,5 @@
 // CV-DRP, the cross-view dynamic region predictor (`cv_drp.estimator.*`), on the engine.
-// Reference: converter/spar_reference/spar.py (FusionMLP, DPTDecoder, CVDRPFusion,
+// Reference: reference/spar_reference/spar.py (FusionMLP, DPTDecoder, CVDRPFusion,
 // get_view_pairs, SPAR.run_cv_drp). For the views of one subset (inputs or targets):
 //
 //   fused  = fusion_mlp(concat(dino, img, ray))        Linear(3D, 2D) -> GELU -> Linear(2D, D)

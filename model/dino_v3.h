@@ -1,5 +1,5 @@
 // The DINOv3 ViT backbone (frozen, eval mode) on the engine: the patch tokens CV-DRP reads.
-// Reference: converter/spar_reference/dino_v3.py (DinoV3 = SPAR's DINOv3FeatureExtractor).
+// Reference: reference/spar_reference/dino_v3.py (DinoV3 = SPAR's DINOv3FeatureExtractor).
 //
 //   images [V, 3, H, W] in [0, 1]
 //     -> (x - mean) / std per channel                      (config mean / std, ImageNet)

@@ -1,5 +1,5 @@
 // Input tokens of the scene encoder: mlp_fuse over (image token, ray token) of each input view,
-// then soft_with_pe gating by the motion probability (reference: converter/spar_reference/
+// then soft_with_pe gating by the motion probability (reference: reference/spar_reference/
 // spar.py SPAR.forward "gating of the input tokens" and SPAR.gate). Gating kernel:
 // model/shaders/token_gate.comp.
 //

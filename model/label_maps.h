@@ -1,5 +1,5 @@
 // Open-vocabulary label maps on the engine, as LSeg / SPAR compute them
-// (converter/spar_reference/clip_text.py label_logits, cli.py compute_labels):
+// (reference/spar_reference/clip_text.py label_logits, cli.py compute_labels):
 //
 //   image features [R, C, h, w] and text embeddings [P, C], both L2-normalized over C
 //   logits [R, P, h, w] = scale * <image, text>      (scale = 1 / 0.07, LSeg's fixed value)

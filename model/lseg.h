@@ -1,5 +1,5 @@
 // The LSeg image encoder (`clip_vitl16_384`, frozen, eval mode) on the engine: SPAR's semantic
-// features. Reference: converter/spar_reference/lseg.py (LSegEncoder = SPAR's
+// features. Reference: reference/spar_reference/lseg.py (LSegEncoder = SPAR's
 // LSegFeatureExtractor.extract_features with half_res).
 //
 //   images [V, 3, H, W] in [0, 1]  (input_norm "lseg": (x - 0.5) / 0.5 first; SPAR: "none")

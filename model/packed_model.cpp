@@ -97,6 +97,7 @@ PackedModel& PackedModel::operator=(PackedModel&& o) noexcept {
     metadata_ = std::move(o.metadata_);
     config_ = std::move(o.config_);
     components_ = std::move(o.components_);
+    card_ = std::move(o.card_);
   }
   return *this;
 }
@@ -209,6 +210,13 @@ void PackedModel::parseHeader() {
       fail(path, std::string("__metadata__ components is not valid JSON: ") + e.what());
     }
     if (!m.components_.is_object()) fail(path, "__metadata__ components is not a JSON object");
+  }
+  if (auto it = m.metadata_.find("model_card"); it != m.metadata_.end()) {
+    try {
+      m.card_ = parseModelCard(it->second);
+    } catch (const Error& e) {
+      fail(path, e.what());
+    }
   }
 
   // Tensors.

@@ -10,12 +10,14 @@
 
 #include <cstdint>
 #include <map>
+#include <optional>
 #include <span>
 #include <string>
 #include <unordered_map>
 #include <vector>
 
 #include "engine/tensor.h"
+#include "model/model_card.h"
 
 namespace spar {
 
@@ -72,6 +74,8 @@ class PackedModel {
   const nlohmann::json& config() const { return config_; }
   // `__metadata__.components` parsed, or an empty object when the file has none.
   const nlohmann::json& components() const { return components_; }
+  // `__metadata__.model_card` parsed (model_card.h: what the model is), when the file has one.
+  const std::optional<ModelCard>& modelCard() const { return card_; }
 
   // The tensor's values as floats on the host (F32/F16 only). Like upload(), throws for a NaN or
   // infinite value, naming the tensor and element.
@@ -105,6 +109,7 @@ class PackedModel {
   std::map<std::string, std::string> metadata_;
   nlohmann::json config_ = nlohmann::json::object();
   nlohmann::json components_ = nlohmann::json::object();
+  std::optional<ModelCard> card_;
 };
 
 }  // namespace spar

@@ -1,5 +1,5 @@
 // Plücker ray maps of pinhole cameras on the engine (kernel: model/shaders/plucker_rays.comp;
-// reference: converter/spar_reference/spar.py plucker_rays).
+// reference: reference/spar_reference/spar.py plucker_rays).
 //
 //   c2w       [V, 4, 4] f32, camera-to-world, OpenCV frame (+z forward), [R | t] row-major
 //   fxfycxcy  [V, 4]    f32, intrinsics divided by the image size (fx, cx by W; fy, cy by H)

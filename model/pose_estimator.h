@@ -1,4 +1,4 @@
-// RayZer's pose estimator as SPAR runs it (reference: converter/spar_reference/spar.py
+// RayZer's pose estimator as SPAR runs it (reference: reference/spar_reference/spar.py
 // SPAR.forward "pose encoder" and PoseEstimator): the pose encoder (transformer_encoder) over
 // [one camera token per view, the image tokens of all views], then on the camera tokens
 //   rel_head        Linear(2D, D) -> SiLU -> Linear(D, 9) on concat(canonical token, view token)

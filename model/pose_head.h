@@ -1,5 +1,5 @@
 // Cameras from the pose estimator's head outputs, on the engine (kernel: model/shaders/pose_head.comp;
-// reference: converter/spar_reference/spar.py PoseEstimator.forward, cam_info_to_se3 and
+// reference: reference/spar_reference/spar.py PoseEstimator.forward, cam_info_to_se3 and
 // rot6d_to_mat with reorthogonalize=True).
 //
 //   rel       [B, V-1, 9] f32: rel_head outputs of the non-canonical views, in view order,

@@ -1,4 +1,4 @@
-// SPAR's renderer (reference: converter/spar_reference/spar.py SPAR.render): per rendered view,
+// SPAR's renderer (reference: reference/spar_reference/spar.py SPAR.render): per rendered view,
 // the decoder (transformer_decoder) over decoder_ln([RGB ray queries, semantic ray queries (models
 // with semantic decoding), scene tokens]), the RGB head image_token_decoder = LN (no bias) ->
 // Linear(D, 16*16*3, no bias) -> sigmoid, unpatchified, and on request the semantic head

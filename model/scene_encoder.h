@@ -1,4 +1,4 @@
-// The scene encoder (transformer_encoder_geom; reference: converter/spar_reference/spar.py
+// The scene encoder (transformer_encoder_geom; reference: reference/spar_reference/spar.py
 // SPAR.forward "scene encoder"): over [scene_code (S learned tokens), gated image tokens of the
 // input views, gated semantic tokens (semantic models)], keeping the first S outputs as the
 // scene representation the decoder attends to.

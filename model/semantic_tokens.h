@@ -1,4 +1,4 @@
-// SPAR's semantic input tokens (reference: converter/spar_reference/spar.py SPAR.forward
+// SPAR's semantic input tokens (reference: reference/spar_reference/spar.py SPAR.forward
 // "semantic input tokens"): for each input view, the LSeg features at H/2 concatenated with the
 // view's Plücker rays resized to H/2 (bilinear, align_corners false), average-pooled by 8 (one
 // token per 16x16 pixels), then semantic_proj Linear(C + 6 -> D) + view_type_embedding[0].

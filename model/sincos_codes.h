@@ -1,4 +1,4 @@
-// SPAR's sin-cos position codes (utils/pe_utils.py; reference converter/spar_reference/spar.py
+// SPAR's sin-cos position codes (utils/pe_utils.py; reference reference/spar_reference/spar.py
 // sincos_1d / sincos_2d), as host tables.
 //
 // They depend only on sizes (grid, view count, width), like weights, so they are computed once per

@@ -1,5 +1,5 @@
 // SPAR's photometric pipeline on the engine, stage by stage as the paper's Figure 2 draws it
-// (reference: converter/spar_reference/spar.py SPAR.forward and SPAR.render):
+// (reference: reference/spar_reference/spar.py SPAR.forward and SPAR.render):
 //
 //   images -> image tokens (+ spatial-temporal codes)        model/view_tokens.*
 //          -> pose encoder over [camera tokens, image tokens] model/pose_estimator.*
@@ -51,7 +51,7 @@ std::string imageSizeProblem(const SparConfig& config, int64_t height, int64_t w
 
 struct SparPipelineOptions {
   bool profile = true;            // per-dispatch timestamps -> stageTimes()
-  // Keep every stage's output tensor under its golden name (converter/spar_reference/
+  // Keep every stage's output tensor under its golden name (reference/spar_reference/
   // goldens.py: "img_tokens", "pose_encoder_out", "c2w", ..., "rgb") for tests; costs memory.
   bool keepIntermediates = false;
   // Weight matrices on the device: F32 as the file stores them (F16 in a `spar-convert --fp16`

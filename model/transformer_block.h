@@ -5,7 +5,7 @@
 //   x += ls2(mlp.2(act(mlp.0(norm2(x)))))
 //
 // One implementation; what differs between stacks is in TransformerBlockOptions. Weights are
-// engine tensors looked up by the official key names (converter/spar_reference/transformer.py)
+// engine tensors looked up by the official key names (reference/spar_reference/transformer.py)
 // under a prefix, e.g. "transformer_encoder.3.":
 //
 //   norm1.weight [D]  norm1.bias [D]           (bias with lnBias)

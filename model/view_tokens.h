@@ -1,4 +1,4 @@
-// Tokenizers of SPAR's views (reference: converter/spar_reference/spar.py SPAR.forward, "image
+// Tokenizers of SPAR's views (reference: reference/spar_reference/spar.py SPAR.forward, "image
 // tokens with spatial-temporal codes", camera_tokens, and the ray tokenizers):
 //
 //   image tokens   image_tokenizer(patchify(2*img - 1)) + pe_embedder(concat(2D code, view code))

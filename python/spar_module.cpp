@@ -179,7 +179,10 @@ PYBIND11_MODULE(spar, m) {
                              "(height, width) the model was configured for: what images are prepared to.")
       .def_property_readonly("patch_size", &spar::Model::patchSize)
       .def_property_readonly("semantic", &spar::Model::semantic, "Has the semantic branch (features, label maps).")
-      .def_property_readonly("has_tokenizer", &spar::Model::hasTokenizer, "Carries CLIP's tokenizer (text prompts).");
+      .def_property_readonly("has_tokenizer", &spar::Model::hasTokenizer, "Carries CLIP's tokenizer (text prompts).")
+      .def_property_readonly("demonstration_note", &spar::Model::demonstrationNote,
+                             "What the file says it is when it is a demonstration model (one sentence with its "
+                             "measured quality), else ''.");
 
   py::class_<SessionBox>(m, "Session",
                         "Requests of one model on one context, in two phases: encode() the photos (cameras, motion), "

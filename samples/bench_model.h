@@ -28,7 +28,7 @@ struct ModelBenchArgs {
 
 // The synthetic frames [views, 3, height, width] in [0, 1): value i is the top 24 bits of
 // murmur3's finalizer of (i + 0x9E3779B9 * 12345 mod 2^32), over 2^24.
-// scripts/gpu_reference_bench.py makes the same frames for the PyTorch reference.
+// scripts/gpu/gpu_reference_bench.py makes the same frames for the PyTorch reference.
 std::vector<float> syntheticImages(int64_t views, int64_t height, int64_t width);
 
 // Runs it; the document holds the request, the first run's wall and build time, and per stage

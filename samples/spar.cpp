@@ -139,10 +139,10 @@ int main(int argc, char** argv) {
   EvalArgs e;
   CLI::App* evalCmd = app.add_subcommand(
       "eval",
-      "Evaluate a model on a directory of test scenes as converter/spar_eval/PROTOCOL.md says: static-pixel "
+      "Evaluate a model on a directory of test scenes as evaluation/PROTOCOL.md says: static-pixel "
       "PSNR / SSIM of the rendered targets, motion-mask IoU, semantic mIoU; writes result.json and prints a table");
   evalCmd->add_option("--model", e.model, "packed model (.spar)")->required();
-  evalCmd->add_option("--scenes", e.scenes, "directory of scene_* folders (converter/spar-scenes split --split test)")
+  evalCmd->add_option("--scenes", e.scenes, "directory of scene_* folders (scenes/spar-scenes split --split test)")
       ->required();
   evalCmd->add_option("--views", e.views, "numbers of input views K, comma-separated (default 2,3,4)")
       ->type_name("\"2,3,4\"");

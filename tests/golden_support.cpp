@@ -12,7 +12,7 @@ namespace spar::test {
 namespace {
 
 // The build's fixture directory, or where the environment variable of the same name points
-// (test programs run on another machine, scripts/gpu-check.sh, with goldens made there).
+// (test programs run on another machine, scripts/gpu/gpu-check.sh, with goldens made there).
 std::string goldenDir(const char* variable, const char* built) {
   const char* v = std::getenv(variable);
   return v && *v ? v : built;

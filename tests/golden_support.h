@@ -1,6 +1,6 @@
 // Model-level goldens made by tests/python/make_spar_goldens.py (CTest fixture spar_goldens):
 // the tiny photometric model and, per case directory, the PyTorch reference's float64 output of
-// every stage (converter/spar_reference/goldens.py names: "img_tokens", "c2w", "rgb", ...).
+// every stage (reference/spar_reference/goldens.py names: "img_tokens", "c2w", "rgb", ...).
 #pragma once
 #include <nlohmann/json.hpp>
 #include <cstdint>

@@ -1,9 +1,9 @@
 #!/bin/sh
-# CTest gpu_session_cpu: the one device call for both GPU issues (scripts/gpu-session.sh) as far
+# CTest gpu_session_cpu: the one device call for both GPU issues (scripts/gpu/gpu-session.sh) as far
 # as this CPU allows. `gpu-check.sh pack` (the bundle the GPU machine gets) and a tiny teacher
 # (the real `gpu-session.sh pack` makes the CPU recipe's own, which takes minutes), then
 # `gpu-session.sh run --cpu`: the check's every step with small shapes on lavapipe 26.1 (DIR of
-# scripts/coopmat-lavapipe.sh) with the plan a GPU takes (cooperative matrices for fp16 weights,
+# scripts/portability/coopmat-lavapipe.sh) with the plan a GPU takes (cooperative matrices for fp16 weights,
 # tiles measured), then the training call at tiny sizes. What comes back must fit the device
 # tool (at most 8 files, 16 MiB each, two folders down), `unpack` must give the check's report
 # and a packed model; the report must say every step ran (exit 0), every test program passed
@@ -14,12 +14,12 @@ set -eu
 build=$1 src=$2 scratch=$3
 rm -rf "$scratch" && mkdir -p "$scratch"
 cd "$src"
-SPAR_BUILD="$build" bash scripts/gpu-check.sh pack
-/usr/bin/python3 converter/spar-train --out "$scratch/teacher" --cache "$scratch/teacher-cache" --scenes 8 \
+SPAR_BUILD="$build" bash scripts/gpu/gpu-check.sh pack
+/usr/bin/python3 training/spar-train --out "$scratch/teacher" --cache "$scratch/teacher-cache" --scenes 8 \
   --lseg-steps 5 --steps 1 --save-every 0 --no-pack --threads 1 > "$scratch/teacher.log" 2>&1 ||
   { tail -n 20 "$scratch/teacher.log"; exit 1; }
 OUT="$scratch/out" GPU_CHECK_WORK="$scratch/check-work" GPU_TRAIN_WORK="$scratch/train-work" \
-  GPU_SESSION_TEACHER="$scratch/teacher/teacher.pt" bash scripts/gpu-session.sh run --cpu > "$scratch/run.log" 2>&1 ||
+  GPU_SESSION_TEACHER="$scratch/teacher/teacher.pt" bash scripts/gpu/gpu-session.sh run --cpu > "$scratch/run.log" 2>&1 ||
   { tail -n 30 "$scratch/run.log"; exit 1; }
 files=$(find "$scratch/out" -type f | wc -l)
 [ "$files" -le 8 ] || { echo "gpu_session_cpu: $files files to bring back (the device tool brings 8)"; exit 1; }
@@ -27,7 +27,7 @@ big=$(find "$scratch/out" -type f -size +16M)
 [ -z "$big" ] || { echo "gpu_session_cpu: over 16 MiB: $big"; exit 1; }
 deep=$(find "$scratch/out" -mindepth 4 -type f)
 [ -z "$deep" ] || { echo "gpu_session_cpu: more than two folders down: $deep"; exit 1; }
-GPU_SESSION_DEST="$scratch/back" bash scripts/gpu-session.sh unpack "$scratch/out" > "$scratch/unpack.log" 2>&1 ||
+GPU_SESSION_DEST="$scratch/back" bash scripts/gpu/gpu-session.sh unpack "$scratch/out" > "$scratch/unpack.log" 2>&1 ||
   { cat "$scratch/unpack.log"; exit 1; }
 [ -s "$scratch/back/train/model.spar" ] || { echo "gpu_session_cpu: unpack made no model.spar"; exit 1; }
 [ -s "$scratch/back/check/report.md" ] || { echo "gpu_session_cpu: no report.md back"; exit 1; }

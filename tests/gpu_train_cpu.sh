@@ -1,5 +1,5 @@
 #!/bin/sh
-# CTest gpu_train_cpu: scripts/gpu-train.sh as far as this CPU allows: `run --cpu` (every step of
+# CTest gpu_train_cpu: scripts/gpu/gpu-train.sh as far as this CPU allows: `run --cpu` (every step of
 # the GPU training call, at tiny sizes: scene pool, validation scenes, teachers, two variants in
 # parallel measured on the validation scenes, the best written back), then `unpack` and the
 # checks that matter for the real call: what comes back fits the device tool (at most 8 files,
@@ -11,16 +11,16 @@ set -eu
 build=$1 src=$2 scratch=$3
 rm -rf "$scratch" && mkdir -p "$scratch"
 cd "$src"
-OUT="$scratch/out" GPU_TRAIN_WORK="$scratch/work" bash scripts/gpu-train.sh run --cpu > "$scratch/run.log" 2>&1 ||
+OUT="$scratch/out" GPU_TRAIN_WORK="$scratch/work" bash scripts/gpu/gpu-train.sh run --cpu > "$scratch/run.log" 2>&1 ||
   { tail -n 30 "$scratch/run.log"; exit 1; }
 files=$(ls "$scratch/out" | wc -l)
 [ "$files" -le 8 ] || { echo "gpu_train_cpu: $files files to bring back (the device tool brings 8)"; exit 1; }
 big=$(find "$scratch/out" -type f -size +16M)
 [ -z "$big" ] || { echo "gpu_train_cpu: over 16 MiB: $big"; exit 1; }
-bash scripts/gpu-train.sh unpack "$scratch/out" "$scratch/run"
+bash scripts/gpu/gpu-train.sh unpack "$scratch/out" "$scratch/run"
 "$build/samples/spar" eval --model "$scratch/run/model.spar" --scenes "$scratch/work/val" --views 3 \
   --out "$scratch/engine.json" > "$scratch/eval.log" 2>&1 || { cat "$scratch/eval.log"; exit 1; }
-/usr/bin/python3 converter/spar-eval-reference --checkpoint "$scratch/run/checkpoint.pt" \
+/usr/bin/python3 evaluation/spar-eval-reference --checkpoint "$scratch/run/checkpoint.pt" \
   --config "$scratch/run/config.json" --scenes "$scratch/work/val" --views 3 --quiet \
   --out "$scratch/reference.json"
 /usr/bin/python3 - "$scratch" <<'PY'

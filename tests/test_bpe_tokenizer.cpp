@@ -1,4 +1,4 @@
-// model/bpe_tokenizer (CLIP's BPE tokenizer in C++) against converter/spar_reference/bpe.py:
+// model/bpe_tokenizer (CLIP's BPE tokenizer in C++) against reference/spar_reference/bpe.py:
 // the ids of a fixed list of prompts (tests/text_golden.h: empty, > 77 tokens, exactly 77,
 // non-ASCII, CJK, emoji, punctuation, numbers, mixed case, whitespace runs, HTML references,
 // ligatures, full-width forms, controls, special tokens) must be identical, and the table packed

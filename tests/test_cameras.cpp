@@ -1,4 +1,4 @@
-// model/cameras against the reference's camera functions (converter/spar_reference/cameras.py:
+// model/cameras against the reference's camera functions (reference/spar_reference/cameras.py:
 // mat_to_quat, quat_to_mat, slerp, interpolate_path, camera_entry, read_transforms) in float64:
 // tests/python/make_path_golden.py writes the inputs, the reference's outputs and the
 // transforms.json files it read; both sides compute in double, so they agree to rounding.

@@ -1,5 +1,5 @@
 // model/clip_text (CLIP's text encoder on the engine, fp32) against the PyTorch reference
-// (converter/spar_reference/clip_text.py) in float64 with the semantic fixture's CLIP weights:
+// (reference/spar_reference/clip_text.py) in float64 with the semantic fixture's CLIP weights:
 // the prompts of tests/text_golden.h (goldens made at test time by make_text_golden.py) and the
 // fixture's own labels (semantic/text_embeddings.npy, made by spar-reference goldens --labels).
 // Skips when the BPE merges table is not on this machine.

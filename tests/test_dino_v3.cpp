@@ -1,5 +1,5 @@
 // model/dino_v3 (the DINOv3 backbone on the engine, fp32) against the PyTorch reference
-// (converter/spar_reference/dino_v3.py) run in float64 with the tiny checkpoint's weights:
+// (reference/spar_reference/dino_v3.py) run in float64 with the tiny checkpoint's weights:
 // the spar_goldens fixture's "dino" golden of five 128x128 frames, and extra cases made at
 // once per build within that fixture by tests/python/make_dino_golden.py (constant black and white images, a
 // non-square image whose patch rows and columns differ).

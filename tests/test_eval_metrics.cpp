@@ -1,4 +1,4 @@
-// The metrics of `spar eval` (samples/spar_cli/eval_metrics.*, converter/spar_eval/PROTOCOL.md)
+// The metrics of `spar eval` (samples/spar_cli/eval_metrics.*, evaluation/PROTOCOL.md)
 // against independent hand computations: PSNR of a known constant error, SSIM of constant
 // images in closed form, SSIM = 1 for identical images, a float64 brute-force SSIM (2-D window,
 // no separability) on a small random case, motion-mask counts and semantic confusion on tiny

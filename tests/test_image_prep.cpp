@@ -1,6 +1,6 @@
 // model/image_prep against PIL: tests/python/make_image_golden.py writes test images (odd sizes,
 // grey, RGBA, JPEG, constant black and white, non-images) and the reference's prepared inputs
-// (converter/spar_reference/images.py load_image: PIL convert("RGB"), Lanczos resize, centre
+// (reference/spar_reference/images.py load_image: PIL convert("RGB"), Lanczos resize, centre
 // crop, /255); the C++ loader and preparation must give the same 8-bit values.
 #include <gtest/gtest.h>
 

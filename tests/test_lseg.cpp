@@ -1,5 +1,5 @@
 // model/lseg (the LSeg image encoder on the engine, fp32) against the PyTorch reference
-// (converter/spar_reference/lseg.py) run in float64 with the tiny semantic checkpoint's weights:
+// (reference/spar_reference/lseg.py) run in float64 with the tiny semantic checkpoint's weights:
 // the spar_goldens_semantic fixture's LSeg features of the input views, and extra cases made
 // there by tests/python/make_lseg_golden.py (black and white images, a non-square size,
 // input_norm "lseg"). LSeg at the official ViT-L/16 sizes is compared, within the whole model,

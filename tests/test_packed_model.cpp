@@ -419,5 +419,52 @@ TEST_F(HandMadeFileTest, CorruptFilesAreRefused) {
   expectRefused(dir_.string(), "not a regular file");
 }
 
+// The model card (__metadata__.model_card, model/model_card.h): read and made into the sentence
+// `spar render` prints; a card that is not what the converter writes is refused by field.
+TEST_F(HandMadeFileTest, ModelCardIsReadAndABadOneRefusedByField) {
+  const std::vector<uint8_t> data;
+  auto withCard = [&](const std::string& card) {
+    json h;
+    h["__metadata__"] = goodMetadata();
+    h["__metadata__"]["model_card"] = card;
+    return h;
+  };
+  const json good = {{"kind", "demonstration"},
+                     {"about", "trained here, it renders grey"},
+                     {"measured",
+                      {{"what", "held-out K=3"}, {"psnr_db", 18.14}, {"baseline", "copying the nearest input"},
+                       {"baseline_psnr_db", 20.02}}}};
+  const PackedModel m = PackedModel::open(write("card.spar", withCard(good.dump()), data));
+  ASSERT_TRUE(m.modelCard().has_value());
+  EXPECT_EQ(modelCardSentence(*m.modelCard()),
+            "Demonstration model: trained here, it renders grey (held-out K=3 PSNR 18.1 dB, below the 20.0 dB of copying "
+            "the nearest input); for real photos, convert the official checkpoint (docs/checkpoints.md).");
+  json above = good;
+  above["measured"]["psnr_db"] = 25.0;
+  above.erase("about");
+  above["about"] = "fitted to three rooms";
+  EXPECT_NE(modelCardClaim(parseModelCard(above.dump())).find("PSNR 25.0 dB, above the 20.0 dB"), std::string::npos);
+  json bare = {{"kind", "demonstration"}, {"about", "made by hand"}};
+  EXPECT_EQ(modelCardClaim(parseModelCard(bare.dump())), "Demonstration model: made by hand");
+  EXPECT_FALSE(PackedModel::open(write("nocard.spar", json{{"__metadata__", goodMetadata()}}, data)).modelCard());
+
+  json bad = good;
+  bad["kind"] = "official";
+  expectRefused(write("card_kind.spar", withCard(bad.dump()), data), "model_card: unknown kind 'official'");
+  bad = good;
+  bad["colour"] = "red";
+  expectRefused(write("card_field.spar", withCard(bad.dump()), data), "model_card: unknown field 'colour'");
+  bad = good;
+  bad["about"] = "two\nlines";
+  expectRefused(write("card_about.spar", withCard(bad.dump()), data), "model_card: about must be a non-empty one-line");
+  bad = good;
+  bad["measured"]["psnr_db"] = "high";
+  expectRefused(write("card_psnr.spar", withCard(bad.dump()), data), "model_card: measured.psnr_db must be a finite number");
+  bad = good;
+  bad["measured"].erase("baseline");
+  expectRefused(write("card_measured.spar", withCard(bad.dump()), data), "model_card: measured must hold exactly");
+  expectRefused(write("card_json.spar", withCard("{kind"), data), "model_card: not a JSON object");
+}
+
 }  // namespace
 }  // namespace spar::test

@@ -1,5 +1,5 @@
 // model/plucker_rays and model/pose_head against the PyTorch reference
-// (converter/spar_reference/spar.py plucker_rays, PoseEstimator.forward, cam_info_to_se3,
+// (reference/spar_reference/spar.py plucker_rays, PoseEstimator.forward, cam_info_to_se3,
 // rot6d_to_mat) in float64: tests/python/make_camera_golden.py writes float32 inputs and float64
 // outputs per case; the engine computes in fp32 on the same inputs.
 #include <cmath>

@@ -108,14 +108,13 @@ TEST(spar_bench_model, ListKernelsSaysWhatAndWhy) {
   EXPECT_NE(r.err.find("SPAR_KERNELS=coopmat"), std::string::npos) << r.err;
 }
 
-// The synthetic frames are the ones scripts/gpu_reference_bench.py makes for the PyTorch
+// The synthetic frames are the ones scripts/gpu/gpu_reference_bench.py makes for the PyTorch
 // reference (the same hash in Python): the GPU check compares both on the same inputs.
 TEST(spar_bench_model, SyntheticFramesAreThePythonScripts) {
   const std::vector<float> frames = bench::syntheticImages(2, 16, 24);
-  const std::string code = "import sys; sys.path.insert(0, '" + std::string(SPAR_SOURCE_DIR) +
-                           "/scripts'); from gpu_reference_bench import synthetic_images; "
+  const std::string code = "from gpu_reference_bench import synthetic_images; "
                            "x = synthetic_images(2, 16, 24).ravel(); print(len(x)); print(' '.join(repr(float(v)) for v in x))";
-  const CommandResult r = runCommand({SPAR_PYTHON, "-c", code}, scratch());
+  const CommandResult r = runCommand({SPAR_PYTHON, "-c", code}, scratch(), std::string("PYTHONPATH=") + SPAR_PYTHONPATH);
   ASSERT_EQ(r.code, 0) << r.err;
   std::istringstream in(r.out);
   size_t n = 0;

@@ -1,5 +1,5 @@
 // `spar eval` (samples/spar_cli/eval_command.*) as a user runs it: the built binary (SPAR_CLI)
-// on two test scenes made by `converter/spar-scenes split --split test --count 2 --size 128`,
+// on two test scenes made by `scenes/spar-scenes split --split test --count 2 --size 128`,
 // with the tiny semantic model of the spar_goldens_semantic fixture (128x128).
 //  - The three modes for --views 2,3: result.json has the protocol's fields (PROTOCOL.md,
 //    "Output JSON"), numbers finite and in range, mask metrics null only with --assume-static,
@@ -50,7 +50,7 @@ RunResult sparEval(std::vector<std::string> args, bool validation = false) {
 fs::path makeScenes(const std::string& name, int count, int size) {
   const fs::path dir = scratch() / name;
   if (fs::exists(dir)) return dir;
-  const RunResult r = run({SPAR_PYTHON, std::string(SPAR_SOURCE_DIR) + "/converter/spar-scenes", "split", "--split",
+  const RunResult r = run({SPAR_PYTHON, std::string(SPAR_SOURCE_DIR) + "/scenes/spar-scenes", "split", "--split",
                            "test", "--count", std::to_string(count), "--size", std::to_string(size), "--out",
                            dir.string()});
   EXPECT_EQ(r.code, 0) << r.err;
@@ -168,11 +168,11 @@ TEST(spar_eval, ModesOnTheSemanticModel) {
   }
 }
 
-// The engine's numbers and the PyTorch reference's (converter/spar-eval-reference, float32) on
+// The engine's numbers and the PyTorch reference's (evaluation/spar-eval-reference, float32) on
 // the same scenes and model agree within 0.005 (dB for PSNR): spar-eval-compare's verdict.
 TEST(spar_eval, EngineAgreesWithReference) {
   const fs::path scenes = makeScenes("scenes", 2, 128);
-  const std::string tools = std::string(SPAR_SOURCE_DIR) + "/converter/";
+  const std::string tools = std::string(SPAR_SOURCE_DIR) + "/evaluation/";
   for (const std::string mode : {"default", "assume-static"}) {
     std::vector<std::string> extra;
     if (mode != "default") extra.push_back("--" + mode);

@@ -83,7 +83,7 @@ TEST(spar_jobs, JobsShareOneDeviceAndMatchSingleRuns) {
       EXPECT_LT(stage["wall_ms"].get<double>(), 1.0) << stage.dump();
     }
   }
-  EXPECT_TRUE(fs::exists(dir / "b" / "path.mp4"));  // ffmpeg is installed (scripts/install-deps.sh)
+  EXPECT_TRUE(fs::exists(dir / "b" / "path.mp4"));  // ffmpeg is installed (scripts/setup/install-deps.sh)
 
   // Each job writes what one `spar render` with its arguments writes.
   for (const auto& [name, scene, extra] : {std::tuple{"a", "scene_1000000", std::vector<std::string>{}},

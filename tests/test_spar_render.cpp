@@ -56,7 +56,7 @@ RunResult spar(std::vector<std::string> args) {
 // The reference's `render` (or `goldens`) with a checkpoint and the fixture's config.
 RunResult reference(std::vector<std::string> args, const std::string& checkpoint, const char* command = "render",
                     const std::string& config = goldenPath("tiny_photometric.json")) {
-  args.insert(args.begin(), {SPAR_PYTHON, std::string(SPAR_SOURCE_DIR) + "/converter/spar-reference", command,
+  args.insert(args.begin(), {SPAR_PYTHON, std::string(SPAR_SOURCE_DIR) + "/reference/spar-reference", command,
                              "--checkpoint", checkpoint, "--config", config});
   return run(args);
 }
@@ -307,6 +307,8 @@ void compareOutputs(const std::string& name, const Outputs& o, bool assumeStatic
   auto names = entries(o.ours);
   EXPECT_EQ(names.erase("colmap"), 1u) << name;
   EXPECT_TRUE(erasePage(names, inputCount(o.ours))) << name;
+  // a model whose file says nothing of what it is (no model card) gets no note on its page
+  EXPECT_EQ(readText(o.ours / "index.html").find("model-note"), std::string::npos) << name;
   EXPECT_EQ(names.erase("colmap_render"), mode == "targets" ? 0u : 1u) << name;
   EXPECT_EQ(names, entries(o.ref)) << name;
   int views = 0, motions = 0, masks = 0;

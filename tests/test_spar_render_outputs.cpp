@@ -1,7 +1,7 @@
 // The --path animation and long paths of `spar render` (samples/spar_cli/render_outputs.h,
 // animation.h), through the built `spar` (SPAR_CLI) on the tiny photometric fixture, with the
 // validation layer and synchronization validation on (runValidated):
-//  - with ffmpeg installed (scripts/install-deps.sh) the default --animation auto writes path.mp4:
+//  - with ffmpeg installed (scripts/setup/install-deps.sh) the default --animation auto writes path.mp4:
 //    H.264, one frame per view, the views' pixels up to H.264's loss; report.json and the last
 //    progress line say which file was written and how;
 //  - without ffmpeg (SPAR_FFMPEG naming none) auto writes path.gif and says why; --animation mp4 is
@@ -150,7 +150,7 @@ TEST(spar_render_outputs, FailingFfmpegIsOneLineWithItsMessageAndNoOutput) {
 
 TEST(spar_render_outputs, OddFrameSizesArePaddedToEven) {
   const std::string ffmpeg = cli::findFfmpeg();
-  ASSERT_FALSE(ffmpeg.empty()) << "ffmpeg is installed by scripts/install-deps.sh";
+  ASSERT_FALSE(ffmpeg.empty()) << "ffmpeg is installed by scripts/setup/install-deps.sh";
   const fs::path path = scratch() / "odd.mp4";
   {
     cli::FfmpegVideo video(ffmpeg, path.string(), 4);

@@ -41,7 +41,7 @@ const fs::path& scratch() { return scratchDir("spar_size"); }
 CommandResult python(const std::vector<std::string>& args) {
   std::vector<std::string> argv{SPAR_PYTHON};
   argv.insert(argv.end(), args.begin(), args.end());
-  return runCommand(argv, scratch());
+  return runCommand(argv, scratch(), std::string("PYTHONPATH=") + SPAR_PYTHONPATH);
 }
 
 // The `spar` binary with the validation layer; its messages would be in stdout or stderr.
@@ -132,7 +132,7 @@ TEST(spar_size, BadSizeIsOneLineExit2AndNothingWritten) {
   }
   // spar eval: the same rule, also before any scene is evaluated, and no result file.
   const fs::path scenes = scratch() / "scenes_128";
-  const CommandResult g = python({std::string(SPAR_SOURCE_DIR) + "/converter/spar-scenes", "split", "--split", "test",
+  const CommandResult g = python({std::string(SPAR_SOURCE_DIR) + "/scenes/spar-scenes", "split", "--split", "test",
                                   "--count", "1", "--size", "128", "--out", scenes.string()});
   ASSERT_EQ(g.code, 0) << g.err;
   for (const Bad& c : {cases[0], cases[3]}) {
@@ -160,11 +160,11 @@ TEST(spar_size, ValidSizeRendersThatSizeAsTheReference) {
   const fs::path cfg = scratch() / "cfg_64x96.json";
   const CommandResult c = python(
       {"-c",
-       "import sys; sys.path.insert(0, sys.argv[1]); from make_size_model import photometric_config\n"
-       "c = photometric_config(); c.image_height, c.image_width = 64, 96; c.validate().save(sys.argv[2])",
-       std::string(SPAR_SOURCE_DIR) + "/tests/python", cfg.string()});
+       "import sys; from make_size_model import photometric_config\n"
+       "c = photometric_config(); c.image_height, c.image_width = 64, 96; c.validate().save(sys.argv[1])",
+       cfg.string()});
   ASSERT_EQ(c.code, 0) << c.err;
-  auto refArgs = std::vector<std::string>{std::string(SPAR_SOURCE_DIR) + "/converter/spar-reference", "render",
+  auto refArgs = std::vector<std::string>{std::string(SPAR_SOURCE_DIR) + "/reference/spar-reference", "render",
                                           "--checkpoint", (fixture() / "size128.pt").string(), "--config", cfg.string()};
   const auto v = views();
   refArgs.insert(refArgs.end(), v.begin(), v.end());
@@ -183,7 +183,7 @@ TEST(spar_size, ValidSizeRendersThatSizeAsTheReference) {
 // spar eval at a --size: scenes of that size are evaluated (not refused as "does not resize").
 TEST(spar_size, EvalAtGivenSize) {
   const fs::path scenes = scratch() / "scenes_64";
-  const CommandResult g = python({std::string(SPAR_SOURCE_DIR) + "/converter/spar-scenes", "split", "--split", "test",
+  const CommandResult g = python({std::string(SPAR_SOURCE_DIR) + "/scenes/spar-scenes", "split", "--split", "test",
                                   "--count", "1", "--size", "64", "--out", scenes.string()});
   ASSERT_EQ(g.code, 0) << g.err;
   const fs::path out = scratch() / "eval_64.json";

@@ -1,4 +1,4 @@
-// model/transformer_block against the PyTorch reference Block (converter/spar_reference/
+// model/transformer_block against the PyTorch reference Block (reference/spar_reference/
 // transformer.py) run in float64: tests/python/make_block_golden.py writes two perturbed blocks,
 // an input and the float64 output as .npy; the engine runs the same two blocks in fp32.
 #include <cstdlib>

@@ -1,5 +1,5 @@
 // Shared by tests/test_bpe_tokenizer.cpp and tests/test_clip_text.cpp: a fixed list of prompts
-// that exercises every rule of converter/spar_reference/bpe.py (tests/data/text_prompts.json),
+// that exercises every rule of reference/spar_reference/bpe.py (tests/data/text_prompts.json),
 // and the reference's goldens of them, made once per build by tests/python/make_text_golden.py
 // within the semantic fixture (make_spar_goldens.py --semantic: text/ and text_random/).
 #pragma once

@@ -1,4 +1,4 @@
-// CLIP's byte-level BPE tokenizer, reproducing converter/spar_reference/bpe.py id for id
+// CLIP's byte-level BPE tokenizer, reproducing reference/spar_reference/bpe.py id for id
 // (which follows openai/CLIP's simple_tokenizer.py, with bpe.py's standard-library stand-in
 // for ftfy.fix_text):
 //

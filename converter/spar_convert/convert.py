@@ -5,7 +5,8 @@ Standard library + numpy only: torch is never imported (checkpoints are read by 
 reader ``torch_checkpoint``). The output format is documented in ``converter/FORMAT.md``.
 
     spar-convert X.pt -o M.spar [--config PATH] [--fp16] [--dino DINO.pth] [--lseg LSEG.ckpt]
-                 [--clip CLIP.pt] [--bpe MERGES.txt.gz]
+                 [--clip CLIP.pt] [--bpe MERGES.txt.gz] [--model-card CARD.json]
+    spar-convert M.spar --model-card CARD.json -o M2.spar    (a packed model: its card replaced)
 
 Steps: read every input lazily; take the configuration from ``--config`` or infer it from the
 tensor shapes; list every tensor the engine needs for that configuration (``_plan``), checking
@@ -28,7 +29,8 @@ import numpy as np
 
 from .model_config import (PRESETS, SparConfig, backbone_config, matching_preset, read_config_file,
                            resolve_config, stated_image_size)
-from .safetensors_file import SafetensorsError, TensorSpec, write_safetensors
+from .model_card import ModelCardError, card_text, read_card
+from .safetensors_file import SafetensorsError, SafetensorsFile, TensorSpec, write_safetensors
 from .torch_checkpoint import CheckpointError, open_checkpoint, open_torchscript
 
 PROG = "spar-convert"
@@ -961,7 +963,8 @@ def build_parser():
                     "the engine's packed safetensors file (format spar-vulkan, see "
                     "converter/FORMAT.md). Never imports PyTorch.")
     ap.add_argument("checkpoint", help="SPAR checkpoint (.pt): {'model': state_dict, ...} or a "
-                                       "bare state_dict")
+                                       "bare state_dict; or a packed model (.spar) whose model "
+                                       "card --model-card replaces")
     ap.add_argument("-o", "--output", required=True, help="output file (e.g. model.spar)")
     ap.add_argument("--config", help="configuration: the official YAML (configs/spar/spar.yaml) "
                                      "or a SparConfig JSON/YAML; default: inferred from the tensors")
@@ -983,6 +986,10 @@ def build_parser():
                                   "as the U8 tensor %s; default: the repository's copy "
                                   "(text/data/clip/) when the model has a CLIP text encoder"
                                   % BPE_NAME)
+    ap.add_argument("--model-card", metavar="CARD.json",
+                    help="what the model is, stored with it (spar_convert/model_card.py): e.g. "
+                         "that it is a demonstration model, and its measured quality; spar render "
+                         "and its index.html say it")
     ap.add_argument("-q", "--quiet", action="store_true", help="print only errors and the summary")
     return ap
 
@@ -990,6 +997,11 @@ def build_parser():
 def convert(args, out=None):
     out = sys.stdout if out is None else out   # the stdout of the call, not of the import
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, file=out))
+    card = read_card(args.model_card) if args.model_card else None
+    packed = packed_model(args.checkpoint)
+    if packed is not None:
+        with packed:
+            return replace_card(args, packed, card, out)
     inp = read_inputs(args)
     try:
         notes, stderr_notes = [], []
@@ -1086,6 +1098,8 @@ def convert(args, out=None):
             "components": json.dumps(components, sort_keys=True, separators=(",", ":")),
             "conversion": json.dumps(record, sort_keys=True, separators=(",", ":")),
         }
+        if card is not None:
+            metadata["model_card"] = card_text(card)
 
         say("%s: configuration %s" % (PROG, how))
         for n in notes:
@@ -1142,11 +1156,49 @@ def convert(args, out=None):
         inp.close()
 
 
+def packed_model(path):
+    """The open SafetensorsFile of `path` when it is a packed model of this format, else None
+    (a checkpoint, a zip archive or a pickle, is no safetensors file; read_inputs says what is
+    wrong with a file that is neither)."""
+    try:
+        f = SafetensorsFile(path)
+    except SafetensorsError:
+        return None
+    if f.metadata.get("format") != FORMAT:
+        f.close()
+        return None
+    return f
+
+
+def replace_card(args, packed, card, out):
+    """A packed model in: every tensor copied byte for byte, the metadata kept, the model card
+    replaced by --model-card's (the one change a packed model can take)."""
+    others = [o for o, v in (("--config", args.config), ("--size", args.size), ("--fp16", args.fp16),
+                             ("--dino", args.dino), ("--lseg", args.lseg), ("--clip", args.clip),
+                             ("--bpe", args.bpe)) if v]
+    if others:
+        raise ConvertError("%s is a packed model: only --model-card applies to it, not %s"
+                           % (args.checkpoint, others[0]))
+    if card is None:
+        raise ConvertError("%s is a packed model already: give --model-card CARD.json to replace its "
+                           "model card" % args.checkpoint)
+    if packed.metadata.get("format_version") != FORMAT_VERSION:
+        raise ConvertError("%s: format version %r, this converter writes %s"
+                           % (args.checkpoint, packed.metadata.get("format_version"), FORMAT_VERSION))
+    metadata = dict(packed.metadata, model_card=card_text(card))
+    specs = [TensorSpec(n, packed.info(n).dtype, packed.info(n).shape, (lambda n=n: packed.get(n)))
+             for n in packed.names]
+    write_safetensors(args.output, specs, metadata)
+    print("%s: wrote %s: %d tensors copied from %s, model card (%s) replaced"
+          % (PROG, args.output, len(specs), args.checkpoint, card["kind"]), file=out)
+    return 0
+
+
 def main(argv=None):
     args = build_parser().parse_args(argv)
     try:
         return convert(args)
-    except (ConvertError, CheckpointError, SafetensorsError) as e:
+    except (ConvertError, CheckpointError, SafetensorsError, ModelCardError) as e:
         print("%s: error: %s" % (PROG, _one_line(e)), file=sys.stderr)
         return 1
     except OSError as e:

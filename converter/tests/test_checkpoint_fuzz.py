@@ -34,9 +34,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "converter"))
 
-from spar_convert.torch_checkpoint import (  # noqa: E402
+from spar_convert.torch_checkpoint import (
     CheckpointError, TensorRef, open_checkpoint, open_torchscript)
 
 CORPUS = ROOT / "tests" / "fuzz" / "corpus" / "checkpoint"

@@ -22,7 +22,6 @@ import torch.nn.functional as F
 HERE = os.path.dirname(os.path.abspath(__file__))
 CONVERTER = os.path.join(HERE, "..")
 SCRIPT = os.path.join(CONVERTER, "spar-convert")
-sys.path.insert(0, CONVERTER)
 
 from spar_convert.safetensors_file import SafetensorsFile  # noqa: E402
 from spar_convert.convert import RUNTIME_FIELDS, is_matrix, main  # noqa: E402
@@ -399,7 +398,6 @@ def test_official_yaml_config(work):
 
 # ----------------------------------------------------------------------------- image size
 # tests/python/make_size_model.py: the checkpoint "trained" at 128x128 and its official YAML.
-sys.path.insert(0, os.path.join(HERE, "..", "..", "tests", "python"))
 import make_size_model  # noqa: E402
 
 
@@ -642,3 +640,61 @@ def test_runs_without_torch(work):
 def test_help():
     rc, so, se = run_executable("--help")
     assert rc == 0 and "--fp16" in so and "--dino" in so and "--bpe" in so
+
+
+# ----------------------------------------------------------------------------- model card
+CARD = {"kind": "demonstration", "about": "trained here for a minute, it renders grey",
+        "measured": {"what": "held-out K=3", "psnr_db": 18.14, "baseline": "copying the nearest input",
+                     "baseline_psnr_db": 20.02}}
+
+
+def test_model_card_is_stored_and_replaced_alone(f32, work, tmp_path):
+    card = tmp_path / "card.json"
+    card.write_text(json.dumps(CARD))
+    out, _, _ = convert(work, "carded.spar", "--model-card", card)
+    assert json.loads(read(out)[1]["model_card"]) == CARD
+    assert "model_card" not in f32[3]  # a conversion without --model-card stores none
+    # a packed model in: every tensor byte for byte, the other metadata kept, the card replaced
+    other = dict(CARD, about="something else")
+    card.write_text(json.dumps(other))
+    again = tmp_path / "again.spar"
+    rc, so, se = run(f32[0], "--model-card", card, "-o", again)
+    assert rc == 0, se
+    assert "model card (demonstration) replaced" in so
+    a, b = SafetensorsFile(str(f32[0])), SafetensorsFile(str(again))
+    assert a.names == b.names
+    for n in a.names:
+        assert a.info(n).dtype == b.info(n).dtype and np.array_equal(a[n], b[n]), n
+    assert dict(b.metadata, model_card=None) == dict(a.metadata, model_card=None)
+    assert json.loads(b.metadata["model_card"]) == other
+
+
+@pytest.mark.parametrize("card, words", [
+    ("{", "cannot read model card"),
+    ([1], "a model card is a JSON object"),
+    (dict(CARD, kind="official"), "kind must be one of demonstration"),
+    (dict(CARD, about=""), "about must be a non-empty one-line string"),
+    (dict(CARD, colour="red"), "unknown field 'colour'"),
+    (dict(CARD, measured=dict(CARD["measured"], psnr_db=float("nan"))), "measured.psnr_db must be a finite number"),
+    (dict(CARD, measured={"what": "x"}), "measured must have exactly"),
+])
+def test_model_card_refusals_are_one_line(f32, tmp_path, card, words):
+    path = tmp_path / "card.json"
+    path.write_text(card if isinstance(card, str) else json.dumps(card))
+    out = tmp_path / "out.spar"
+    rc, so, se = run(f32[0], "--model-card", path, "-o", out)  # read before the input is opened
+    assert rc == 1 and se.count("\n") == 1 and words in se, se
+    assert not out.exists()
+
+
+def test_packed_input_takes_only_a_model_card(f32, tmp_path):
+    out = tmp_path / "out.spar"
+    rc, _, se = run(f32[0], "-o", out)
+    assert rc == 1 and "is a packed model already: give --model-card" in se and se.count("\n") == 1, se
+    card = tmp_path / "card.json"
+    card.write_text(json.dumps(CARD))
+    rc, _, se = run(f32[0], "--model-card", card, "--fp16", "-o", out)
+    assert rc == 1 and "only --model-card applies to it, not --fp16" in se, se
+    rc, _, se = run(tmp_path / "missing.json", "--model-card", card, "-o", out)
+    assert rc == 1 and se.count("\n") == 1, se
+    assert not out.exists()

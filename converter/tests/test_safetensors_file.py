@@ -3,15 +3,12 @@
 
 import json
 import struct
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from spar_convert.safetensors_file import (  # noqa: E402
+from spar_convert.safetensors_file import (
     SafetensorsError, SafetensorsFile, SafetensorsWriter, TensorSpec, read_safetensors,
     write_safetensors)
 

@@ -15,7 +15,6 @@ import pytest
 import torch
 
 CONVERTER = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(CONVERTER))
 
 from spar_convert.torch_checkpoint import (  # noqa: E402
     CheckpointError, TensorRef, load_state_dict, open_checkpoint, open_torchscript, main)
@@ -475,10 +474,9 @@ def test_cli(tmp_path, capsys):
 
 
 def test_package_does_not_import_torch():
-    code = ("import sys; sys.path.insert(0, %r); import spar_convert.torch_checkpoint, "
-            "spar_convert.safetensors_file; assert 'torch' not in sys.modules, 'torch imported'"
-            % str(CONVERTER))
-    subprocess.run([sys.executable, "-c", code], check=True)
+    code = ("import sys, spar_convert.torch_checkpoint, spar_convert.safetensors_file; "
+            "assert 'torch' not in sys.modules, 'torch imported'")
+    subprocess.run([sys.executable, "-c", code], check=True, env=dict(os.environ, PYTHONPATH=str(CONVERTER)))
 
 
 # --- Hand-made archives: pickles written opcode by opcode -------------------------------------

@@ -24,6 +24,10 @@ class SPAR_API Model {
   int64_t patchSize() const;    // image sizes must be multiples of it
   bool semantic() const;        // has the semantic branch (features, labels)
   bool hasTokenizer() const;    // carries CLIP's merges table (text prompts)
+  // What the model file says it is, when it says it is a demonstration model (its model card,
+  // converter/FORMAT.md): one sentence with its measured quality and where the official weights
+  // are, which `spar render` prints; "" for any other model.
+  std::string demonstrationNote() const;
 
   struct Impl;
   const Impl& impl() const { return *impl_; }

@@ -1,5 +1,5 @@
 #version 450
-// Plücker rays of pinhole cameras (converter/spar_reference/spar.py plucker_rays, the official
+// Plücker rays of pinhole cameras (reference/spar_reference/spar.py plucker_rays, the official
 // model/rayzer.cam_info_to_plucker). Host side: model/plucker_rays.cpp.
 //
 // c2w [V, 4, 4] (OpenCV: +z forward, row-major, [R | t]), fxfycxcy [V, 4] normalized by the

@@ -1,5 +1,5 @@
 #version 450
-// Cameras from the pose estimator's heads (converter/spar_reference/spar.py
+// Cameras from the pose estimator's heads (reference/spar_reference/spar.py
 // PoseEstimator.forward + cam_info_to_se3 + rot6d_to_mat; official model/rayzer.PoseEstimator,
 // get_cam_se3, utils/pose_utils.rot6d2mat). Host side: model/pose_head.cpp.
 //

@@ -1,5 +1,5 @@
 #version 450
-// SPAR's input-token masking (converter/spar_reference/spar.py SPAR.gate, the official
+// SPAR's input-token masking (reference/spar_reference/spar.py SPAR.gate, the official
 // _apply_configurable_input_masking). Host side: model/gating.cpp.
 //
 // tokens [T, D], dyn [T] = P(dynamic) average-pooled over each token's patch, code

@@ -38,6 +38,14 @@ def small():
     return spar.Model.open(os.path.join(SELFTEST, "model.spar")), np.load(os.path.join(SELFTEST, "images.npy"))
 
 
+def test_demonstration_note(shipped, small):
+    """What the model file says it is: the shipped model's card, the same sentence spar render prints."""
+    note = shipped.demonstration_note
+    assert note.startswith("Demonstration model: ") and "PSNR 18.1 dB, below the 20.0 dB" in note, note
+    assert note.endswith("; for real photos, convert the official checkpoint (docs/checkpoints.md).")
+    assert small[0].demonstration_note == ""
+
+
 def test_same_bytes_and_labels_as_spar_render(ctx, shipped, tmp_path):
     out = tmp_path / "cli"
     subprocess.run([os.environ["SPAR_CLI"], "render", "--model", SHIPPED, "--frames", *FRAMES, "--inputs", "0,2,3",

@@ -1,4 +1,4 @@
-// `spar eval`: the evaluation protocol of converter/spar_eval/PROTOCOL.md on the engine.
+// `spar eval`: the evaluation protocol of evaluation/PROTOCOL.md on the engine.
 // For each K of --views and each scene of --scenes (DIR/scene_* sorted bytewise): one SPAR run
 // on all F frames in order with the protocol's K inputs, the other frames as targets rendered
 // with their estimated cameras; static-pixel PSNR / SSIM of the rendered targets (floats, not

@@ -1,4 +1,4 @@
-// The metrics of `spar eval` (converter/spar_eval/PROTOCOL.md, "Metrics"), as pure functions on
+// The metrics of `spar eval` (evaluation/PROTOCOL.md, "Metrics"), as pure functions on
 // host arrays: no Vulkan, no files, so tests check them against hand computations. Everything
 // accumulates in double. Layouts: images [3, H, W] (CHW, values in [0, 1]); masks and class maps
 // [H, W] row-major; a "dynamic" mask holds 0 (static) or 1 (dynamic, ground truth).

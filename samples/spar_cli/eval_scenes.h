@@ -1,5 +1,5 @@
-// The test set of `spar eval` (converter/spar_eval/PROTOCOL.md, "Test set", "Views", "Images"):
-// scene folders as `converter/spar-scenes split` writes them, read on the host.
+// The test set of `spar eval` (evaluation/PROTOCOL.md, "Test set", "Views", "Images"):
+// scene folders as `scenes/spar-scenes split` writes them, read on the host.
 #pragma once
 #include <cstdint>
 #include <string>

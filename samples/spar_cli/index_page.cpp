@@ -10,6 +10,7 @@
 #include <sstream>
 
 #include "engine/error.h"
+#include "model/model_card.h"
 
 namespace spar::cli {
 namespace {
@@ -59,6 +60,18 @@ img,video{image-rendering:pixelated;width:192px;height:auto;border:1px solid #cc
 .stack{position:relative;width:192px}.stack img.mask{position:absolute;left:0;top:0;filter:url(#mask-red);opacity:.6}.warn li{color:#a40}.swatch{display:inline-block;width:12px;
 height:12px;margin-right:4px;vertical-align:middle;border:1px solid #999}.legend span.l{margin-right:14px;white-space:nowrap}
 svg text{font:11px sans-serif}.input{fill:#1f77b4}.target{fill:#ff7f0e}.render{fill:#2ca02c}
+.note{background:#fff4d6;border:1px solid #e0c060;padding:.5em .8em}img.map{object-fit:cover;object-position:top}
+)";
+
+// Where the model note's link leads: how to render with the paper's weights instead of a
+// demonstration model (README.md and docs/checkpoints.md say the same).
+const char* kOfficialWeightsSection = R"(<h2 id="official-weights">The official weights</h2>
+<p>The engine runs the paper's released SPAR model. Convert its checkpoint with the engine's converter
+(no PyTorch needed), then render with it:</p>
+<pre>converter/spar-convert ckpt_spar_XXX.pt --config spar.yaml --dino dinov3_vitb16_pretrain_lvd1689m.pth \
+    --lseg demo_e200.ckpt -o spar.spar
+spar render --model spar.spar --images a.jpg b.jpg c.jpg --path 24 --labels "wall,floor,sofa,person" --out out/mine</pre>
+<p>Which files those are and where they come from: docs/checkpoints.md in the engine's repository.</p>
 )";
 
 // The run's warnings (the CLI's lines), or "none".
@@ -159,6 +172,12 @@ std::string indexPage(const std::string& dir, const json& report, const json& ca
     << views.value("total", 0) << " views: " << views.value("inputs", 0) << " inputs, " << views.value("targets", 0)
     << " targets; rendered " << views.value("rendered", 0) << " (" << esc(report.value("render", "")) << "), "
     << num(report.value("total_seconds", 0.0), "%.2f") << " s in all</p>\n";
+  // What the model file says it is (a demonstration model's card), first: its renders show the
+  // model's quality, not the engine's; the same sentence `spar render` printed.
+  const std::string note = report.value("model_note", "");
+  if (!note.empty())
+    h << "<p id=\"model-note\" class=\"note\">" << esc(note) << "; " << kOfficialWeightsWhen
+      << "<a href=\"#official-weights\">" << kOfficialWeightsAction << "</a>.</p>\n";
 
   h << "<h2>Warnings</h2>\n";
   h << warningList(warnings);
@@ -193,21 +212,13 @@ std::string indexPage(const std::string& dir, const json& report, const json& ca
   if (pngViews.empty() && !anyViews.empty())
     h << "<p>" << viewCount << " views written as " << esc(fs::path(anyViews.front()).extension().string())
       << " files (float data: not shown here)</p>\n";
-  h << "<div class=\"grid\">";
-  for (size_t j = 0; j < pngViews.size(); ++j) {
-    const std::string labels = "labels_" + two(j) + ".png";
-    h << "<figure><img src=\"" << pngViews[j] << "\" alt=\"view " << j << "\">";
-    if (names.count(labels)) h << "<img src=\"" << labels << "\" alt=\"label map " << j << "\">";
-    h << "<figcaption>view " << j << "</figcaption></figure>";
-  }
-  h << "</div>\n";
-
-  // The legend and each label's share, from the first view's labels JSON (same colours in all).
+  // One legend for every label map on the page (the same colours in all), with each label's share of
+  // view 0, above the maps; the maps are shown without the legend strip their PNGs carry.
   if (names.count("labels_00.json")) {
     std::ifstream in(fs::path(dir) / "labels_00.json");
     const json doc = json::parse(in, nullptr, false);
     if (!doc.is_discarded() && doc.contains("labels")) {
-      h << "<h2>Label maps: legend</h2>\n<p class=\"legend\">";
+      h << "<p id=\"legend\" class=\"legend\">Label maps: ";
       for (const auto& l : doc["labels"]) {
         const auto c = l.value("colour", std::vector<int>{0, 0, 0});
         h << "<span class=\"l\"><span class=\"swatch\" style=\"background:rgb(" << c[0] << "," << c[1] << "," << c[2]
@@ -217,8 +228,22 @@ std::string indexPage(const std::string& dir, const json& report, const json& ca
     }
   }
 
+  // A label PNG is the map (the render's H x W) above its legend strip: shown at the map's aspect
+  // ratio from the top, the strip falls outside the box.
+  const std::string mapAspect = std::to_string(size.value("width", 1)) + "/" + std::to_string(size.value("height", 1));
+  h << "<div class=\"grid\">";
+  for (size_t j = 0; j < pngViews.size(); ++j) {
+    const std::string labels = "labels_" + two(j) + ".png";
+    h << "<figure><img src=\"" << pngViews[j] << "\" alt=\"view " << j << "\">";
+    if (names.count(labels))
+      h << "<img class=\"map\" style=\"aspect-ratio:" << mapAspect << "\" src=\"" << labels << "\" alt=\"label map " << j << "\">";
+    h << "<figcaption>view " << j << "</figcaption></figure>";
+  }
+  h << "</div>\n";
+
   h << "<h2>Cameras</h2>\n" << cameraPlot(cameras) << "\n";
   h << "<h2>Stage times</h2>\n" << timeBars(report) << "\n";
+  if (!note.empty()) h << kOfficialWeightsSection;
   // For people and tests alike: how many images loaded (a broken one shows as a count here).
   h << "<p id=\"loaded\" class=\"meta\"></p>\n<script>addEventListener('load',()=>{let ok=0,bad=0;"
        "for(const i of document.images)(i.naturalWidth>0?ok++:bad++);document.body.dataset.imagesLoaded=ok;"
@@ -234,7 +259,7 @@ std::string evalResultsPage(const json& result, const std::string& device, const
     << "<h1>spar eval</h1>\n<p class=\"meta\">model <b>" << esc(result.value("model", "")) << "</b><br>device <b>" << esc(device)
     << "</b>, precision <b>" << esc(result.value("precision", "")) << "</b>, mode <b>" << esc(result.value("mode", ""))
     << "</b><br>" << result.value("scenes", 0) << " scenes of " << result.value("frames", 0)
-    << " frames (converter/spar_eval/PROTOCOL.md)</p>\n<h2>Warnings</h2>\n";
+    << " frames (evaluation/PROTOCOL.md)</p>\n<h2>Warnings</h2>\n";
   h << warningList(warnings);
   static const std::vector<std::pair<const char*, const char*>> columns = {
       {"target_views", "targets"},     {"psnr", "PSNR"},           {"psnr_nearest_input", "PSNR copy"},

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <memory>
+#include <set>
 
 #include "engine/engine.h"
 #include "engine/memory.h"
@@ -174,6 +175,14 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
   return v;
 }
 
+// A demonstration model says so, once a process for each model file (a --jobs run renders many
+// requests with one), before the work: its renders show what the model is, not the engine.
+void noteModelCard(const PackedModel& model) {
+  static std::set<std::string> said;
+  if (const auto& card = model.modelCard(); card && said.insert(model.path()).second)
+    std::fprintf(stderr, "spar: note: %s\n", modelCardSentence(*card).c_str());
+}
+
 std::string viewsText(const PlannedViews& p) {
   return std::to_string(p.files.size()) + " views (" + std::to_string(p.inputs.size()) + " inputs, " +
          std::to_string(p.targets.size()) + " targets)";
@@ -188,6 +197,7 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
   takeWarnings();  // this render's page lists this render's warnings only
   const auto start = Clock::now();
   Validated v = validate(a, shared);
+  noteModelCard(*v.model);
   const SparConfig& cfg = v.config;
   const int h = v.height, w = v.width;
   const std::string mode = !a.cameras.empty() ? "cameras" : (a.path ? "path" : "targets");
@@ -407,6 +417,8 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
           {"submissions", engine.submissions()}}},
         {"weights_bytes_loaded", pipeline.weightBytesLoaded() + (text.weights ? text.weights->bytesLoaded() : 0)},
     };
+    // what the model file says it is (a demonstration model's card): the page opens with it
+    if (const auto& card = v.model->modelCard()) report["model_note"] = modelCardClaim(*card);
     // --path: which animation was written, and how (path.mp4 through ffmpeg, or path.gif and why)
     if (!writer.animationFile().empty())
       report["animation"] = {{"file", writer.animationFile()}, {"how", writer.animationDescription()}};

@@ -1,5 +1,5 @@
 // `spar render`: one SPAR run on a sequence of views, written as the reference's
-// `spar-reference render` writes it (converter/spar_reference/cli.py Run.write_render):
+// `spar-reference render` writes it (reference/spar_reference/cli.py Run.write_render):
 //   view_XX.png    rendered views (targets, --path or --cameras cameras), in order
 //   motion_XX.png  P(dynamic) of each input view, 8-bit grey   (not with --assume-static)
 //   mask_XX.png    P(dynamic) > mask threshold as 0 / 255       (not with --assume-static)

@@ -1,5 +1,5 @@
 // The self-test model of `spar selftest` (selftest_command.h): a small SPAR with every stage of
-// the photometric model (samples/data/selftest, made by scripts/make_selftest_model.py, installed
+// the photometric model (samples/data/selftest, made by tests/python/make_selftest_model.py, installed
 // as share/spar/selftest) run on the engine stage by stage against the PyTorch reference's
 // float64 outputs it ships with, under the bounds the model tests use (model/stage_tolerances.h).
 #pragma once

@@ -1,5 +1,5 @@
 // Which files form the view sequence and which positions are inputs and targets, from the
-// command line, as the reference's plan_views (converter/spar_reference/cli.py) decides it:
+// command line, as the reference's plan_views (reference/spar_reference/cli.py) decides it:
 //   --images A B --targets C D     sequence A B C D, inputs 0 1, targets 2 3
 //   --frames f0 .. f4 --inputs 0,3,4  all frames in capture order, the rest are targets
 //   --video V [--video-frames N | --video-at T1,T2] [--inputs ...]  frames of a video, then as

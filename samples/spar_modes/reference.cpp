@@ -42,8 +42,7 @@ std::string joinInputs(const std::vector<int64_t>& v) {
 }
 
 void makeGoldens(const ReferenceInputs& in, bool assumeStatic, const fs::path& dir) {
-  std::string cmd = "PYTHONPATH=" + quote(in.sourceDir + "/converter") + " " + quote(in.python) + " " +
-                    quote(in.sourceDir + "/converter/spar-reference") + " goldens --checkpoint " +
+  std::string cmd = quote(in.python) + " " + quote(in.sourceDir + "/reference/spar-reference") + " goldens --checkpoint " +
                     quote(in.checkpoint);
   if (!in.config.empty()) cmd += " --config " + quote(in.config);
   cmd += " --frames";

@@ -10,7 +10,7 @@ namespace spar::modes {
 
 struct ReferenceInputs {
   std::string python;       // Debian's python3 (sees python3-torch)
-  std::string sourceDir;    // the repository (converter/spar-reference)
+  std::string sourceDir;    // the repository (reference/spar-reference)
   std::string checkpoint;   // X.pt the packed model was made from
   std::string config;       // --config of spar-reference ("" = inferred from the checkpoint)
   std::vector<std::string> frames;

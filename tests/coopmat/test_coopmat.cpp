@@ -1,8 +1,8 @@
 // The cooperative-matrix GEMM (shaders/gemm_coopmat.comp, VK_KHR_cooperative_matrix) and
 // attention (shaders/attention_coopmat.comp) against float64, on a device that has the extension: CTest runs this program on lavapipe 26.1
-// (scripts/coopmat-lavapipe.sh) with SPAR_KERNELS=coopmat, and scripts/gpu-check.sh on a GPU.
+// (scripts/portability/coopmat-lavapipe.sh) with SPAR_KERNELS=coopmat, and scripts/gpu/gpu-check.sh on a GPU.
 // It fails, not skips, on a device without cooperative matrices. No image I/O: it runs where
-// only the Vulkan loader is (scripts/gpu-check.sh); the whole model on cooperative matrices is
+// only the Vulkan loader is (scripts/gpu/gpu-check.sh); the whole model on cooperative matrices is
 // test_coopmat_model.cpp.
 //
 // What the kernel computes: x and w rounded to fp16 (values beyond +-65504 saturate), products
@@ -25,7 +25,7 @@ class CoopMatTest : public EngineTest {};
 
 TEST_F(CoopMatTest, DeviceHasCooperativeMatrices) {
   const DeviceCaps& caps = eng().caps();
-  ASSERT_TRUE(caps.cooperativeMatrix) << caps.name << " has no VK_KHR_cooperative_matrix (run under scripts/coopmat-lavapipe.sh)";
+  ASSERT_TRUE(caps.cooperativeMatrix) << caps.name << " has no VK_KHR_cooperative_matrix (run under scripts/portability/coopmat-lavapipe.sh)";
   const KernelPlan& plan = eng().plan();
   EXPECT_EQ(plan.gemmF16, KernelFamily::CoopMat);
   for (const auto& line : describePlan(plan, caps)) std::printf("    %s\n", line.c_str());

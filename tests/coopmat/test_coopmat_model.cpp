@@ -1,6 +1,6 @@
 // The whole photometric pipeline of the tiny model with fp16 weights on cooperative matrices
 // (shaders/gemm_coopmat.comp), against the reference's float64 goldens (fixture spar_goldens).
-// Runs where test_coopmat does (CTest: lavapipe 26.1 through scripts/coopmat-lavapipe.sh, with
+// Runs where test_coopmat does (CTest: lavapipe 26.1 through scripts/portability/coopmat-lavapipe.sh, with
 // SPAR_KERNELS=coopmat); fails on a device without cooperative matrices.
 #include "engine/kernel_plan.h"
 #include "tests/pipeline_check.h"

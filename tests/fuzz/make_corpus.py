@@ -3,7 +3,7 @@
 
     tests/fuzz/corpus/spar_reader/*.spar   small packed models (converter's safetensors writer,
                                             real tiny / full configs, every dtype, empty and
-                                            scalar tensors, a non-finite weight)
+                                            scalar tensors, a non-finite weight, a model card)
     tests/fuzz/corpus/checkpoint/*.pt      small torch.save checkpoints (bare state_dict, the
                                             training wrapper, parameters, views sharing a
                                             storage, a deflated zip, a TorchScript archive)
@@ -24,21 +24,24 @@ from pathlib import Path
 import numpy as np
 import torch
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "converter"))
+# Run by hand: the converter's root, found from here (nothing installed).
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "converter"))
 
 from spar_convert import model_config  # noqa: E402
 from spar_convert.convert import FORMAT, FORMAT_VERSION  # noqa: E402
+from spar_convert.model_card import card_text  # noqa: E402
 from spar_convert.safetensors_file import write_safetensors  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "corpus"
 
 
-def packed(path, config, tensors, components=None):
+def packed(path, config, tensors, components=None, card=None):
     meta = {"format": FORMAT, "format_version": FORMAT_VERSION,
             "config": json.dumps(config, sort_keys=True, separators=(",", ":"))}
     if components is not None:
         meta["components"] = json.dumps(components, sort_keys=True, separators=(",", ":"))
+    if card is not None:
+        meta["model_card"] = card_text(card)
     write_safetensors(path, tensors, meta)
 
 
@@ -61,6 +64,9 @@ def spar_seeds(out):
     photometric = dict(tiny, use_lseg=False)
     packed(out / "photometric_no_components.spar", photometric,
            {"a": np.zeros(2, dtype=np.float16), "b": np.zeros(0, dtype=np.int64)})
+    packed(out / "model_card.spar", photometric, {"a": np.zeros(2, dtype=np.float32)},
+           card={"kind": "demonstration", "about": "made for the fuzzer",
+                 "measured": {"what": "K=3", "psnr_db": 18.14, "baseline": "copying", "baseline_psnr_db": 20.02}})
     packed(out / "nonfinite.spar", tiny,
            {"inf": np.array([1, np.inf], dtype=np.float32), "nan": np.array([np.nan], dtype=np.float16)})
 

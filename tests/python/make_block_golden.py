@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """Goldens for tests/test_transformer_block.cpp: two stacked reference ``Block``s in float64.
 
-Builds ``converter/spar_reference/transformer.py``'s Block with the options of one case, every
+Builds ``reference/spar_reference/transformer.py``'s Block with the options of one case, every
 parameter perturbed away from its init (random norm weights, non-zero biases, LayerScale gammas
 of order 1, random QK-norm weights), rounds parameters and input to float32 (so the engine, which
 runs in fp32, sees exactly the reference's values), runs the blocks in float64 and writes into
@@ -18,12 +18,10 @@ Usage: make_block_golden.py --case spar|clip|dinov3|spar_f16w --out DIR [--seed 
 
 import argparse
 import os
-import sys
 
 import numpy as np
 import torch
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "converter"))
 from spar_reference.transformer import Block  # noqa: E402
 
 D, HEAD_DIM, N, B, LAYERS = 64, 32, 37, 2, 2

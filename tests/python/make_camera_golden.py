@@ -2,7 +2,7 @@
 """Goldens for tests/test_plucker_rays.cpp: the reference's camera functions in float64.
 
 Inputs are random, rounded to float32 (the engine's values), and the reference
-(converter/spar_reference/spar.py) runs in float64 on exactly those values. Writes into --out,
+(reference/spar_reference/spar.py) runs in float64 on exactly those values. Writes into --out,
 one directory per case:
 
   rays cases (plucker_rays(c2w, fxfycxcy, H, W, normalized=True)):
@@ -25,12 +25,10 @@ Usage: make_camera_golden.py --out DIR [--seed S]
 
 import argparse
 import os
-import sys
 
 import numpy as np
 import torch
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "converter"))
 from spar_reference.config import tiny  # noqa: E402
 from spar_reference.spar import PoseEstimator, cam_info_to_se3, plucker_rays, rot6d_to_mat  # noqa: E402
 

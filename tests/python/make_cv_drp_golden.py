@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """Goldens for tests/test_cv_drp.cpp that the model-level fixture does not have, from the
-PyTorch reference (converter/spar_reference/spar.py) in float64:
+PyTorch reference (reference/spar_reference/spar.py) in float64:
 
     make_cv_drp_golden.py pairs OUT.json
         get_view_pairs(v, mode) for v = 1..6, modes input and target: {"input": [[[i, j], ...], ...], ...}
@@ -18,8 +18,6 @@ import types
 
 import numpy as np
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(HERE)), "converter"))
 
 import torch  # noqa: E402
 

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """Goldens for tests/test_dino_v3.cpp beyond the spar_goldens cases: the reference DINOv3
-(converter/spar_reference/dino_v3.py, SPAR's DINOv3FeatureExtractor) in float64, with the
+(reference/spar_reference/dino_v3.py, SPAR's DINOv3FeatureExtractor) in float64, with the
 tiny checkpoint's weights (``_dino_v3.*``), on images the pipeline goldens do not have.
 
     make_dino_golden.py --checkpoint tiny.pt --config tiny_photometric.json --out DIR
@@ -17,8 +17,6 @@ import sys
 import numpy as np
 import torch
 
-ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
-sys.path.insert(0, os.path.join(ROOT, "converter"))
 from spar_convert.model_config import SparConfig  # noqa: E402
 from spar_reference.cli import load_checkpoint  # noqa: E402
 from spar_reference.dino_v3 import DinoV3  # noqa: E402

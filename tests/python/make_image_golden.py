@@ -3,7 +3,7 @@
 
 Writes into --out a few images (odd sizes, grey, RGBA, JPEG, constant black and white, files
 that are not images) and, for each case of CASES, the reference's prepared input
-(``converter/spar_reference/images.py``'s ``load_image``, PIL's Lanczos) and the 8-bit RGB that
+(``reference/spar_reference/images.py``'s ``load_image``, PIL's Lanczos) and the 8-bit RGB that
 ``ImageOps.exif_transpose(im).convert("RGB")`` gives (JPEGs with every EXIF orientation):
 
     <image file>                 the test image
@@ -16,12 +16,10 @@ Usage: make_image_golden.py --out DIR
 
 import argparse
 import os
-import sys
 
 import numpy as np
 from PIL import Image, ImageOps
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "converter"))
 from spar_reference.images import load_image  # noqa: E402
 
 

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """Goldens for tests/test_lseg.cpp beyond the spar_goldens_semantic case: the reference LSeg
-image encoder (converter/spar_reference/lseg.py) in float64.
+image encoder (reference/spar_reference/lseg.py) in float64.
 
     make_lseg_golden.py --checkpoint tiny_semantic.pt --config tiny_semantic.json --out DIR
 
@@ -27,8 +27,6 @@ import sys
 import numpy as np
 import torch
 
-ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
-sys.path.insert(0, os.path.join(ROOT, "converter"))
 from spar_convert.model_config import SparConfig, full  # noqa: E402
 from spar_convert.safetensors_file import write_safetensors  # noqa: E402
 from spar_reference.cli import load_checkpoint  # noqa: E402

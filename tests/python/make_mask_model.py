@@ -19,8 +19,6 @@ import numpy as np
 import torch
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-CONVERTER = os.path.join(os.path.dirname(os.path.dirname(HERE)), "converter")
-sys.path.insert(0, CONVERTER)
 HEAD = "cv_drp.estimator.dpt_decoder.head"
 GAIN = 100.0
 

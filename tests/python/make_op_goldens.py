@@ -15,8 +15,6 @@ import os
 import shutil
 import sys
 
-HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
 
 import make_block_golden  # noqa: E402
 import make_camera_golden  # noqa: E402

@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """Goldens for tests/test_cameras.cpp: the reference's camera functions
-(converter/spar_reference/cameras.py) in float64, written as JSON (Python's repr of a float
+(reference/spar_reference/cameras.py) in float64, written as JSON (Python's repr of a float
 round-trips, so the C++ side reads exactly the values used here).
 
 Writes into --out:
@@ -29,7 +29,6 @@ import sys
 
 import numpy as np
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "converter"))
 from spar_reference.cameras import (CameraError, camera_entry, interpolate_path,  # noqa: E402
                                     mat_to_quat, quat_to_mat, read_transforms, slerp)
 

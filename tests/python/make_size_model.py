@@ -15,9 +15,6 @@ import os
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-CONVERTER = os.path.join(os.path.dirname(os.path.dirname(HERE)), "converter")
-sys.path.insert(0, CONVERTER)
-sys.path.insert(0, HERE)
 
 from spar_convert.model_config import tiny  # noqa: E402
 

@@ -44,9 +44,6 @@ from PIL import Image
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
-CONVERTER = os.path.join(ROOT, "converter")
-sys.path.insert(0, CONVERTER)
-sys.path.insert(0, HERE)
 
 from spar_convert.model_config import full, tiny  # noqa: E402
 

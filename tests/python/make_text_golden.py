@@ -1,6 +1,6 @@
 #!/usr/bin/python3
 """Goldens of the text side for tests/test_bpe_tokenizer.cpp and tests/test_clip_text.cpp,
-made at test time by the PyTorch reference (converter/spar_reference):
+made at test time by the PyTorch reference (reference/spar_reference):
 
     make_text_golden.py --bpe MERGES.txt.gz (--prompts PROMPTS.json | --random N --seed S) --out DIR
                         [--checkpoint CK.pt --config CFG.json]
@@ -22,8 +22,6 @@ import sys
 import numpy as np
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-CONVERTER = os.path.join(os.path.dirname(os.path.dirname(HERE)), "converter")
-sys.path.insert(0, CONVERTER)
 
 from spar_reference import bpe  # noqa: E402
 

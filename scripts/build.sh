@@ -1,6 +1,0 @@
-#!/usr/bin/env bash
-# Configures and builds into ./build (Release). Shaders are compiled to SPIR-V and embedded.
-set -euo pipefail
-cd "$(dirname "$0")/.."
-cmake -S . -B build -DCMAKE_BUILD_TYPE=Release
-cmake --build build -j"$(nproc)"

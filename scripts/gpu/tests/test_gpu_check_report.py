@@ -1,0 +1,72 @@
+#!/usr/bin/python3
+"""scripts/gpu/gpu_check_report.py, the GPU check's report, on step outputs written here: the op
+table pairs each engine case with PyTorch's of the same name and shape, and every bar of issue
+15 is judged from them (met, not met, or not met for lack of a number).
+Run: cd /work/main && /usr/bin/python3 -m pytest -q scripts/gpu/tests/test_gpu_check_report.py
+"""
+import json
+import os
+import subprocess
+import sys
+
+ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
+SCRIPT = os.path.join(ROOT, "scripts", "gpu", "gpu_check_report.py")
+GEMM, ATT = "4096x4096x4096", "12x64 heads, 2816 tokens"
+
+
+def write(path, doc, prefix=""):
+    with open(path, "w") as f:
+        f.write(prefix + json.dumps(doc))
+
+
+def stages(total, **named):
+    return {"stages": [{"name": k, "gpu_ms": v, "wall_ms": v} for k, v in named.items()],
+            "total": {"gpu_ms": total}, "first_run": {"wall_ms": 900.0}}
+
+
+def run_report(tmp_path, engine_ms, torch_ms, model, ref_modes, failures=0):
+    out = tmp_path
+    os.makedirs(out / "tests")
+    write(out / "kernels.log", {"device": "Test GPU", "kernels": ["linear, fp16 weights: gemm_coopmat.comp"]})
+    write(out / "bench-ops.log", {"ops": [{"name": n, "shape": s, "ms": ms, "nmse": 1e-13, "gflops": 1.0}
+                                          for (n, s), ms in engine_ms.items()]},
+          prefix="device: Test GPU\n")  # a log: the JSON after other lines
+    write(out / "reference_ops.json", {"ops": [{"name": n, "shape": s, "ms": ms, "gflops": 1.0}
+                                               for (n, s), ms in torch_ms.items()] +
+                                              [{"name": "x", "shape": "y", "error": "no fp16 on a CPU"}]})
+    write(out / "bench-model-fp32.log", model[0])
+    write(out / "bench-model-fp16.log", model[1])
+    write(out / "reference_model.json", {"model": {"modes": ref_modes}})
+    write(out / "tests" / "test_linear.json", {"tests": 18, "failures": failures, "testsuites": []})
+    with open(out / "steps.rc", "w") as f:
+        f.write("kernels 0\nbench-ops 0\n")
+    subprocess.run([sys.executable, SCRIPT, str(out)], check=True, cwd=ROOT)
+    return json.load(open(out / "report.json")), open(out / "report.md").read()
+
+
+def bars(doc):
+    return {b["bar"]: b["met"] for b in doc["bars"]}
+
+
+def test_bars_met_and_not(tmp_path):
+    engine = {("gemm_f16", GEMM): 2.0, ("gemm_f32", GEMM): 5.0, ("attention_f32", ATT): 10.0, ("attention_f16", ATT): 3.0}
+    torch = {("gemm_f16", GEMM): 1.5, ("gemm_f32", GEMM): 2.0, ("attention_f32", ATT): 4.5, ("attention_f16", ATT): 1.0}
+    model = (stages(100.0, image_tokens=10.0, renderer=60.0, render_rays=5.0), stages(70.0, renderer=40.0))
+    modes = {"fp32": {"total_ms": 120.0, "stages": {"decoder": 50.0}}, "bf16": {"total_ms": 30.0, "stages": {}}}
+    doc, md = run_report(tmp_path, engine, torch, model, modes)
+    b = bars(doc)
+    assert b["gemm_f16 4096x4096x4096 >= 50% of PyTorch"]          # 1.5 / 2.0 = 0.75
+    assert not b["gemm_f32 4096x4096x4096 >= 50% of PyTorch"]      # 2 / 5 = 0.4
+    assert b["attention_f32 12x64 heads, 2816 tokens >= 40% of PyTorch"]   # 0.45
+    assert not b["attention_f16 12x64 heads, 2816 tokens >= 40% of PyTorch"]  # 0.33
+    assert b["full model: engine fp32 faster than PyTorch fp32 eager"]  # 100 < 120
+    assert not b["full model: engine within 2x of PyTorch bf16"]       # best 70 > 2 * 30
+    assert b["zero validation messages, every test passes"]
+    assert "| renderer | 65.00 | 40.00 | 50.00 | 0.00 |" in md        # render_rays folded in
+    assert "| gemm_f32 | 4096x4096x4096 | 5.000 | 1 | 1.0e-13 | 2.000 | 1 | 0.40 |" in md
+
+
+def test_missing_numbers_are_not_met(tmp_path):
+    doc, md = run_report(tmp_path, {}, {}, ({}, {}), {"fp32": {"error": "failed"}}, failures=1)
+    assert not any(bars(doc).values())
+    assert "| **total** | - | - | - | - |" in md

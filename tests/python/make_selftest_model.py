@@ -1,0 +1,138 @@
+#!/usr/bin/python3
+"""Makes the self-test model of `spar selftest` (samples/data/selftest).
+
+Makes the self-test model that `spar selftest` runs stage by stage (samples/data/selftest/,
+installed as share/spar/selftest/): the tiny photometric SPAR (every stage of the full model:
+view tokens, pose estimator and heads, Plücker rays, DINOv3, CV-DRP, gating, scene encoder,
+renderer) at 64x64 pixels, perturbed so every bias and statistic matters, with every weight
+rounded to a value fp16 holds exactly. Packed with --fp16 (2.6 MB instead of 5.2), the file then
+holds the very model the float64 reference ran: a device with fp16 storage reads the weights as
+fp16, one without widens them to fp32, and both are compared with the same float64 outputs.
+
+    /usr/bin/python3 tests/python/make_selftest_model.py [OUT_DIR]     (default samples/data/selftest)
+
+writes OUT_DIR/
+    model.spar        the packed model
+    images.npy        the five prepared input frames [5, 3, 64, 64] (float32: what the engine reads)
+    reference/*.npy   the PyTorch reference's float64 output of the stages `spar selftest` checks
+    manifest.json     inputs, targets, the stages in pipeline order, and how this was made
+Deterministic: the same torch makes the same files (tests/CMakeLists.txt: selftest_model_remade),
+on any x86-64 machine with AVX2: OpenBLAS rounds float64 products differently with the kernels
+it picks for each CPU family and cache size, so this program fixes them (Haswell's, a 512 KB L2)
+before numpy or torch loads it. Needs Debian's python3-torch; the engine and its tests need only
+what this writes.
+"""
+import json
+import os
+import shutil
+import sys
+import tempfile
+
+os.environ.update(OPENBLAS_CORETYPE="Haswell", OPENBLAS_L2_SIZE="512")
+import numpy as np  # noqa: E402
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(os.path.dirname(HERE))
+# The repository's Python roots this program imports from, found from here (nothing installed).
+sys.path[:0] = [os.path.join(ROOT, d) for d in ("reference", "converter")]
+
+from spar_convert.model_config import tiny  # noqa: E402
+
+SIZE = 64
+INPUTS, TARGETS = [0, 2, 4], [1, 3]
+# The stages checked, in pipeline order (goldens.py names; what SparPipeline keeps under the
+# same names). Enough to place a failure in one stage without shipping every intermediate.
+STAGES = ["img_tokens", "cam_tokens", "c2w", "fxfycxcy", "ray_tokens", "dino",
+          "cv_drp_input.prob", "cv_drp_input.binary", "cv_drp_target.prob", "cv_drp_target.binary",
+          "gated_tokens", "scene_tokens", "decoder_out", "rgb"]
+
+
+def main(argv):
+    out = os.path.abspath(argv[0] if argv else os.path.join(ROOT, "samples", "data", "selftest"))
+    import torch
+    from make_spar_goldens import frames
+    from spar_convert.convert import main as convert
+    from spar_reference.cli import main as reference
+
+    work = tempfile.mkdtemp(prefix="selftest-model-")
+    try:
+        cfg = tiny()
+        cfg.use_lseg = False
+        cfg.image_height = cfg.image_width = SIZE
+        cfg_path = os.path.join(work, "selftest.json")
+        with open(cfg_path, "w") as f:
+            json.dump(cfg.validate().to_dict(), f, indent=1)
+        ck = os.path.join(work, "selftest.pt")
+        if reference(["make-checkpoint", "--config", cfg_path, "--seed", "17", "--perturb", "--no-optimizer",
+                      "-o", ck, "--threads", "1"]) != 0:
+            raise SystemExit("make_selftest_model: make-checkpoint failed")
+        sd = torch.load(ck, map_location="cpu")
+        for name, t in sd["model"].items():
+            if t.is_floating_point():
+                sd["model"][name] = t.half().float()
+        torch.save(sd, ck)
+        files = frames(work, count=5, width=SIZE, height=SIZE, seed=5)
+        goldens_args = ["goldens", "--checkpoint", ck, "--config", cfg_path, "--frames", *files,
+                        "--inputs", ",".join(map(str, INPUTS)), "--float64", "--threads", "1"]
+        # Mixed motion masks: the random CV-DRP's logits are nearly constant (P(dynamic) ~0.25
+        # everywhere, every mask empty, a mask check that compares nothing). Scale its head by
+        # a power of two (fp16-exact stays exact) and centre the logits at 0 (as
+        # tests/python/make_mask_model.py does for the tests' model). The gain multiplies the
+        # engine's error in P(dynamic) too while P stays near 0.5, so its NMSE grows as gain^2:
+        # at 128 the engine's fp32 P measured NMSE 2.9e-10, above the model tests' 1e-10 bound
+        # (model/stage_tolerances.h); at 16, P spreads over 0.5 +- 0.012 and the NMSE is 64x less.
+        first = os.path.join(work, "first")
+        if reference(goldens_args + ["--out", first]) != 0:
+            raise SystemExit("make_selftest_model: spar-reference goldens failed")
+        logits = np.load(os.path.join(first, "cv_drp_input.logits.npy"))
+        head, gain = "cv_drp.estimator.dpt_decoder.head", 16.0
+        bias = float(sd["model"][head + ".bias"][0])
+        sd["model"][head + ".weight"] *= gain
+        sd["model"][head + ".bias"] = torch.full_like(sd["model"][head + ".bias"],
+                                                      -gain * (float(logits.mean()) - bias)).half().float()
+        torch.save(sd, ck)
+        stage = out + ".tmp"
+        shutil.rmtree(stage, ignore_errors=True)
+        os.makedirs(os.path.join(stage, "reference"))
+        # From the work directory with relative names: the pack records its sources' paths, and a
+        # temporary directory's name would make every run's file differ.
+        here = os.getcwd()
+        os.chdir(work)
+        try:
+            if convert(["-q", "--fp16", "selftest.pt", "--config", "selftest.json", "-o",
+                        os.path.join(stage, "model.spar")]) != 0:
+                raise SystemExit("make_selftest_model: spar-convert failed")
+        finally:
+            os.chdir(here)
+        goldens = os.path.join(work, "goldens")
+        if reference(goldens_args + ["--out", goldens]) != 0:
+            raise SystemExit("make_selftest_model: spar-reference goldens failed")
+        images = np.load(os.path.join(goldens, "images.npy"))
+        # 8-bit pixels / 255: the engine's image preparation rounds that to float32, as here.
+        assert np.array_equal(np.round(images * 255), images * 255), "prepared images are not 8-bit values"
+        np.save(os.path.join(stage, "images.npy"), images.astype(np.float32))
+        for mask in ("cv_drp_input", "cv_drp_target"):
+            share = float(np.load(os.path.join(goldens, mask + ".binary.npy")).mean())
+            assert 0.1 < share < 0.9, "%s: %.3f of the pixels dynamic, not a mixed mask" % (mask, share)
+        for name in STAGES:
+            shutil.copy(os.path.join(goldens, name + ".npy"), os.path.join(stage, "reference", name + ".npy"))
+        manifest = {
+            "what": "spar selftest's model: tiny photometric SPAR at 64x64, weights fp16-exact, "
+                    "PyTorch reference outputs in float64 (tests/python/make_selftest_model.py)",
+            "inputs": INPUTS, "targets": TARGETS, "views": len(files), "stages": STAGES,
+            "torch": torch.__version__, "seed": 17,
+        }
+        with open(os.path.join(stage, "manifest.json"), "w") as f:
+            json.dump(manifest, f, indent=1)
+            f.write("\n")
+        shutil.rmtree(out, ignore_errors=True)
+        os.rename(stage, out)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    total = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(out) for f in fs)
+    print("make_selftest_model: %s (%.2f MB)" % (out, total / 1e6))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
