@@ -32,5 +32,6 @@ export ASAN_OPTIONS="detect_leaks=0:abort_on_error=1:strict_string_checks=1:dete
 export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
 # Left out: the long-path memory test measures peak RSS, which ASan's allocator (quarantine,
 # shadow memory) inflates as it pleases (1.7 -> 4.5 GB for 8 -> 240 views, flat in Release).
-ctest --test-dir build-asan -j2 --output-on-failure -L "^(${labels})\$" -E 'LongPathMemoryDoesNotGrowWithItsLength' |
+export GTEST_FILTER='-*LongPathMemoryDoesNotGrowWithItsLength'
+ctest --test-dir build-asan -j2 --output-on-failure -L "^(${labels})\$" |
   tee build-asan/ctest.log

@@ -243,6 +243,7 @@ def split_state_dict(sd: Dict[str, Any]) -> Tuple[Dict[str, Any], Dict[str, Any]
 
 def build_model(cfg, sd: Dict[str, Any], float64: bool):
     """SPAR (with its DINOv3 / LSeg references) holding exactly the checkpoint's tensors."""
+    import torch
     from .spar import SPAR
     if cfg.use_lseg and not any(k.startswith("lseg_model.") for k in sd):
         raise CliError("checkpoint has no LSeg weights (lseg_model.*) but the config uses LSeg")
@@ -263,14 +264,16 @@ def build_model(cfg, sd: Dict[str, Any], float64: bool):
         raise CliError(f"checkpoint does not match the model config ({what})")
     try:
         # backbones built on the meta device (no random init: every tensor comes from the
-        # checkpoint, checked below), then given uninitialized CPU storage
+        # checkpoint, checked below), then given uninitialized CPU storage of the dtype they
+        # run at: loading the checkpoint is then their one pass (converting as it copies)
         from .dino_v3 import DinoV3
-        dino = DinoV3(cfg.dino, device="meta").to_empty(device="cpu")
+        dtype = torch.float64 if float64 else torch.float32
+        dino = DinoV3(cfg.dino, device="meta").to(dtype).to_empty(device="cpu")
         lseg = False
         if cfg.use_lseg:
             from .lseg import LSegEncoder
-            lseg = LSegEncoder(cfg.lseg, device="meta").to_empty(device="cpu")
-        model = SPAR(cfg, dino=dino, lseg=lseg)
+            lseg = LSegEncoder(cfg.lseg, device="meta").to(dtype).to_empty(device="cpu")
+        model = SPAR(cfg, dino=dino, lseg=lseg).to(dtype)
     except Exception as e:
         raise CliError(f"cannot build the model for this config: {_one_line(e)}")
     own = model.state_dict()
@@ -289,7 +292,6 @@ def build_model(cfg, sd: Dict[str, Any], float64: bool):
                          f"{list(sd[k].shape)}, config {list(own[k].shape)})")
         raise CliError("checkpoint does not match the model config: " + "; ".join(parts))
     model.load_state_dict(sd, strict=True)
-    model = model.double() if float64 else model.float()
     return model.eval()
 
 
@@ -455,12 +457,14 @@ class Run:
         self.out_path = check_out_dir(args.out)
 
     # ---------------------------------------------------------------- compute
-    def compute(self) -> None:
+    def compute(self, state_dict: Optional[Dict[str, Any]] = None) -> None:
+        """The run. ``state_dict``: the tensors of --checkpoint when the caller holds them
+        already (an in-process caller that has just saved them there), else read from it."""
         import torch
         from .images import load_image
         args, timer = self.args, self.timer
         with timer("load_checkpoint"):
-            sd = load_checkpoint(args.checkpoint)
+            sd = load_checkpoint(args.checkpoint) if state_dict is None else state_dict
             cfg = get_config(args.config, sd, args.checkpoint)
             model_sd, clip_sd = split_state_dict(sd)
             self.cfg = cfg
@@ -667,18 +671,30 @@ class Run:
 
 
 # ============================================================================ commands
-def cmd_make_checkpoint(args) -> int:
-    import torch
+def test_checkpoint(cfg, seed: int, perturb: bool, optimizer_state: bool) -> Dict[str, Any]:
+    """What make-checkpoint saves: the official training checkpoint of random weights from
+    ``seed`` (spar.make_checkpoint), with CLIP's text tower where the model has LSeg."""
     from .spar import make_checkpoint
+    ck = make_checkpoint(cfg, seed=seed, perturb=perturb, optimizer_state=optimizer_state)
+    if cfg.use_lseg:
+        add_clip_text(ck, cfg, seed + 13, perturb)
+    return ck
+
+
+def cmd_make_checkpoint(args) -> int:
     cfg = get_config(args.config, None)
     out = os.path.abspath(args.output)
+    if not os.path.isdir(os.path.dirname(out)):
+        raise CliError(f"parent directory does not exist: {os.path.dirname(out)}")
+    save_checkpoint(test_checkpoint(cfg, args.seed, args.perturb, not args.no_optimizer), out)
+    return 0
+
+
+def save_checkpoint(ck: Dict[str, Any], out: str) -> None:
+    """torch.save(ck) to ``out`` through a temporary file beside it (no partial file)."""
+    import torch
+    out = os.path.abspath(out)
     parent = os.path.dirname(out)
-    if not os.path.isdir(parent):
-        raise CliError(f"parent directory does not exist: {parent}")
-    ck = make_checkpoint(cfg, seed=args.seed, perturb=args.perturb,
-                         optimizer_state=not args.no_optimizer)
-    if cfg.use_lseg:
-        add_clip_text(ck, cfg, args.seed + 13, args.perturb)
     fd, tmp = tempfile.mkstemp(prefix=os.path.basename(out) + ".tmp-", dir=parent)
     os.close(fd)
     umask = os.umask(0)
@@ -691,20 +707,19 @@ def cmd_make_checkpoint(args) -> int:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
-    return 0
 
 
-def cmd_render(args) -> int:
+def cmd_render(args, state_dict=None) -> int:
     run = Run(args, goldens=False)
-    run.compute()
+    run.compute(state_dict)
     with staged_dir(run.out_path) as d:
         run.write_render(d)
     return 0
 
 
-def cmd_goldens(args) -> int:
+def cmd_goldens(args, state_dict=None) -> int:
     run = Run(args, goldens=True)
-    run.compute()
+    run.compute(state_dict)
     with staged_dir(run.out_path) as d:
         run.write_goldens(d)
     return 0
@@ -813,11 +828,15 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def main(argv: Optional[Sequence[str]] = None) -> int:
+def main(argv: Optional[Sequence[str]] = None, state_dict: Optional[Dict[str, Any]] = None) -> int:
+    """The command line. ``state_dict`` (render and goldens, in-process callers): the tensors of
+    --checkpoint, which the caller holds already (tests/python/make_spar_goldens.py --full)."""
     args = build_parser().parse_args(argv)
     try:
         import torch
         torch.set_num_threads(args.threads)
+        if state_dict is not None:
+            return int(args.func(args, state_dict) or 0)
         return int(args.func(args) or 0)
     except CliError as e:
         sys.stderr.write(f"{PROG}: error: {_one_line(e)}\n")

@@ -78,15 +78,16 @@ def variant(ck, out, changes):
     torch.save(sd, out)
 
 
-def reference(*argv):
-    """spar-reference ARGV in this process (one torch import for the whole fixture)."""
+def reference(*argv, state_dict=None):
+    """spar-reference ARGV in this process (one torch import for the whole fixture);
+    state_dict: the checkpoint's tensors when this process holds them (spar_reference.cli.main)."""
     from spar_reference.cli import main as reference_main
     if argv[0] in ("goldens", "render"):
         # One torch thread: the fixture runs beside another test (ctest -j2), where two threads
         # made the tiny model's forwards slower and their time erratic (measured 4.5 against
         # 5.7-10 s for --semantic with the other core busy). The full-size case keeps two.
         argv = argv + ("--threads", str(THREADS))
-    if reference_main([str(a) for a in argv]) != 0:
+    if reference_main([str(a) for a in argv], state_dict=state_dict) != 0:
         raise SystemExit("make_spar_goldens: spar-reference %s failed" % argv[0])
 
 
@@ -130,13 +131,18 @@ def main_full(out, bpe):
     f = frames(out, count=3, width=320, height=240)
     ck, packed = os.path.join(out, "full.pt"), os.path.join(out, "full.spar")
     require_bpe(bpe)
-    reference("make-checkpoint", "--config", cfg_path, "--seed", "11", "--perturb", "--no-optimizer", "-o", ck)
+    # spar-reference make-checkpoint --seed 11 --perturb --no-optimizer, in this process: the
+    # 3 GB of tensors are kept for the goldens below instead of being read back from the file
+    # (which only the converter needs)
+    from spar_reference.cli import save_checkpoint, test_checkpoint
+    tensors = test_checkpoint(cfg, 11, perturb=True, optimizer_state=False)
+    save_checkpoint(tensors, ck)
     convert("-q", ck, "--config", cfg_path, "--bpe", bpe, "-o", packed)
+    os.unlink(ck)  # 3 GB: only the packed file is needed from here on
     d = fresh(os.path.join(out, "full_2in_1out"))
     labels = ["--labels", ",".join(LABELS[:4]), "--bpe", bpe]
     reference("goldens", "--checkpoint", ck, "--config", cfg_path, "--frames", *f, "--inputs", "0,2",
-              *labels, "--float64", "--out", d)
-    os.unlink(ck)  # 3 GB: only the packed file is needed from here on
+              *labels, "--float64", "--out", d, state_dict=tensors["model"])
     return 0
 
 
