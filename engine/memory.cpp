@@ -5,6 +5,7 @@
 #include <string>
 
 #include "engine/error.h"
+#include "engine/host_pages.h"
 
 namespace spar {
 namespace {
@@ -47,8 +48,11 @@ uint32_t MemoryAllocator::addBlock(VkDeviceSize size, uint32_t memoryType) {
   info.memoryTypeIndex = memoryType;
   VkResult r = vkAllocateMemory(device_.handle(), &info, nullptr, &block.memory);
   if (r != VK_SUCCESS) throw Error(outOfMemory(size, memoryType, describeVkResult(r)));
-  if (device_.memoryProperties().memoryTypes[memoryType].propertyFlags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT)
+  if (device_.memoryProperties().memoryTypes[memoryType].propertyFlags & VK_MEMORY_PROPERTY_HOST_VISIBLE_BIT) {
     SPAR_VK(vkMapMemory(device_.handle(), block.memory, 0, VK_WHOLE_SIZE, 0, &block.mapped));
+    // a CPU device's memory is process memory not touched yet: huge pages, fewer faults
+    if (device_.caps().isCpu()) adviseHugePages(block.mapped, size_t(size));
+  }
   block.freeRanges[0] = size;
   blocks_.push_back(std::move(block));
   return static_cast<uint32_t>(blocks_.size() - 1);

@@ -12,7 +12,6 @@ packages=(
   opencv-doc  # real footage for the tests: vtest.avi (people walking), graf1/graf3.png (one wall, two views)
   ffmpeg
   python3 python3-numpy python3-torch python3-yaml python3-pytest python3-pil libopenblas0-pthread
-  libjemalloc2  # the golden makers run under it (tests/CMakeLists.txt: faster here)
 )
 missing=()
 for p in "${packages[@]}"; do
