@@ -17,6 +17,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -66,7 +67,17 @@ void expectNoValidationMessages(const RunResult& r) {
   }
 }
 
+// `spar eval ARGS --out OUT`, checked (exit 0, no validation message, result.html beside with a
+// row per K), its result.json parsed. A request this process has run already (a program's
+// tests share one process) is not run again: its file is copied to OUT.
 json evalOk(const std::vector<std::string>& args, const fs::path& out) {
+  static std::map<std::vector<std::string>, fs::path> done;
+  if (auto it = done.find(args); it != done.end() && fs::exists(it->second)) {
+    fs::copy_file(it->second, out, fs::copy_options::overwrite_existing);
+    std::ifstream in(out);
+    return json::parse(in);
+  }
+  done[args] = out;
   std::vector<std::string> all = args;
   all.insert(all.end(), {"--out", out.string()});
   const RunResult r = sparEval(all, true);
