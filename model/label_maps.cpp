@@ -3,6 +3,7 @@
 #include "engine/error.h"
 #include "engine/ops/conv2d.h"
 #include "engine/ops/reduce_channels.h"
+#include "engine/ops/resize.h"
 #include "engine/ops/unary.h"
 
 namespace spar {
@@ -35,13 +36,13 @@ void labelMaps(Recorder& rec, const Tensor& features, const Tensor& text, const 
   if (!features.defined() || features.rank() != 4 || !text.defined() || text.rank() != 2)
     throw Error("label maps: features must be [R, C, h, w] and text [P, C]");
   const int64_t R = features.dim(0), h = features.dim(2), w = features.dim(3), P = text.dim(0);
-  if (!maps.defined() || maps.shape() != Shape{R, h, w} || maps.dtype() != DType::I32)
-    throw Error("label maps: maps must be i32 " + shapeString({R, h, w}) + ", got " +
+  if (!maps.defined() || maps.shape() != Shape{R, 2 * h, 2 * w} || maps.dtype() != DType::I32)
+    throw Error("label maps: maps must be i32 " + shapeString({R, 2 * h, 2 * w}) + ", got " +
                 (maps.defined() ? maps.describe() : std::string("(none)")));
   if (P == 0) throw Error("label maps: no prompts");
   const Tensor scores = logits.defined() ? logits : rec.engine().tensor({R, P, h, w});
   labelLogits(rec, features, text, scores, logitScale);
-  argmax(rec, scores, maps, 1);
+  resizeBilinearArgmax(rec, scores, maps, /*alignCorners=*/true);
 }
 
 }  // namespace spar

@@ -3,8 +3,12 @@
 //
 //   image features [R, C, h, w] and text embeddings [P, C], both L2-normalized over C
 //   logits [R, P, h, w] = scale * <image, text>      (scale = 1 / 0.07, LSeg's fixed value)
-//   maps [R, h, w] = argmax over the prompts          (int32, the first maximum)
+//   maps [R, 2h, 2w] = argmax over the prompts of the logits upsampled x2 (bilinear,
+//                      align_corners=True: LSeg's scratch.output_conv), the first maximum
 //
+// The label map is at the image's size (h, w are half of it), in the official order: the
+// scores are enlarged before the argmax (resizeBilinearArgmax, which never stores them), not
+// the half-resolution map afterwards (they differ wherever labels change within two pixels).
 // The dot products run as a 1x1 convolution whose kernel is the normalized text [P, C, 1, 1].
 // Vectors of norm 0 normalize to 0 here (F.normalize's eps) where the reference divides by 0
 // and gets NaN; SPAR's features and CLIP's embeddings are never 0.
@@ -21,8 +25,8 @@ constexpr double kLsegLogitScale = 1.0 / 0.07;
 void labelLogits(Recorder& rec, const Tensor& features, const Tensor& text, const Tensor& logits,
                  float logitScale = static_cast<float>(kLsegLogitScale));
 
-// maps: I32 [R, h, w], written. logits: f32 [R, P, h, w] to keep the per-label score maps, or
-// undefined (then a scratch tensor holds them).
+// maps: I32 [R, 2h, 2w], written. logits: f32 [R, P, h, w] to keep the per-label score maps
+// (before the upsampling: the official logits), or undefined (then a scratch tensor holds them).
 void labelMaps(Recorder& rec, const Tensor& features, const Tensor& text, const Tensor& maps,
                const Tensor& logits = Tensor(), float logitScale = static_cast<float>(kLsegLogitScale));
 

@@ -313,11 +313,12 @@ PYBIND11_MODULE(spar, m) {
             for (const std::string& w : warnings) warn(w);
             std::vector<int32_t> all;
             for (const auto& one : maps) all.insert(all.end(), one.begin(), one.end());
-            return toNumpy(std::move(all), {py::ssize_t(maps.size()), py::ssize_t(s.height / 2), py::ssize_t(s.width / 2)});
+            return toNumpy(std::move(all), {py::ssize_t(maps.size()), py::ssize_t(s.height), py::ssize_t(s.width)});
           },
           py::arg("prompts"),
-          "Open-vocabulary label maps of the last render call: int32 (R, H/2, W/2), each pixel the index of "
-          "the prompt whose CLIP embedding matches its semantic feature best. Needs semantic_features in the "
+          "Open-vocabulary label maps of the last render call: int32 (R, H, W), each pixel the index of "
+          "the prompt whose CLIP embedding matches its semantic feature best (the official order: the "
+          "half-resolution scores enlarged x2, bilinear, before the argmax). Needs semantic_features in the "
           "encode and a model with CLIP's tokenizer.")
       .def(
           "stage_times",

@@ -134,7 +134,8 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"auto", "mp4", "gif"}));
   render->add_flag("--scores", a.scores,
                    "with --labels: also write each view's per-label score maps (scores_XX.npy, P x H/2 x W/2 "
-                   "float32: the scaled cosine similarities the labels are the argmax of)");
+                   "float32: the scaled cosine similarities, the official logits before their x2 bilinear "
+                   "upsampling; the labels are the argmax of the upsampled scores, at H x W)");
 
   EvalArgs e;
   CLI::App* evalCmd = app.add_subcommand(

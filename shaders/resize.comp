@@ -10,7 +10,13 @@
 // factor), and each output is x0 + l * (x1 - x0), so constant images stay exactly constant.
 // An invocation computes RX consecutive output columns of one row for RC channels,
 // sharing the coordinate arithmetic.
-//! variant resize_bilinear_f32
+//
+// ARGMAX: the channels are scores and the output is, per output pixel, the index of the first
+// channel whose interpolated score is the largest (torch's argmax over dim 1 of the resized
+// scores), written as int [N, Ho, Wo]: the resized scores are never stored. An invocation then
+// takes all C channels of its RX columns (a work unit is one image).
+//! variant resize_bilinear_f32 ARGMAX=0
+//! variant resize_bilinear_argmax_i32 ARGMAX=1
 #extension GL_GOOGLE_include_directive : require
 #include "common.glsl"
 
@@ -20,11 +26,15 @@ layout(constant_id = 4) const int RC = 4;  // channels per invocation
 layout(constant_id = 5) const bool ALIGN_CORNERS = false;
 
 TEXEL_INPUT(0, X, 1)
+#if ARGMAX
+layout(binding = 1) writeonly buffer Y { int y[]; };
+#else
 layout(binding = 1) writeonly buffer Y { float y[]; };
+#endif
 
 layout(push_constant) uniform Push {
   int C, H, W, Ho, Wo;
-  int cBlocks;   // ceil(C / RC)
+  int cBlocks;   // ceil(C / RC); 1 with ARGMAX
   int zBase;     // first (image, channel block) unit of this dispatch
   int inBase;    // element of x at texel 0 of X
   int outBase;   // element of the output tensor at y[0]
@@ -60,6 +70,27 @@ void main() {
   float lx[RX];
   [[unroll]] for (int i = 0; i < RX; ++i) sourceCoord(min(ox0 + i, p.Wo - 1), p.W, p.Wo, x0[i], x1[i], lx[i]);
 
+#if ARGMAX
+  float best[RX];
+  int arg[RX];
+  for (int ch = 0; ch < p.C; ++ch) {
+    const int plane = (n * p.C + ch) * p.H * p.W - p.inBase;
+    const int r0 = plane + y0 * p.W, r1 = plane + y1 * p.W;
+    [[unroll]] for (int i = 0; i < RX; ++i) {
+      const float a = fetch_X(r0 + x0[i]).x, b = fetch_X(r0 + x1[i]).x;
+      const float d = fetch_X(r1 + x0[i]).x, e = fetch_X(r1 + x1[i]).x;
+      const float top = fma(lx[i], b - a, a), bottom = fma(lx[i], e - d, d);
+      const float v = fma(ly, bottom - top, top);
+      if (ch == 0 || v > best[i]) {  // strictly larger: the first maximum wins
+        best[i] = v;
+        arg[i] = ch;
+      }
+    }
+  }
+  const int outRow = (n * p.Ho + oy) * p.Wo - p.outBase;
+  [[unroll]] for (int i = 0; i < RX; ++i)
+    if (ox0 + i < p.Wo) y[outRow + ox0 + i] = arg[i];
+#else
   [[unroll]] for (int c = 0; c < RC; ++c) {
     const int ch = c0 + c;
     if (ch >= p.C) break;
@@ -74,4 +105,5 @@ void main() {
       y[outRow + ox0 + i] = fma(ly, bottom - top, top);
     }
   }
+#endif
 }

@@ -10,6 +10,7 @@
 #include "model/clip_text.h"
 #include "imaging/image_prep.h"
 #include "model/label_maps.h"
+#include "tests/label_reference.h"
 #include "model/stage_tolerances.h"
 #include "model/packed_model.h"
 #include "test_support.h"
@@ -157,7 +158,7 @@ std::vector<StageTime> runGoldenCase(Engine& engine, const std::string& caseName
     ClipTextEncoder encoder(engine, textWeights, ClipTextConfig::fromJson(c.raw.at("clip"), model.path()));
     const Tensor text = engine.tensor({int64_t(prompts.size()), encoder.config().embedDim});
     const Tensor& feats = pipe.intermediate("semantic_features");
-    const Tensor maps = engine.tensor({feats.dim(0), feats.dim(2), feats.dim(3)}, DType::I32);
+    const Tensor maps = engine.tensor({feats.dim(0), 2 * feats.dim(2), 2 * feats.dim(3)}, DType::I32);
     TransformerWorkspace ws;
     Recorder rec(engine);
     encoder.forward(rec, ids, text, ws);
@@ -168,15 +169,19 @@ std::vector<StageTime> runGoldenCase(Engine& engine, const std::string& caseName
     EXPECT_LE(e.nmse, 1e-10 * o.scale) << "text_embeddings";
     std::vector<int32_t> got(size_t(maps.numel()));
     engine.read(maps, got.data(), got.size() * sizeof(int32_t));
-    const std::vector<double> want = g.doubles("label_maps"), logits = g.doubles("label_logits");
-    const size_t plane = size_t(feats.dim(2) * feats.dim(3)), p = prompts.size();
+    // at the image's size: the reference's logits x2 (float64) say where two labels nearly tie
+    const std::vector<double> want = g.doubles("label_maps");
+    const size_t p = prompts.size(), plane = size_t(4 * feats.dim(2) * feats.dim(3));
+    const std::vector<double> scores =
+        upsampledLogits(g.doubles("label_logits"), feats.dim(0), int64_t(p), feats.dim(2), feats.dim(3));
+    EXPECT_EQ(want.size(), got.size()) << "label_maps: the reference's are not at the image's size";
     size_t differ = 0, ties = 0;
-    for (size_t i = 0; i < got.size(); ++i) {
+    for (size_t i = 0; i < got.size() && i < want.size(); ++i) {
       if (double(got[i]) == want[i]) continue;
-      // a near-tie: the reference's logits of the two labels within 1e-4
+      // a near-tie: the reference's scores of the two labels within 1e-5
       const size_t r = i / plane, px = i % plane;
-      const double a = logits[(r * p + size_t(got[i])) * plane + px], b = logits[(r * p + size_t(want[i])) * plane + px];
-      if (std::abs(a - b) < 1e-4) ++ties;
+      const double a = scores[(r * p + size_t(got[i])) * plane + px], b = scores[(r * p + size_t(want[i])) * plane + px];
+      if (std::abs(a - b) < 1e-5) ++ties;
       else ++differ;
     }
     std::printf("  %-22s pixels differing %zu (+%zu near-ties of %zu)\n", "label_maps", differ, ties, got.size());

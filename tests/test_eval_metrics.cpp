@@ -154,49 +154,51 @@ TEST(eval_metrics, MaskCountsOnAHandMadeCase) {
   EXPECT_DOUBLE_EQ(*still.iouStatic(), 1.0);
 }
 
-TEST(eval_metrics, SemanticConfusionWithTheBlockRule) {
-  // Two 4x4 views (label maps 2x2), 4 classes; class 3 is predicted but never ground truth.
-  const int h = 4, w = 4;
-  // View 1 blocks: (0,0) all 1 static -> pred 1 (right); (0,1) classes 1,1,1,2 mixed -> out;
-  // (1,0) all 2, one pixel dynamic -> out; (1,1) all 2 static -> pred 0 (wrong).
-  const std::vector<int32_t> cls1 = {1, 1, 1, 1,  //
-                                     1, 1, 1, 2,  //
-                                     2, 2, 2, 2,  //
-                                     2, 2, 2, 2};
-  std::vector<uint8_t> dyn1(16, 0);
-  dyn1[size_t(3) * w + 1] = 1;
-  const std::vector<int32_t> lab1 = {1, 3, 3, 0};
-  // View 2 blocks: all 0 -> 0; all 0 -> 2; all 2 -> 2; all 1 -> 3.
-  const std::vector<int32_t> cls2 = {0, 0, 0, 0,  //
-                                     0, 0, 0, 0,  //
-                                     2, 2, 1, 1,  //
-                                     2, 2, 1, 1};
-  const std::vector<uint8_t> dyn2(16, 0);
-  const std::vector<int32_t> lab2 = {0, 2, 2, 3};
+// PROTOCOL.md "Semantics": label maps at the image's size, every static pixel evaluated.
+TEST(eval_metrics, SemanticConfusionOverStaticPixels) {
+  // Two 2x3 views, 4 classes; class 3 is predicted but never ground truth.
+  const int h = 2, w = 3;
+  // View 1: pixel (1,1) is dynamic (not evaluated, whatever its label).
+  const std::vector<int32_t> cls1 = {1, 1, 2,  //
+                                     2, 2, 0};
+  std::vector<uint8_t> dyn1(6, 0);
+  dyn1[size_t(1) * w + 1] = 1;
+  const std::vector<int32_t> lab1 = {1, 3, 2,  //
+                                     0, 9, 0};
+  // View 2: all static.
+  const std::vector<int32_t> cls2 = {0, 0, 1,  //
+                                     1, 2, 2};
+  const std::vector<uint8_t> dyn2(6, 0);
+  const std::vector<int32_t> lab2 = {0, 2, 1,  //
+                                     3, 2, 0};
 
   SemanticConfusion s(4);
   s.add(lab1.data(), cls1.data(), dyn1.data(), h, w);
-  EXPECT_EQ(s.evaluated(), 2);
+  EXPECT_EQ(s.evaluated(), 5);
   s.add(lab2.data(), cls2.data(), dyn2.data(), h, w);
-  EXPECT_EQ(s.evaluated(), 6);
-  EXPECT_EQ(s.count(1, 1), 1);
-  EXPECT_EQ(s.count(2, 0), 1);
-  EXPECT_EQ(s.count(0, 0), 1);
+  EXPECT_EQ(s.evaluated(), 11);
+  // truth -> predicted: view 1: 1->1, 1->3, 2->2, 2->0, 0->0; view 2: 0->0, 0->2, 1->1, 1->3, 2->2, 2->0
+  EXPECT_EQ(s.count(1, 1), 2);
+  EXPECT_EQ(s.count(1, 3), 2);
+  EXPECT_EQ(s.count(2, 2), 2);
+  EXPECT_EQ(s.count(2, 0), 2);
+  EXPECT_EQ(s.count(0, 0), 2);
   EXPECT_EQ(s.count(0, 2), 1);
-  EXPECT_EQ(s.count(2, 2), 1);
-  EXPECT_EQ(s.count(1, 3), 1);
-  EXPECT_DOUBLE_EQ(*s.accuracy(), 3.0 / 6);
-  // IoU: class 0: TP 1, FP 1 (2->0), FN 1 (0->2) = 1/3; class 1: TP 1, FN 1 (1->3) = 1/2;
-  // class 2: TP 1, FP 1 (0->2), FN 1 (2->0) = 1/3; class 3: no ground truth, left out.
-  EXPECT_NEAR(*s.meanIou(), (1.0 / 3 + 1.0 / 2 + 1.0 / 3) / 3, 1e-15);
+  EXPECT_DOUBLE_EQ(*s.accuracy(), 6.0 / 11);
+  // IoU: class 0: TP 2, FP 2 (2->0), FN 1 (0->2) = 2/5; class 1: TP 2, FN 2 (1->3) = 2/4;
+  // class 2: TP 2, FP 1 (0->2), FN 2 (2->0) = 2/5; class 3: no ground truth, left out.
+  EXPECT_NEAR(*s.meanIou(), (2.0 / 5 + 2.0 / 4 + 2.0 / 5) / 3, 1e-15);
 
   // Nothing evaluated: undefined.
   SemanticConfusion empty(4);
-  const std::vector<uint8_t> allDyn(16, 1);
+  const std::vector<uint8_t> allDyn(6, 1);
   empty.add(lab2.data(), cls2.data(), allDyn.data(), h, w);
   EXPECT_EQ(empty.evaluated(), 0);
   EXPECT_FALSE(empty.accuracy().has_value());
   EXPECT_FALSE(empty.meanIou().has_value());
+  // A ground-truth id outside the classes is an error, a predicted one a miss.
+  const std::vector<int32_t> badTruth = {0, 0, 7, 0, 0, 0};
+  EXPECT_THROW(empty.add(lab2.data(), badTruth.data(), dyn2.data(), h, w), std::exception);
 }
 
 TEST(eval_metrics, InputPositionsFollowTheProtocol) {

@@ -1,9 +1,9 @@
-// model/label_maps (label logits and maps on the engine, fp32) against the semantic fixture's
-// float64 goldens (semantic_features.npy + text_embeddings.npy -> label_logits.npy,
-// label_maps.npy, made by spar-reference goldens --labels), plus random odd-sized cases and ties
-// against a float64 CPU reference; and model/label_outputs (labels_XX.png / .json) against the
-// files spar-reference render --labels writes for the fixture. Skips without the BPE table
-// (then the fixture has no labels).
+// model/label_maps (label logits at H/2 x W/2 and full-resolution maps on the engine, fp32)
+// against the semantic fixture's float64 goldens (semantic_features.npy + text_embeddings.npy ->
+// label_logits.npy, label_maps.npy, made by spar-reference goldens --labels), plus random
+// odd-sized cases, ties and one-pixel structure against a float64 CPU reference of the official
+// order (the logits x2 bilinear with align_corners, then the argmax); and model/label_outputs
+// (labels_XX.png / .json) against the files spar-reference render --labels writes for the fixture.
 #include <set>
 #include <gtest/gtest.h>
 
@@ -22,6 +22,7 @@
 #include "imaging/label_outputs.h"
 #include "formats/npy.h"
 #include "tests/golden_support.h"
+#include "tests/label_reference.h"
 #include "tests/test_support.h"
 
 namespace spar::test {
@@ -38,7 +39,7 @@ LabelResult runLabels(Engine& engine, const std::vector<float>& features, const 
                       const std::vector<float>& text, const Shape& tshape) {
   const int64_t R = fshape[0], h = fshape[2], w = fshape[3], P = tshape[0];
   GuardedOutput logits(engine, {R, P, h, w});
-  const Tensor maps = engine.tensor({R, h, w}, DType::I32);
+  const Tensor maps = engine.tensor({R, 2 * h, 2 * w}, DType::I32);
   Recorder rec(engine);
   labelMaps(rec, engine.fromFloats(fshape, features), engine.fromFloats(tshape, text), maps, logits.tensor());
   rec.run();
@@ -71,7 +72,7 @@ std::vector<double> logitsRef(const std::vector<double>& f, const Shape& fs, con
   return out;
 }
 
-// Maps must equal the reference's except where its top two logits are closer than `tie`.
+// Maps must equal the reference's except where its top two scores are closer than `tie`.
 void expectMapsMatch(const std::vector<int32_t>& got, const std::vector<int64_t>& want, const std::vector<double>& logits,
                      int64_t R, int64_t P, int64_t n, double tie, const std::string& what) {
   int64_t differ = 0, nearTies = 0;
@@ -103,7 +104,10 @@ TEST_F(LabelMapsTest, MatchesFixtureGoldens) {
   const LabelResult r = runLabels(eng(), g.floats("semantic_features"), fs, g.floats("text_embeddings"), ts);
   const std::vector<double> want = g.doubles("label_logits");
   expectClose(r.logits, want, 1e-11, 1e-4, "label logits vs float64 goldens");
-  expectMapsMatch(r.maps, g.array("label_maps").toInt64s(), want, R, P, n, 1e-4, "label maps vs goldens");
+  // the maps at the image's size, as the reference makes them (full_resolution_labels)
+  ASSERT_EQ(g.shape("label_maps"), (Shape{R, 2 * fs[2], 2 * fs[3]}));
+  expectMapsMatch(r.maps, g.array("label_maps").toInt64s(), upsampledLogits(want, R, P, fs[2], fs[3]), R, P, 4 * n, 1e-5,
+                  "label maps vs goldens");
 }
 
 // Random features with a large mean and odd sizes, and prompts of which two are identical
@@ -120,26 +124,58 @@ TEST_F(LabelMapsOpTest, OddSizesAndTies) {
   const LabelResult r = runLabels(eng(), f, fs, t, {P, C});
   const std::vector<double> want = logitsRef(toDouble(f), fs, toDouble(t), P);
   expectClose(r.logits, want, 1e-11, 1e-4, "label logits, random");
-  std::vector<int64_t> wantMaps;
-  for (int64_t q = 0; q < fs[0]; ++q)
-    for (int64_t i = 0; i < n; ++i) {
-      int64_t best = 0;
-      for (int64_t p = 1; p < P; ++p)
-        if (want[size_t((q * P + p) * n + i)] > want[size_t((q * P + best) * n + i)]) best = p;
-      wantMaps.push_back(best);
-    }
-  expectMapsMatch(r.maps, wantMaps, want, fs[0], P, n, 1e-4, "label maps, random");
+  const std::vector<double> up = upsampledLogits(want, fs[0], P, fs[2], fs[3]);
+  expectMapsMatch(r.maps, firstArgmax(up, fs[0], P, 4 * n), up, fs[0], P, 4 * n, 1e-5, "label maps, random");
   for (int32_t m : r.maps) EXPECT_NE(m, 3) << "an exact tie must go to the first prompt";
+}
+
+// One-pixel structure: the labels change from one half-resolution pixel to the next, so the
+// official order (scores enlarged, then the argmax) gives another map than the half-resolution
+// argmax enlarged by nearest neighbour; the engine's must be the official one. Two prompts whose
+// scores are a checkerboard of unequal margins: between two cells the interpolated scores
+// cross where the margins say, not at the cell's edge.
+TEST_F(LabelMapsOpTest, FullResolutionIsTheOfficialOrderNotTheHalfMapEnlarged) {
+  const int64_t R = 2, P = 2, C = 2, h = 9, w = 11, n = h * w;
+  // features [R, C, h, w] at angle theta from prompt 0 = (1, 0) toward prompt 1 = (0, 1):
+  // cos(theta) and sin(theta) are the two scores before the scale
+  std::vector<float> f(size_t(R * C * n)), t = {1, 0, 0, 1};
+  for (int64_t r = 0; r < R; ++r)
+    for (int64_t y = 0; y < h; ++y)
+      for (int64_t x = 0; x < w; ++x) {
+        const bool one = (x + y + r) % 2 == 1;
+        // label 1 wins by a small margin, label 0 by a large one (and the margins vary)
+        const double theta = one ? 0.80 + 0.01 * double((x * 7 + y * 3) % 5) : 0.15 + 0.02 * double((x + 2 * y) % 4);
+        f[size_t((r * C + 0) * n + y * w + x)] = float(std::cos(theta));
+        f[size_t((r * C + 1) * n + y * w + x)] = float(std::sin(theta));
+      }
+  const LabelResult got = runLabels(eng(), f, {R, C, h, w}, t, {P, C});
+  const std::vector<double> logits = logitsRef(toDouble(f), {R, C, h, w}, toDouble(t), P);
+  const std::vector<double> up = upsampledLogits(logits, R, P, h, w);
+  const std::vector<int64_t> official = firstArgmax(up, R, P, 4 * n);
+  expectMapsMatch(got.maps, official, up, R, P, 4 * n, 1e-5, "one-pixel structure, official order");
+  // ... which is not the half-resolution argmax enlarged
+  const std::vector<int64_t> half = firstArgmax(logits, R, P, n);
+  int64_t other = 0;
+  for (int64_t r = 0; r < R; ++r)
+    for (int64_t y = 0; y < 2 * h; ++y)
+      for (int64_t x = 0; x < 2 * w; ++x)
+        other += official[size_t((r * 2 * h + y) * 2 * w + x)] != half[size_t((r * h + y / 2) * w + x / 2)];
+  std::printf("  %lld of %lld pixels differ between the official order and the half map enlarged\n", (long long)other,
+              (long long)(R * 4 * n));
+  EXPECT_GT(other, R * 4 * n / 5);
 }
 
 TEST_F(LabelMapsOpTest, OnePromptAndBadShapes) {
   const Shape fs = {1, 8, 4, 4};
   const LabelResult r = runLabels(eng(), randomUniform(size_t(shapeNumel(fs)), -1, 1, 403), fs,
                                   randomUniform(8, -1, 1, 404), {1, 8});
+  EXPECT_EQ(r.maps.size(), 64u);
   for (int32_t m : r.maps) EXPECT_EQ(m, 0);
   Recorder rec(eng());
-  EXPECT_THROW(labelMaps(rec, eng().tensor(fs), eng().tensor({2, 7}), eng().tensor({1, 4, 4}, DType::I32)), Error);
-  EXPECT_THROW(labelMaps(rec, eng().tensor(fs), eng().tensor({2, 8}), eng().tensor({1, 4, 4})), Error);
+  EXPECT_THROW(labelMaps(rec, eng().tensor(fs), eng().tensor({2, 7}), eng().tensor({1, 8, 8}, DType::I32)), Error);
+  EXPECT_THROW(labelMaps(rec, eng().tensor(fs), eng().tensor({2, 8}), eng().tensor({1, 8, 8})), Error);
+  // the maps are at twice the features' size: a half-resolution map is refused
+  EXPECT_THROW(labelMaps(rec, eng().tensor(fs), eng().tensor({2, 8}), eng().tensor({1, 4, 4}, DType::I32)), Error);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -161,7 +197,7 @@ TEST_F(LabelMapsTest, WritersMatchReferenceRender) {
   const std::string refDir = referenceRenderDir();
   std::ifstream lf(semanticGoldenPath("labels.json"));
   const std::vector<std::string> labels = nlohmann::json::parse(lf).get<std::vector<std::string>>();
-  // The PNGs are at the model's H x W (the configuration's image size), the maps at h x w.
+  // The PNGs and the maps are at the model's H x W (the configuration's image size).
   const nlohmann::json cfg = nlohmann::json::parse(readText(semanticGoldenPath("tiny_semantic.json")));
   const int H = cfg.at("image_height").get<int>(), W = cfg.at("image_width").get<int>();
   int views = 0, h0 = 0, w0 = 0;
@@ -171,14 +207,14 @@ TEST_F(LabelMapsTest, WritersMatchReferenceRender) {
     const RgbImage png = loadImageRGB(stem + ".png");
     const nlohmann::json doc = nlohmann::json::parse(readText(stem + ".json"));
     const int h = doc.at("resolution")[0].get<int>(), w = doc.at("resolution")[1].get<int>();
-    ASSERT_EQ(2 * h, H);
-    ASSERT_EQ(2 * w, W);
+    ASSERT_EQ(h, H);
+    ASSERT_EQ(w, W);
     ASSERT_EQ(png.height, H + 14 * int(labels.size()) + 4);
-    // The reference's map, read back from its PNG (every input pixel covers 2 x 2 outputs).
+    // The reference's map, read back from its PNG (a pixel a label).
     std::vector<int32_t> map(size_t(h * w), -1);
     for (int y = 0; y < h; ++y)
       for (int x = 0; x < w; ++x) {
-        const uint8_t* px = &png.pixels[(size_t(2 * y) * png.width + size_t(2 * x)) * 3];
+        const uint8_t* px = &png.pixels[(size_t(y) * png.width + size_t(x)) * 3];
         for (size_t k = 0; k < labels.size(); ++k) {
           const auto c = paletteColour(int64_t(k));
           if (px[0] == c[0] && px[1] == c[1] && px[2] == c[2]) map[size_t(y * w + x)] = int32_t(k);

@@ -146,7 +146,7 @@ double meanColourPsnr(const fs::path& scenes) {
 // `spar eval --views 3` of the shipped model on the three shipped scenes when it was shipped
 // (lavapipe, fp32); the engine is deterministic, so only a real change moves these.
 constexpr double kMeasuredPsnr = 18.14, kMeasuredSsim = 0.5239, kMeasuredMaskMiou = 0.6019,
-                 kMeasuredRecall = 0.2811, kMeasuredSemAccuracy = 0.7344;
+                 kMeasuredRecall = 0.2811, kMeasuredSemAccuracy = 0.7281;  // at full resolution (issue 38)
 // How far the model must beat the mean-colour rendering (dB).
 constexpr double kPsnrOverBaseline = 1.0;
 

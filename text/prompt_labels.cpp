@@ -48,7 +48,7 @@ PromptEmbeddings encodePrompts(Engine& engine, const PackedModel& model, const S
 LabelMapsOut computeLabelMaps(Engine& engine, const Tensor& features, const PromptEmbeddings& prompts,
                               std::vector<float>* scores) {
   const int64_t views = features.dim(0), h = features.dim(2), w = features.dim(3);
-  const Tensor maps = engine.tensor({views, h, w}, DType::I32);
+  const Tensor maps = engine.tensor({views, 2 * h, 2 * w}, DType::I32);
   const Tensor logits = scores ? engine.tensor({views, prompts.prompts, h, w}) : Tensor();
   Recorder rec(engine, true);
   labelMaps(rec, features, prompts.text, maps, logits);
@@ -62,7 +62,7 @@ LabelMapsOut computeLabelMaps(Engine& engine, const Tensor& features, const Prom
   }
   std::vector<int32_t> all(size_t(maps.numel()));
   engine.read(maps, all.data(), all.size() * sizeof(int32_t));
-  const size_t per = size_t(h) * size_t(w);
+  const size_t per = size_t(2 * h) * size_t(2 * w);
   for (int64_t j = 0; j < views; ++j) out.maps.emplace_back(all.begin() + j * per, all.begin() + (j + 1) * per);
   return out;
 }

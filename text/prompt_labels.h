@@ -34,8 +34,10 @@ struct PromptEmbeddings {
 PromptEmbeddings encodePrompts(Engine& engine, const PackedModel& model, const SparConfig& config, DType weightType,
                                const std::vector<int32_t>& ids, int64_t prompts);
 
-// Label maps (argmax over the prompts, first maximum) of features [R, C, h, w]: one [h * w]
-// map per view; with scores also the per-label score maps [R, P, h, w] appended to *scores.
+// Label maps of features [R, C, h, w] at the image's size (model/label_maps.h: the scores x2
+// bilinear, then the argmax over the prompts, first maximum): one [2h * 2w] map per view; with
+// scores also the per-label score maps [R, P, h, w] (the official logits, before the
+// upsampling) appended to *scores.
 struct LabelMapsOut {
   std::vector<std::vector<int32_t>> maps;
   double gpuMs = 0, buildMs = 0;

@@ -121,18 +121,9 @@ def mask_scores(counts: np.ndarray) -> Dict[str, Optional[float]]:
 
 # ============================================================================ semantics
 def semantic_targets(classes: np.ndarray, static: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    """(evaluated [H/2, W/2] bool, ground truth class [H/2, W/2]) of one full-resolution view:
-    a half-resolution pixel counts iff its 2x2 block is all static and of one class."""
-    classes = np.asarray(classes)
-    static = np.asarray(static, bool)
-    h, w = classes.shape
-    c = classes[:h // 2 * 2, :w // 2 * 2].astype(np.int64)
-    s = static[:h // 2 * 2, :w // 2 * 2]
-    blk = c.reshape(h // 2, 2, w // 2, 2).transpose(0, 2, 1, 3).reshape(h // 2, w // 2, 4)
-    sblk = s.reshape(h // 2, 2, w // 2, 2).transpose(0, 2, 1, 3).reshape(h // 2, w // 2, 4)
-    same = np.all(blk == blk[..., :1], axis=-1)
-    evaluated = same & np.all(sblk, axis=-1)
-    return evaluated, blk[..., 0]
+    """(evaluated [H, W] bool, ground truth class [H, W]) of one view, at its full size (the
+    label maps are made there, in the official order): every static pixel counts."""
+    return np.asarray(static, bool), np.asarray(classes).astype(np.int64)
 
 
 def confusion(pred: np.ndarray, gt: np.ndarray, evaluated: np.ndarray, n_classes: int

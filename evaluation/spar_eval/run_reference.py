@@ -129,14 +129,14 @@ def load_model(opts: Options) -> LoadedModel:
 class Prediction:
     rgb: np.ndarray                    # float64 [T, H, W, 3], the model's output in [0, 1]
     dynamic: Optional[np.ndarray]      # bool [F, H, W] (P > 0.5) or None (assume-static)
-    labels: Optional[np.ndarray]       # int64 [T, H/2, W/2] or None (no semantics)
+    labels: Optional[np.ndarray]       # int64 [T, H, W] or None (no semantics)
     seconds: float                     # forward + label maps
 
 
 def predict(lm: LoadedModel, scene: Scene, inputs: List[int], targets: List[int], mode: str
             ) -> Prediction:
     import torch
-    from spar_reference.clip_text import label_logits
+    from spar_reference.clip_text import full_resolution_labels, label_logits
     h, w = scene.size
     # the model's device (spar-train evaluates a model in training on its GPU); the text
     # encoder stays on the CPU, results come back to it
@@ -155,7 +155,7 @@ def predict(lm: LoadedModel, scene: Scene, inputs: List[int], targets: List[int]
         labels = None
         if lm.semantic:
             txt = lm.text_embeddings(scene.class_names).to(dev)
-            labels = label_logits(out["semantic_features"][0], txt).argmax(dim=1).cpu()
+            labels = full_resolution_labels(label_logits(out["semantic_features"][0], txt)).cpu()
     seconds = time.perf_counter() - t0
     rgb = out["rgb"][0].permute(0, 2, 3, 1).double().cpu().numpy()
     dynamic = None

@@ -127,24 +127,23 @@ def test_mask_counts_and_scores():
 
 
 # ============================================================================ semantics
-def test_semantic_block_rule():
-    classes = np.array([[0, 0, 1, 2, 3, 3],
-                        [0, 0, 1, 1, 3, 3],
-                        [2, 2, 4, 4, 1, 1],
-                        [2, 2, 4, 4, 1, 1]])
+def test_semantic_pixels_are_the_static_ones():
+    """PROTOCOL.md, Semantics: the label maps are at the image's size; every static pixel counts."""
+    classes = np.array([[0, 0, 1, 2],
+                        [2, 2, 4, 1]])
     static = np.ones_like(classes, bool)
-    static[3, 3] = False                     # block (1, 1) has a dynamic pixel
+    static[1, 1] = False                     # a dynamic pixel: not evaluated
     ev, gt = metrics.semantic_targets(classes, static)
-    assert ev.tolist() == [[True, False, True], [True, False, True]]   # (0,1) mixed classes
-    assert gt[ev].tolist() == [0, 3, 2, 1]
-    pred = np.array([[0, 9, 3], [1, 9, 1]])  # 9 at excluded pixels: never looked at
-    conf = metrics.confusion(np.where(ev, pred, 0), gt, ev, 5)
-    assert conf.sum() == 4 and np.trace(conf) == 3
+    assert ev.tolist() == [[True, True, True, True], [True, False, True, True]]
+    assert gt.tolist() == classes.tolist()
+    pred = np.array([[0, 1, 1, 2], [2, 9, 1, 1]])  # 9 at the excluded pixel: never looked at
+    conf = metrics.confusion(pred, gt, ev, 5)
+    assert conf.sum() == 7 and np.trace(conf) == 5
     s = metrics.semantic_scores(conf)
-    assert s["sem_accuracy"] == pytest.approx(3 / 4)
-    # classes with ground truth: 0, 1, 2, 3. IoU: 0 -> 1/1, 1 -> 1/(1+1) (the 2 predicted as 1
-    # is a FP of 1), 2 -> 0/1, 3 -> 1/1; class 4 has no evaluated ground truth: left out
-    assert s["sem_miou"] == pytest.approx((1 + 0.5 + 0 + 1) / 4)
+    assert s["sem_accuracy"] == pytest.approx(5 / 7)
+    # classes with ground truth: 0, 1, 2, 4. IoU: 0 -> 1/2 (a 0 predicted 1), 1 -> 2/4 (TP 2, FP
+    # from 0 and from 4), 2 -> 2/2, 4 -> 0/1; class 3 has no ground truth: left out
+    assert s["sem_miou"] == pytest.approx((0.5 + 0.5 + 1 + 0) / 4)
     assert metrics.semantic_scores(np.zeros((3, 3), np.int64))["sem_miou"] is None
 
 
@@ -170,7 +169,7 @@ def test_accumulator_skips_views():
     scene = Scene("s", rgb, np.zeros((f, h, w), np.int64), dyn, ["wall", "floor"])
     targets = [1, 2]
     out = np.full((2, h, w, 3), 110 / 255.0)
-    pred = Prediction(out, np.zeros((f, h, w), bool), np.zeros((2, h // 2, w // 2), np.int64), 0.1)
+    pred = Prediction(out, np.zeros((f, h, w), bool), np.zeros((2, h, w), np.int64), 0.1)
     acc = Accumulator(2)
     acc.add(scene, [0], targets, pred)
     r = acc.result(1.0)

@@ -47,7 +47,8 @@ class SPAR_API Session {
   std::vector<float> features();
   // Open-vocabulary label maps of the last render call: per rendered view, the index of the
   // prompt whose CLIP text embedding best matches each pixel's semantic feature (first maximum),
-  // [H/2 * W/2] row-major. Needs a request with semanticFeatures and a model that carries CLIP's
+  // [H * W] row-major at the image's size, in the official order: the half-resolution scores
+  // enlarged x2 (bilinear, align_corners) before the argmax. Needs a request with semanticFeatures and a model that carries CLIP's
   // tokenizer (spar-convert --bpe); the prompts' embeddings are kept for the next call with the
   // same prompts. Prompts longer than CLIP's 77 tokens are cut there, each with a line in
   // *warnings when given. Throws spar::Error (one line).

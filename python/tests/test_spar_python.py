@@ -62,7 +62,7 @@ def test_same_bytes_and_labels_as_spar_render(ctx, shipped, tmp_path):
         assert (tmp_path / "view.png").read_bytes() == (out / "view_00.png").read_bytes()
         # the label maps: the shares the CLI reports, to its rounding
         maps = s.label_maps(LABELS)
-        assert maps.shape == (1, h // 2, w // 2) and maps.dtype == np.int32
+        assert maps.shape == (1, h, w) and maps.dtype == np.int32
         shares = np.bincount(maps.ravel(), minlength=len(LABELS)) / maps.size
         cli = {l["label"]: l["share"] for l in json.load(open(out / "labels_00.json"))["labels"]}
         for i, label in enumerate(LABELS):

@@ -527,7 +527,7 @@ class Run:
     def compute_labels(self) -> None:
         import torch
         from .bpe import tokenize
-        from .clip_text import label_logits
+        from .clip_text import full_resolution_labels, label_logits
         with self.timer("text_encoder"):
             try:
                 ids = tokenize(self.labels, self.bpe, self.text_encoder.context_length)
@@ -538,7 +538,7 @@ class Run:
         with self.timer("labels"):
             feat = self.out["semantic_features"][0]               # [R, C, H/2, W/2]
             logits = label_logits(feat, txt)                      # [R, P, H/2, W/2]
-            maps = logits.argmax(dim=1)
+            maps = full_resolution_labels(logits)                 # [R, H, W], the official order
         self.text_ids, self.text_emb, self.label_logits, self.label_maps = ids, txt, logits, maps
 
     # ---------------------------------------------------------------- outputs

@@ -140,3 +140,13 @@ def label_logits(image_features: torch.Tensor, text_embeddings: torch.Tensor,
     img = image_features / image_features.norm(dim=1, keepdim=True)
     txt = text_embeddings / text_embeddings.norm(dim=-1, keepdim=True)
     return logit_scale * torch.einsum("bchw,kc->bkhw", img, txt.to(img.dtype))
+
+
+def full_resolution_labels(logits: torch.Tensor) -> torch.Tensor:
+    """The official label map of logits [B, K, H/2, W/2] (SPAR generate_semantic_predictions):
+    LSeg's ``scratch.output_conv`` (an Interpolate of x2, bilinear, align_corners=True) on the
+    logits, then the argmax over the prompts at H x W -> [B, H, W] (the first maximum). Not the
+    half-resolution argmax enlarged: that differs wherever the labels change within two pixels."""
+    import torch.nn.functional as F
+    up = F.interpolate(logits, scale_factor=2, mode="bilinear", align_corners=True)
+    return up.argmax(dim=1)

@@ -75,7 +75,7 @@ STAGES: Dict[str, Tuple[str, str]] = {
     "text_tokens": ("text_encoder", "CLIP BPE token ids of the prompts [P,77]"),
     "text_embeddings": ("text_encoder", "CLIP text embeddings of the prompts (not normalized) [P,C]"),
     "label_logits": ("labels", "scale * <normalized features, normalized text> [R,P,H/2,W/2]"),
-    "label_maps": ("labels", "argmax over the prompts [R,H/2,W/2]"),
+    "label_maps": ("labels", "argmax over the prompts of the logits x2 bilinear (align_corners) [R,H,W]"),
 }
 
 SUB_DESCRIPTIONS = {

@@ -20,7 +20,8 @@ from spar_reference.backbones import backbone_config, backbone_configs, resolve_
 from spar_reference.dino_v3 import DinoV3, DinoV3Backbone  # noqa: E402
 from spar_reference.lseg import (LSegEncoder, add_net_prefix, split_lseg_state_dict,  # noqa: E402
                                  strip_net_prefix)
-from spar_reference.clip_text import CLIPTextEncoder, LSEG_LOGIT_SCALE, label_logits  # noqa: E402
+from spar_reference.clip_text import (CLIPTextEncoder, LSEG_LOGIT_SCALE, full_resolution_labels,  # noqa: E402
+                                      label_logits)
 from spar_reference import bpe  # noqa: E402
 
 torch.set_num_threads(1)
@@ -409,6 +410,28 @@ def test_label_logits():
     ref = (F.normalize(f.permute(0, 2, 3, 1), dim=-1) @ F.normalize(t, dim=-1).T).permute(0, 3, 1, 2)
     assert torch.allclose(out, LSEG_LOGIT_SCALE * ref, atol=1e-12)
     assert abs(LSEG_LOGIT_SCALE - 14.2857) < 1e-4
+
+
+def test_full_resolution_labels_are_the_official_order():
+    """LSeg's output_conv then the argmax: logits [B, K, h, w] x2 bilinear with align_corners
+    (src = dst (h - 1) / (2h - 1)) -> argmax at [B, 2h, 2w]; not the half-resolution argmax
+    enlarged."""
+    g = torch.Generator().manual_seed(3)
+    logits = torch.randn(2, 3, 4, 5, generator=g, dtype=torch.float64)
+    maps = full_resolution_labels(logits)
+    assert maps.shape == (2, 8, 10)
+    up = torch.empty(2, 3, 8, 10, dtype=torch.float64)
+    for y in range(8):
+        sy = y * 3 / 7
+        y0 = int(math.floor(sy)); y1 = min(y0 + 1, 3); ly = sy - y0
+        for x in range(10):
+            sx = x * 4 / 9
+            x0 = int(math.floor(sx)); x1 = min(x0 + 1, 4); lx = sx - x0
+            up[:, :, y, x] = ((1 - ly) * ((1 - lx) * logits[:, :, y0, x0] + lx * logits[:, :, y0, x1])
+                              + ly * ((1 - lx) * logits[:, :, y1, x0] + lx * logits[:, :, y1, x1]))
+    assert torch.equal(maps, up.argmax(dim=1))
+    half = logits.argmax(dim=1).repeat_interleave(2, dim=1).repeat_interleave(2, dim=2)
+    assert (maps != half).any()
 
 
 def test_dino_resizes_to_patch_multiple():

@@ -280,7 +280,7 @@ def test_render_labels_and_features(work, tmp_path):
         assert list(doc["legend"]) == prompts
         assert [e["label"] for e in doc["labels"]] == prompts
         assert sum(e["share"] for e in doc["labels"]) == pytest.approx(1.0, abs=1e-12)
-        assert sum(e["pixels"] for e in doc["labels"]) == (H // 2) * (W // 2)
+        assert sum(e["pixels"] for e in doc["labels"]) == H * W  # the map is at the image size
         feat = np.load(out / f"features_{j:02d}.npy")
         assert feat.dtype == np.float32 and feat.shape == (CFG.semantic_dim, H // 2, W // 2)
     assert "labels_02.json" not in names
@@ -320,7 +320,11 @@ def test_goldens_manifest(work, tmp_path):
     shapes = {e["name"]: e["shape"] for e in files}
     assert shapes["images"] == [5, 3, H, W]
     assert shapes["rgb"] == [1, 2, 3, H, W]
-    assert shapes["label_maps"] == [2, H // 2, W // 2]
+    # the label maps at the image's size, in the official order (logits x2, then the argmax)
+    assert shapes["label_maps"] == [2, H, W] and shapes["label_logits"][2:] == [H // 2, W // 2]
+    from spar_reference.clip_text import full_resolution_labels
+    logits = torch.from_numpy(np.load(out / "label_logits.npy")).double()
+    assert np.array_equal(np.load(out / "label_maps.npy"), full_resolution_labels(logits).numpy())
     assert shapes["cv_drp_input.prob"] == [1, 3, 1, H, W]
     # the prepared images are the preparation rule applied to the files
     imgs = np.load(out / "images.npy")

@@ -134,24 +134,19 @@ SemanticConfusion::SemanticConfusion(int classes)
 
 void SemanticConfusion::add(const int32_t* labels, const int32_t* classes, const uint8_t* dynamic, int height,
                             int width) {
-  const int h = height / 2, w = width / 2;
-  for (int y = 0; y < h; ++y)
-    for (int x = 0; x < w; ++x) {
-      const size_t p00 = size_t(2 * y) * width + 2 * x, p10 = p00 + width;
-      const size_t block[4] = {p00, p00 + 1, p10, p10 + 1};
-      const int32_t c = classes[p00];
-      bool use = true;
-      for (size_t p : block) use = use && !dynamic[p] && classes[p] == c;
-      if (!use) continue;
-      if (c < 0 || c >= classes_)
-        throw Error("class id " + std::to_string(c) + " is outside the " + std::to_string(classes_) + " classes");
-      const int32_t pred = labels[size_t(y) * w + x];
-      ++evaluated_;
-      if (pred == c) ++correct_;
-      // A predicted id outside the classes has no column: it is a miss (FN of c) only.
-      if (pred >= 0 && pred < classes_) ++matrix_[size_t(c) * classes_ + pred];
-      else ++unknown_[size_t(c)];
-    }
+  const size_t pixels = size_t(height) * size_t(width);
+  for (size_t p = 0; p < pixels; ++p) {
+    if (dynamic[p]) continue;
+    const int32_t c = classes[p];
+    if (c < 0 || c >= classes_)
+      throw Error("class id " + std::to_string(c) + " is outside the " + std::to_string(classes_) + " classes");
+    const int32_t pred = labels[p];
+    ++evaluated_;
+    if (pred == c) ++correct_;
+    // A predicted id outside the classes has no column: it is a miss (FN of c) only.
+    if (pred >= 0 && pred < classes_) ++matrix_[size_t(c) * classes_ + pred];
+    else ++unknown_[size_t(c)];
+  }
 }
 
 std::optional<double> SemanticConfusion::accuracy() const { return ratio(correct_, evaluated_); }

@@ -34,13 +34,12 @@ struct MaskCounts {
   std::optional<double> recall() const;   // TP / (TP + FN)
 };
 
-// Semantic confusion matrix over half-resolution label maps. A label pixel (y, x) covers the
-// full-resolution block rows 2y..2y+1, columns 2x..2x+1 and is evaluated iff all four pixels
-// are static and have the same class id c (its ground truth).
+// Semantic confusion matrix over label maps at the image's size (PROTOCOL.md, "Semantics"): a
+// pixel is evaluated iff it is static; its ground truth is its class id.
 class SemanticConfusion {
  public:
   explicit SemanticConfusion(int classes);
-  // labels: [H/2, W/2] predicted ids; classes, dynamic: [H, W]. A ground-truth id outside
+  // labels, classes, dynamic: [H, W] (predicted ids, true ids, 1 = dynamic). A ground-truth id outside
   // [0, classes) throws spar::Error (the scene's class maps and classes.json disagree); a
   // predicted id outside counts as wrong for every class.
   void add(const int32_t* labels, const int32_t* classes, const uint8_t* dynamic, int height, int width);

@@ -99,7 +99,8 @@ RgbImage RenderWriter::frame(const float* p, const std::vector<int32_t>* labelMa
   for (size_t i = 0; i < plane; ++i)
     for (int c = 0; c < 3; ++c) view.pixels[i * 3 + c] = toUint8(p[c * plane + i]);
   if (!labelMap) return view;
-  const RgbImage labels = labelImage(*labelMap, layout_.height / 2, layout_.width / 2, layout_.labels, layout_.height,
+  // label maps are at the image's size (model/label_maps.h)
+  const RgbImage labels = labelImage(*labelMap, layout_.height, layout_.width, layout_.labels, layout_.height,
                                      layout_.width);
   return besideEachOther({&view, &labels});
 }
@@ -130,11 +131,12 @@ void RenderWriter::addViews(const RenderedViews& v) {
     ++files_;
     const std::vector<int32_t>* map = v.labelMaps ? &(*v.labelMaps)[size_t(i)] : nullptr;
     if (map) {
-      writeLabelPng(numbered(dir_, "labels", j), *map, h, w, layout_.labels, H, W);
-      writeLabelJson(numbered(dir_, "labels", j, "json"), labelJson(*map, h, w, layout_.labels, j, kLsegLogitScale));
+      writeLabelPng(numbered(dir_, "labels", j), *map, H, W, layout_.labels, H, W);
+      writeLabelJson(numbered(dir_, "labels", j, "json"), labelJson(*map, H, W, layout_.labels, j, kLsegLogitScale));
       files_ += 2;
     }
     if (v.scores) {
+      // the official logits: at H/2 x W/2, before the x2 upsampling the label maps take
       writeNpy(numbered(dir_, "scores", j, "npy"), {p, h, w}, v.scores->data() + i * p * h * w);
       ++files_;
     }
