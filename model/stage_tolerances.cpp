@@ -21,6 +21,8 @@ double fp32StageNmseBound(const std::string& goldenName) {
       {"lseg_features", 1e-10}, {"semantic_in", 1e-10}, {"semantic_tokens", 1e-10},
       {"dynamic_patch_sem", 1e-10}, {"gated_semantic_tokens", 1e-10}, {"semantic_queries", 1e-10},
       {"semantic_out_tokens", 1e-10}, {"semantic_hidden", 1e-10}, {"semantic_features", 1e-10},
+      // labels: CLIP's text tower, and the scores of the engine's own semantic features
+      {"text_embeddings", 1e-10}, {"label_logits", 1e-10},
       // render
       {"render_c2w", 1e-10}, {"render_fxfycxcy", 1e-10}, {"render_plucker", 1e-10}, {"rgb_queries", 1e-10},
       {"decoder_in", 1e-10}, {"decoder_out", 1e-10}, {"rgb_tokens", 1e-10}, {"rgb", 1e-10},

@@ -17,4 +17,8 @@ double fp32StageNmseBound(const std::string& goldenName);
 // probability is closer than this to the threshold (a near-tie may round either way).
 constexpr double kMaskTieBand = 1e-4;
 
+// Label maps (at full resolution) must be identical, except pixels whose reference's two best
+// labels score closer than this (a near-tie may go either way).
+constexpr double kLabelTieGap = 1e-5;
+
 }  // namespace spar

@@ -39,7 +39,7 @@ assert not bad, f"steps that failed: {bad}"
 assert len(r["tests"]) >= 20 and all(t["failures"] == 0 and t["tests"] > 0 for t in r["tests"]), r["tests"]
 assert any(t["program"] == "test_coopmat" for t in r["tests"]), r["tests"]
 assert any("gemm_coopmat.comp" in line for line in r["kernels"]), r["kernels"]
-assert r["selftest"] == "verdict: PASS (22 of 22 checks passed)", r["selftest"]  # spar selftest in the bundle
+assert r["selftest"] == "verdict: PASS (29 of 29 checks passed)", r["selftest"]  # spar selftest in the bundle
 assert r["model"]["engine_fp32"]["total"]["gpu_ms"] > 0 and r["model"]["engine_fp16"]["total"]["gpu_ms"] > 0
 assert r["model"]["reference"]["modes"]["fp32"]["total_ms"] > 0
 assert any(o["op"] == "gemm_f32" and o["torch_ms"] for o in r["ops"]), r["ops"]

@@ -178,10 +178,10 @@ std::vector<StageTime> runGoldenCase(Engine& engine, const std::string& caseName
     size_t differ = 0, ties = 0;
     for (size_t i = 0; i < got.size() && i < want.size(); ++i) {
       if (double(got[i]) == want[i]) continue;
-      // a near-tie: the reference's scores of the two labels within 1e-5
+      // a near-tie: the reference's scores of the two labels within kLabelTieGap
       const size_t r = i / plane, px = i % plane;
       const double a = scores[(r * p + size_t(got[i])) * plane + px], b = scores[(r * p + size_t(want[i])) * plane + px];
-      if (std::abs(a - b) < 1e-5) ++ties;
+      if (std::abs(a - b) < kLabelTieGap) ++ties;
       else ++differ;
     }
     std::printf("  %-22s pixels differing %zu (+%zu near-ties of %zu)\n", "label_maps", differ, ties, got.size());

@@ -75,6 +75,20 @@ TEST_F(EngineTest, BinaryInPlace) {
   expectClose(eng().download(to), expected, 1e-10, 1e-5, "mul into b");
 }
 
+// b a row in the middle of a table (an embedding's second row): its start, 128 bytes in, is no
+// multiple of a device's 256-byte storage alignment (device_profile.vulkan-1.2-min.test_binary).
+TEST_F(EngineTest, BinaryBroadcastOfARowAtAnyOffset) {
+  const int64_t R = 9, C = 32;
+  auto a = randomUniform(R * C, -4, 4, 86), table = randomUniform(2 * C, -1, 1, 87);
+  const Tensor ta = eng().fromFloats({R, C}, a), tt = eng().fromFloats({2, C}, table);
+  const Tensor row = tt.view(C, {C});
+  Recorder rec(eng());
+  add(rec, ta, row, ta);
+  rec.run();
+  const std::vector<float> second(table.begin() + C, table.end());
+  expectClose(eng().download(ta), binaryRef(BinaryOp::Add, a, second, 1), 1e-10, 1e-6, "add of a row at 128 bytes");
+}
+
 // a split into chunks: b's index continues across chunk boundaries (bPhase).
 TEST_F(EngineTest, BinarySplitIntoChunks) {
   const int64_t N = 3, C = 7, HW = 1000;

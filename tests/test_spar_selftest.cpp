@@ -21,8 +21,10 @@ TEST(spar_selftest, PassesAndPrintsTheDeviceLimitsPlanAndVerdict) {
   ASSERT_EQ(r.code, 0) << r.out << r.err;
   for (const char* part : {"device ", "limits ", "plan\n", "linear 130x768x518", "softmax 33x1001", "conv2d 3x3",
                            "validation layer: on, 0 messages", "linear 67x130x96, fp16 weights",
-                           "model img_tokens 1x5x16x64", "model cv_drp_input.binary", " pixels differ (",
-                           "model rgb 1x2x3x64x64", "verdict: PASS (22 of 22 checks passed)"})
+                           "model img_tokens 1x5x16x32", "model cv_drp_input.binary", " pixels differ (",
+                           "model rgb 1x2x3x64x64", "model lseg_features 1x3x16x32x32", "model text_embeddings 4x16",
+                           "model label_logits 2x4x32x32", "model label_maps 2x64x64",
+                           "verdict: PASS (29 of 29 checks passed)"})
     EXPECT_NE(r.out.find(part), std::string::npos) << part << "\n" << r.out;
 }
 
@@ -46,15 +48,19 @@ TEST(spar_selftest, JsonUnderARaspberryPiProfile) {
     EXPECT_GT(c.at("ms").get<double>(), 0.0) << c.dump();
   }
   EXPECT_FALSE(doc.at("plan").empty());
-  // The self-test model: every stage it ships a reference of, each passed; the masks mixed.
+  // The self-test model: every stage it ships a reference of, each passed (the semantic ones
+  // and the labels among them); the masks mixed.
   const auto& model = doc.at("model").at("checks");
-  ASSERT_EQ(model.size(), 14u) << doc.at("model").dump();
+  ASSERT_EQ(model.size(), 21u) << doc.at("model").dump();
   for (const auto& c : model) {
     EXPECT_TRUE(c.at("passed").get<bool>()) << c.dump();
     EXPECT_GT(c.at("ms").get<double>(), 0.0) << c.dump();
-    if (c.at("name").get<std::string>().find(".binary") != std::string::npos) {
+    const std::string name = c.at("name").get<std::string>();
+    if (name.find(".binary") != std::string::npos) {
       EXPECT_EQ(c.at("detail").get<std::string>().rfind("0 of ", 0), 0u) << c.dump();
       EXPECT_EQ(c.at("detail").get<std::string>().find(" 0 dynamic"), std::string::npos) << c.dump();
+    } else if (name.find("label_maps") != std::string::npos) {
+      EXPECT_EQ(c.at("detail").get<std::string>().rfind("0 of 8192 pixels differ", 0), 0u) << c.dump();
     } else {
       EXPECT_LE(c.at("nmse").get<double>(), c.at("max_nmse").get<double>()) << c.dump();
     }
@@ -66,7 +72,7 @@ TEST(spar_selftest, AFailingOpFailsTheVerdict) {
   const CommandResult r = runValidated({SPAR_CLI, "selftest"}, scratch(), "SPAR_FAULT_ALLOCATION=1");
   EXPECT_EQ(r.code, 1) << r.out << r.err;
   EXPECT_NE(r.out.find("FAIL  linear 77x150x72"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("verdict: FAIL (21 of 22 checks passed)"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("verdict: FAIL (28 of 29 checks passed)"), std::string::npos) << r.out;
 }
 
 // A stage whose output is 1% off its reference fails that stage alone (here rgb, as a driver
@@ -85,7 +91,7 @@ TEST(spar_selftest, AStageOffItsReferenceOrAMissingModelFailsTheVerdict) {
   EXPECT_EQ(r.code, 1) << r.out << r.err;
   EXPECT_NE(r.out.find("FAIL  model rgb 1x2x3x64x64"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("pass  model decoder_out"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("verdict: FAIL (21 of 22 checks passed)"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("verdict: FAIL (28 of 29 checks passed)"), std::string::npos) << r.out;
 
   r = runValidated({SPAR_CLI, "selftest", "--model-dir", (scratch() / "nowhere").string()}, scratch());
   EXPECT_EQ(r.code, 1) << r.out << r.err;

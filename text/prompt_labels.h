@@ -1,17 +1,13 @@
-// Open-vocabulary labels from text prompts: the prompts through CLIP's text encoder on the
-// device once, then label maps from any number of rendered views' semantic features
-// (model/clip_text.*, model/label_maps.*; here beside the tokenizer they start from). Used by spar::Session::labelMaps (the public API),
-// `spar render --labels` and `spar eval`.
+// Open-vocabulary labels from text prompts: the prompts tokenized (CLIP's BPE tokenizer packed in
+// the model), then through CLIP's text encoder and into label maps on the device
+// (model/prompt_label_maps.h, included here for the callers that do both).
 #pragma once
 #include <cstdint>
-#include <memory>
 #include <string>
 #include <vector>
 
-#include "engine/engine.h"
 #include "model/packed_model.h"
-#include "model/spar_config.h"
-#include "model/weight_set.h"
+#include "model/prompt_label_maps.h"
 
 namespace spar {
 
@@ -22,27 +18,5 @@ struct TokenizedPrompts {
   std::vector<std::string> warnings;
 };
 TokenizedPrompts tokenizePrompts(const PackedModel& model, const std::vector<std::string>& prompts);
-
-// The prompts' text embeddings [P, E] on the device. The text encoder's weights live in their
-// own WeightSet, loaded only when labels are asked for.
-struct PromptEmbeddings {
-  std::unique_ptr<WeightSet> weights;
-  Tensor text;
-  int64_t prompts = 0;
-  double gpuMs = 0, wallMs = 0, buildMs = 0;
-};
-PromptEmbeddings encodePrompts(Engine& engine, const PackedModel& model, const SparConfig& config, DType weightType,
-                               const std::vector<int32_t>& ids, int64_t prompts);
-
-// Label maps of features [R, C, h, w] at the image's size (model/label_maps.h: the scores x2
-// bilinear, then the argmax over the prompts, first maximum): one [2h * 2w] map per view; with
-// scores also the per-label score maps [R, P, h, w] (the official logits, before the
-// upsampling) appended to *scores.
-struct LabelMapsOut {
-  std::vector<std::vector<int32_t>> maps;
-  double gpuMs = 0, buildMs = 0;
-};
-LabelMapsOut computeLabelMaps(Engine& engine, const Tensor& features, const PromptEmbeddings& prompts,
-                              std::vector<float>* scores = nullptr);
 
 }  // namespace spar

@@ -1,6 +1,7 @@
 // Elementwise add / multiply dispatch; the kernel is shaders/binary.comp.
 #include "engine/ops/binary.h"
 
+#include "engine/ops/binding_range.h"
 #include "engine/ops/dispatch_helpers.h"
 
 namespace spar {
@@ -65,7 +66,9 @@ void binaryOp(Recorder& rec, BinaryOp op, const Tensor& a0, const Tensor& b0, co
                                                 : std::vector<Bind>{Bind::Read, Bind::Read, Bind::Write},
                                         sizeof(BinaryPush),
                                         {ops::elementLocalX(engine.caps()), 1, 1, bMode}});
-  const Tensor a1 = a.reshape({n}), o1 = out.reshape({n}), b1 = b.reshape({bSize});
+  // b is bound whole: a view into the middle of a tensor (one row of an embedding table) may
+  // start where a device with 256-byte alignment cannot bind; then a copy of it that can.
+  const Tensor a1 = a.reshape({n}), o1 = out.reshape({n}), b1 = ops::alignedInput(rec, b, false).reshape({bSize});
   for (auto [i0, count] : ops::rowChunks(engine, n, {4}, name, 4)) {
     const Tensor ac = a1.view(i0, {count}), oc = o1.view(i0, {count});
     const BinaryPush push{uint32_t(count), uint32_t(bInner), uint32_t(bSize), uint32_t(uint64_t(i0) % period)};

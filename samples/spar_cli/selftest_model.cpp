@@ -3,6 +3,7 @@
 
 #include <unistd.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -14,6 +15,7 @@
 #include "engine/error.h"
 #include "formats/npy.h"
 #include "model/packed_model.h"
+#include "model/prompt_label_maps.h"
 #include "model/spar_pipeline.h"
 #include "model/stage_tolerances.h"
 
@@ -32,6 +34,9 @@ const std::map<std::string, std::string>& stageOf() {
       {"cv_drp_input.prob", "cv_drp"}, {"cv_drp_input.binary", "cv_drp"}, {"cv_drp_target.prob", "cv_drp"},
       {"cv_drp_target.binary", "cv_drp"}, {"gated_tokens", "gating"},   {"scene_tokens", "scene_encoder"},
       {"decoder_out", "renderer"},     {"rgb", "renderer"},
+      {"lseg_features", "lseg"},       {"semantic_tokens", "semantic_tokens"},
+      {"semantic_out_tokens", "renderer"}, {"semantic_features", "renderer"},
+      {"text_embeddings", "text_encoder"}, {"label_logits", "labels"}, {"label_maps", "labels"},
   };
   return table;
 }
@@ -62,6 +67,21 @@ void compareMask(SelftestCheck& c, const std::vector<float>& prob, const std::ve
   c.nmse = double(differ);  // the count of differing pixels, required 0
   c.detail = std::to_string(differ) + " of " + std::to_string(wantMask.size()) + " pixels differ (" +
              std::to_string(ties) + " near-ties; " + std::to_string(dynamic) + " dynamic)";
+}
+
+// Label maps: the engine's against the reference's, identical but where the reference's two best
+// labels nearly tie (reference/label_maps.gap.npy: the top-two gap of its full-resolution scores).
+void compareLabelMaps(SelftestCheck& c, const std::vector<int32_t>& got, const std::vector<double>& want,
+                      const std::vector<double>& gap) {
+  size_t differ = 0, ties = 0;
+  for (size_t i = 0; i < want.size(); ++i) {
+    if (double(got[i]) == want[i]) continue;
+    if (gap[i] < kLabelTieGap) ++ties;
+    else ++differ;
+  }
+  c.nmse = double(differ);  // the count of differing pixels, required 0
+  c.detail = std::to_string(differ) + " of " + std::to_string(want.size()) + " pixels differ (" +
+             std::to_string(ties) + " near-ties)";
 }
 
 nlohmann::json readManifest(const fs::path& dir) {
@@ -119,11 +139,31 @@ std::vector<SelftestCheck> runSelftestModel(Engine& engine, const std::string& d
     request.plan.inputs = manifest.at("inputs").get<std::vector<int64_t>>();
     request.plan.targets = manifest.at("targets").get<std::vector<int64_t>>();
     for (const std::string& s : stages) request.targetMotion |= s.rfind("cv_drp_target.", 0) == 0;
+    const std::vector<std::string> prompts = manifest.value("prompts", std::vector<std::string>{});
+    request.semanticFeatures = config.semanticDecoding() && !prompts.empty();
     pipe.encode(request);
     pipe.renderTargets();
 
     std::map<std::string, double> stageMs;
     for (const StageTime& t : pipe.stageTimes()) stageMs[t.name] += t.wallMs;
+    // The label stages: the reference's token ids (the tokenizer has tests of its own) through
+    // CLIP's text tower, then the label maps of the rendered semantic features.
+    std::map<std::string, std::vector<float>> labelOutputs;
+    std::vector<int32_t> maps;
+    if (request.semanticFeatures) {
+      const NpyArray tokens = readNpy((dir / "reference" / "text_tokens.npy").string());
+      std::vector<int32_t> ids;
+      for (double v : tokens.toDoubles()) ids.push_back(int32_t(v));
+      const PromptEmbeddings text = encodePrompts(engine, model, config, DType::F32, ids, int64_t(prompts.size()));
+      stageMs["text_encoder"] = text.wallMs;
+      labelOutputs["text_embeddings"] = engine.download(text.text);
+      const auto t = std::chrono::steady_clock::now();
+      std::vector<float> scores;
+      LabelMapsOut out = computeLabelMaps(engine, pipe.renderedFeatures(), text, &scores);
+      stageMs["labels"] = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
+      labelOutputs["label_logits"] = std::move(scores);
+      for (const auto& m : out.maps) maps.insert(maps.end(), m.begin(), m.end());
+    }
     for (const std::string& name : stages) {
       const auto stage = stageOf().find(name);
       SelftestCheck c{"model " + name, stage == stageOf().end() ? "-" : stage->second};
@@ -132,7 +172,14 @@ std::vector<SelftestCheck> runSelftestModel(Engine& engine, const std::string& d
         const NpyArray want = readNpy((dir / "reference" / (name + ".npy")).string());
         c.name += " " + shapeText(want.shape);
         if (stage != stageOf().end()) c.ms = stageMs[stage->second];
-        if (endsWith(name, ".binary")) {
+        if (name == "label_maps") {
+          const std::vector<double> gap = readNpy((dir / "reference" / "label_maps.gap.npy").string()).toDoubles();
+          if (maps.size() != size_t(want.numel()) || gap.size() != maps.size())
+            throw Error(name + ": " + std::to_string(maps.size()) + " pixels, the reference has " +
+                        std::to_string(want.numel()));
+          c.maxNmse = 0;
+          compareLabelMaps(c, maps, want.toDoubles(), gap);
+        } else if (endsWith(name, ".binary")) {
           const std::string prob = name.substr(0, name.size() - 7) + ".prob";
           const std::vector<float> got = engine.download(pipe.intermediate(prob));
           const std::vector<double> wantProb = readNpy((dir / "reference" / (prob + ".npy")).string()).toDoubles();
@@ -142,7 +189,8 @@ std::vector<SelftestCheck> runSelftestModel(Engine& engine, const std::string& d
           c.maxNmse = 0;
           compareMask(c, got, wantProb, want.toDoubles(), config.maskThreshold);
         } else {
-          const std::vector<float> got = engine.download(pipe.intermediate(name));
+          const auto label = labelOutputs.find(name);
+          const std::vector<float> got = label != labelOutputs.end() ? label->second : engine.download(pipe.intermediate(name));
           if (got.size() != size_t(want.numel()))
             throw Error(name + ": " + std::to_string(got.size()) + " values, the reference has " +
                         std::to_string(want.numel()));

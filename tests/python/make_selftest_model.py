@@ -2,20 +2,23 @@
 """Makes the self-test model of `spar selftest` (samples/data/selftest).
 
 Makes the self-test model that `spar selftest` runs stage by stage (samples/data/selftest/,
-installed as share/spar/selftest/): the tiny photometric SPAR (every stage of the full model:
-view tokens, pose estimator and heads, Plücker rays, DINOv3, CV-DRP, gating, scene encoder,
-renderer) at 64x64 pixels, perturbed so every bias and statistic matters, with every weight
-rounded to a value fp16 holds exactly. Packed with --fp16 (2.6 MB instead of 5.2), the file then
+installed as share/spar/selftest/): a tiny SPAR with every stage of the full model (view
+tokens, pose estimator and heads, Plücker rays, DINOv3, CV-DRP, gating, LSeg, semantic tokens,
+scene encoder, renderer with its semantic head, CLIP's text tower with the full vocabulary at
+width 16, label maps) at 64x64 pixels and D 32, perturbed so every bias and statistic matters,
+with every weight rounded to a value fp16 holds exactly. Packed with --fp16 (2.6 MB instead of 5.2), the file then
 holds the very model the float64 reference ran: a device with fp16 storage reads the weights as
 fp16, one without widens them to fp32, and both are compared with the same float64 outputs.
 
     /usr/bin/python3 tests/python/make_selftest_model.py [OUT_DIR]     (default samples/data/selftest)
 
 writes OUT_DIR/
-    model.spar        the packed model
+    model.spar        the packed model (with CLIP's merges table, as any semantic pack)
     images.npy        the five prepared input frames [5, 3, 64, 64] (float32: what the engine reads)
-    reference/*.npy   the PyTorch reference's float64 output of the stages `spar selftest` checks
-    manifest.json     inputs, targets, the stages in pipeline order, and how this was made
+    reference/*.npy   the PyTorch reference's float64 output of the stages `spar selftest` checks,
+                      the prompts' token ids (text_tokens: the tokenizer has tests of its own) and
+                      label_maps.gap (each full-resolution pixel's top-two score gap: near-ties)
+    manifest.json     inputs, targets, prompts, the stages in pipeline order, how this was made
 Deterministic: the same torch makes the same files (tests/CMakeLists.txt: selftest_model_remade),
 on any x86-64 machine with AVX2: OpenBLAS rounds float64 products differently with the kernels
 it picks for each CPU family and cache size, so this program fixes them (Haswell's, a 512 KB L2)
@@ -36,15 +39,32 @@ ROOT = os.path.dirname(os.path.dirname(HERE))
 # The repository's Python roots this program imports from, found from here (nothing installed).
 sys.path[:0] = [os.path.join(ROOT, d) for d in ("reference", "converter")]
 
+from spar_convert.convert import BN_EPS  # noqa: E402
 from spar_convert.model_config import tiny  # noqa: E402
 
 SIZE = 64
 INPUTS, TARGETS = [0, 2, 4], [1, 3]
+PROMPTS = ["wall", "floor", "sofa", "person"]
 # The stages checked, in pipeline order (goldens.py names; what SparPipeline keeps under the
-# same names). Enough to place a failure in one stage without shipping every intermediate.
+# same names; the last three are the label stages'). Enough to place a failure in one stage
+# without shipping every intermediate.
 STAGES = ["img_tokens", "cam_tokens", "c2w", "fxfycxcy", "ray_tokens", "dino",
           "cv_drp_input.prob", "cv_drp_input.binary", "cv_drp_target.prob", "cv_drp_target.binary",
-          "gated_tokens", "scene_tokens", "decoder_out", "rgb"]
+          "gated_tokens", "lseg_features", "semantic_tokens", "scene_tokens", "decoder_out", "rgb",
+          "semantic_out_tokens", "semantic_features", "text_embeddings", "label_logits", "label_maps"]
+
+
+def selftest_config():
+    """tiny() made smaller where its size is only bytes: D 32 (DINOv3's too), CLIP's text tower at width 16
+    (the full 49408-token vocabulary), semantic features of 16 channels from a hidden layer of 4."""
+    cfg = tiny()
+    cfg.image_height = cfg.image_width = SIZE
+    cfg.d, cfg.d_head = 32, 16
+    cfg.semantic_dim, cfg.semantic_hidden = 16, 4
+    cfg.clip = dict(cfg.clip, width=16, heads=2, embed_dim=16)
+    cfg.lseg = dict(cfg.lseg, feature_dim=16)
+    cfg.dino = dict(cfg.dino, embed_dim=32)  # DINOv3's width is D (CV-DRP concatenates them)
+    return cfg.validate()
 
 
 def main(argv):
@@ -56,9 +76,7 @@ def main(argv):
 
     work = tempfile.mkdtemp(prefix="selftest-model-")
     try:
-        cfg = tiny()
-        cfg.use_lseg = False
-        cfg.image_height = cfg.image_width = SIZE
+        cfg = selftest_config()
         cfg_path = os.path.join(work, "selftest.json")
         with open(cfg_path, "w") as f:
             json.dump(cfg.validate().to_dict(), f, indent=1)
@@ -70,10 +88,18 @@ def main(argv):
         for name, t in sd["model"].items():
             if t.is_floating_point():
                 sd["model"][name] = t.half().float()
+        # LSeg's BatchNorms are folded into their convolutions by the converter, whose --fp16
+        # pack would round the folded kernels (w * gamma / sqrt(var + eps)) off the model the
+        # reference runs. gamma = sqrt(var + eps) makes that factor 1 to float32's precision, so
+        # the folded kernels are the fp16-exact ones; the statistics and beta stay perturbed.
+        for name in [n for n in sd["model"] if n.endswith(".running_var")]:
+            gamma = name[:-len("running_var")] + "weight"
+            sd["model"][gamma] = torch.sqrt(sd["model"][name].double() + BN_EPS).float()
         torch.save(sd, ck)
         files = frames(work, count=5, width=SIZE, height=SIZE, seed=5)
         goldens_args = ["goldens", "--checkpoint", ck, "--config", cfg_path, "--frames", *files,
-                        "--inputs", ",".join(map(str, INPUTS)), "--float64", "--threads", "1"]
+                        "--inputs", ",".join(map(str, INPUTS)), "--labels", ",".join(PROMPTS), "--float64",
+                        "--threads", "1"]
         # Mixed motion masks: the random CV-DRP's logits are nearly constant (P(dynamic) ~0.25
         # everywhere, every mask empty, a mask check that compares nothing). Scale its head by
         # a power of two (fp16-exact stays exact) and centre the logits at 0 (as
@@ -90,6 +116,13 @@ def main(argv):
         sd["model"][head + ".weight"] *= gain
         sd["model"][head + ".bias"] = torch.full_like(sd["model"][head + ".bias"],
                                                       -gain * (float(logits.mean()) - bias)).half().float()
+        # Mixed label maps likewise: the random semantic features share one direction, so one
+        # prompt wins everywhere. Centre them (the expansion's bias less their mean over the
+        # pixels): their directions then spread over the prompts.
+        feats = np.load(os.path.join(first, "semantic_features.npy"))  # [1, R, C, h, w]
+        expansion = "semantic_feature_expansion.1.bias"
+        sd["model"][expansion] = (sd["model"][expansion] -
+                                  torch.from_numpy(feats.mean(axis=(0, 1, 3, 4))).float()).half().float()
         torch.save(sd, ck)
         stage = out + ".tmp"
         shutil.rmtree(stage, ignore_errors=True)
@@ -114,12 +147,21 @@ def main(argv):
         for mask in ("cv_drp_input", "cv_drp_target"):
             share = float(np.load(os.path.join(goldens, mask + ".binary.npy")).mean())
             assert 0.1 < share < 0.9, "%s: %.3f of the pixels dynamic, not a mixed mask" % (mask, share)
-        for name in STAGES:
+        for name in STAGES + ["text_tokens"]:
             shutil.copy(os.path.join(goldens, name + ".npy"), os.path.join(stage, "reference", name + ".npy"))
+        # Where two labels nearly tie at full resolution (the logits x2, float64): a device may
+        # round such a pixel either way, and the self-test allows it only there.
+        up = torch.nn.functional.interpolate(torch.from_numpy(np.load(os.path.join(goldens, "label_logits.npy"))),
+                                             scale_factor=2, mode="bilinear", align_corners=True)
+        top2 = up.topk(2, dim=1).values
+        np.save(os.path.join(stage, "reference", "label_maps.gap.npy"), (top2[:, 0] - top2[:, 1]).numpy())
+        maps = np.load(os.path.join(goldens, "label_maps.npy"))
+        shares = sorted((np.bincount(maps.reshape(-1), minlength=len(PROMPTS)) / maps.size).tolist())
+        assert shares[-2] > 0.05, "label maps of one label (shares %s): a check that compares little" % shares
         manifest = {
-            "what": "spar selftest's model: tiny photometric SPAR at 64x64, weights fp16-exact, "
+            "what": "spar selftest's model: tiny SPAR with the semantic branch at 64x64, weights fp16-exact, "
                     "PyTorch reference outputs in float64 (tests/python/make_selftest_model.py)",
-            "inputs": INPUTS, "targets": TARGETS, "views": len(files), "stages": STAGES,
+            "inputs": INPUTS, "targets": TARGETS, "views": len(files), "prompts": PROMPTS, "stages": STAGES,
             "torch": torch.__version__, "seed": 17,
         }
         with open(os.path.join(stage, "manifest.json"), "w") as f:

@@ -123,7 +123,7 @@ case $name in
     case "$*" in
       *--list-devices*) echo "0: Stub GPU";;
       *--list-kernels*) echo '{"device": "Stub GPU", "kernels": ["linear, fp16 weights: gemm_coopmat.comp"]}';;
-      *--selftest*) echo "verdict: PASS (22 of 22 checks passed)";;
+      *--selftest*) echo "verdict: PASS (29 of 29 checks passed)";;
       *--model*) ms=12.5; case "$*" in *fp16*) ms=7.5;; esac
         echo "model: stub"
         echo "{\"stages\": [{\"name\": \"renderer\", \"gpu_ms\": $ms}], \"total\": {\"gpu_ms\": $ms}}";;
@@ -734,7 +734,7 @@ def test_session_unpack_gives_the_report(session):
     assert sorted(t["program"] for t in r["tests"]) == sorted(BINS[1:])
     assert all(t["failures"] == 0 and t["tests"] == 3 for t in r["tests"])
     assert any("gemm_coopmat.comp" in line for line in r["kernels"])
-    assert r["selftest"] == "verdict: PASS (22 of 22 checks passed)"
+    assert r["selftest"] == "verdict: PASS (29 of 29 checks passed)"
     assert r["model"]["engine_fp32"]["total"]["gpu_ms"] == 12.5 and r["model"]["engine_fp16"]["total"]["gpu_ms"] == 7.5
     assert r["model"]["reference"]["modes"]["fp32"]["total_ms"] == 40.0
     assert [(o["op"], o["engine_ms"], o["torch_ms"]) for o in r["ops"]] == [("gemm_f32", 2.0, 4.0)]
