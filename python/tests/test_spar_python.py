@@ -16,7 +16,7 @@ import spar
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 SHIPPED = os.path.join(ROOT, "samples", "data", "spar_rooms.spar")
 SCENE = os.path.join(ROOT, "samples", "data", "scenes", "scene_1000002")
-SELFTEST = os.path.join(ROOT, "samples", "data", "selftest")  # a small photometric model
+SELFTEST = os.path.join(ROOT, "samples", "data", "selftest")  # a small model with the semantic branch
 FRAMES = [os.path.join(SCENE, "rgb_0%d.png" % i) for i in (0, 2, 4, 7)]
 LABELS = ["wall", "floor", "sofa", "window"]
 
@@ -96,10 +96,18 @@ def test_bad_arguments_are_spar_errors(ctx, small):
     s.encode(images, inputs=[0, 2, 4])
     with pytest.raises(spar.Error, match="c2w: shape"):
         s.render(np.zeros((2, 3, 4), np.float32), np.zeros((2, 4), np.float32))
-    with pytest.raises(spar.Error, match="semantic branch"):
-        s.render_targets()
+    # this encode asked for no semantic features, so there is nothing to label
+    s.render_targets()
+    with pytest.raises(spar.Error, match="asked for semanticFeatures"):
         s.label_maps(["wall"])
     s.close()
+    # a model without the semantic branch has no label maps to give, whatever the request
+    photometric = spar.Session(ctx, spar.Model.open(os.environ["SPAR_PHOTOMETRIC_MODEL"]))
+    photometric.encode(images, inputs=[0, 2, 4])
+    photometric.render_targets()
+    with pytest.raises(spar.Error, match="semantic branch"):
+        photometric.label_maps(["wall"])
+    photometric.close()
     with pytest.raises(spar.Error, match="closed"):
         s.render_targets()
     with pytest.raises(spar.Error, match="closed"):

@@ -29,7 +29,7 @@ if [ ! -f "$icd" ]; then
   mkdir -p "$dir/apt/cache/archives/partial"
   apt-get "${apt_opts[@]}" update -q >/dev/null
   (cd "$dir/debs" && apt-get "${apt_opts[@]}" download \
-     mesa-vulkan-drivers/bookworm-backports libdrm2/bookworm-backports libdrm-amdgpu1/bookworm-backports)
+     mesa-vulkan-drivers/bookworm-backports libdrm2/bookworm-backports libdrm-amdgpu1/bookworm-backports) >&2  # stdout stays the program's
   for deb in "$dir"/debs/*.deb; do dpkg -x "$deb" "$dir/root"; done
   # The package's manifest names the library without a path: point a copy at the unpacked one.
   sed "s#\"library_path\": *\"[^\"]*\"#\"library_path\": \"$lib/libvulkan_lvp.so\"#" \

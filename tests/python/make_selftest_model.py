@@ -104,9 +104,9 @@ def main(argv):
         # everywhere, every mask empty, a mask check that compares nothing). Scale its head by
         # a power of two (fp16-exact stays exact) and centre the logits at 0 (as
         # tests/python/make_mask_model.py does for the tests' model). The gain multiplies the
-        # engine's error in P(dynamic) too while P stays near 0.5, so its NMSE grows as gain^2:
-        # at 128 the engine's fp32 P measured NMSE 2.9e-10, above the model tests' 1e-10 bound
-        # (model/stage_tolerances.h); at 16, P spreads over 0.5 +- 0.012 and the NMSE is 64x less.
+        # engine's error in P(dynamic) too while P stays near 0.5, so its NMSE grows as gain^2
+        # (at 128, before the BatchNorms below were made fp16-exact, P measured NMSE 2.9e-10,
+        # above the model tests' 1e-10 bound, model/stage_tolerances.h); 16 spreads P enough.
         first = os.path.join(work, "first")
         if reference(goldens_args + ["--out", first]) != 0:
             raise SystemExit("make_selftest_model: spar-reference goldens failed")
