@@ -29,6 +29,9 @@ WeightSet::WeightSet(Engine& engine, const PackedModel& model, DType matrixType)
 
 bool WeightSet::isMatrix(const std::string& name, const Shape& shape) {
   if (shape.size() < 2 || endsWith(name, "view_type_embedding.weight")) return false;
+  // SAM2's learned decoder tokens (iou, mask, object-score) are embeddings, not matrices
+  if (name.rfind("sam2.", 0) == 0 && (endsWith(name, "_token.weight") || endsWith(name, "_tokens.weight")))
+    return false;
   return endsWith(name, ".weight") || endsWith(name, "in_proj_weight") || endsWith(name, "text_projection");
 }
 

@@ -45,7 +45,8 @@ class WeightSet {
 
   DType matrixType() const { return matrixType_; }
   // The --fp16 rule (converter/spar_convert/convert.py is_matrix): a float tensor of 2 or more
-  // dimensions named *.weight / *in_proj_weight / *text_projection, except the view-type table.
+  // dimensions named *.weight / *in_proj_weight / *text_projection, except the view-type table
+  // and SAM2's decoder tokens (sam2.*_token(s).weight).
   static bool isMatrix(const std::string& name, const Shape& shape);
 
   size_t count() const { return loaded_.size(); }

@@ -30,6 +30,7 @@ import numpy as np
 from .model_config import (PRESETS, SparConfig, backbone_config, matching_preset, read_config_file,
                            resolve_config, stated_image_size)
 from .model_card import ModelCardError, card_text, read_card
+from . import sam2_plan
 from .safetensors_file import SafetensorsError, SafetensorsFile, TensorSpec, write_safetensors
 from .torch_checkpoint import CheckpointError, open_checkpoint, open_torchscript
 
@@ -42,7 +43,7 @@ FLOAT_DTYPES = ("float32", "float16", "bfloat16", "float64")
 # sizes/options an inferred configuration cannot read from tensors: runtime or official defaults
 RUNTIME_FIELDS = ("image_height", "image_width", "num_views", "num_input_views")
 
-PREFIX = {"spar": "", "dino": "dino.", "lseg": "lseg.", "clip": "clip."}
+PREFIX = {"spar": "", "dino": "dino.", "lseg": "lseg.", "clip": "clip.", "sam2": sam2_plan.PACKED_PREFIX}
 BPE_NAME = "clip.bpe_merges"
 # The repository's copy of CLIP's merges table (MIT licence beside it), packed by default
 # whenever the model has a CLIP text encoder, so its labels work without extra files.
@@ -133,6 +134,7 @@ class Inputs:
         self.dino = Source("dino")
         self.lseg = Source("lseg")
         self.clip = Source("clip")
+        self.sam2 = Source("sam2")  # --sam2: the mask refinement's checkpoint (sam2_plan)
         self.dropped = {}          # "file: key" -> reason
         self.dino_norm = {}        # "mean"/"std" -> TensorRef (SPAR's DINOv3 wrapper buffers)
         self.files = []            # (role, path, bytes)
@@ -268,6 +270,20 @@ def _read_inputs(inp, args):
         stored = next(iter(clip_from_lseg.values()))[1]
         inp.clip.where = (os.path.basename(lseg_path),
                           stored[: stored.index("clip_pretrained.") + len("clip_pretrained.")])
+
+    if getattr(args, "sam2", None):
+        sk = _open(args.sam2, "--sam2")
+        inp.checkpoints.append(sk)
+        inp.files.append(("sam2", args.sam2, os.path.getsize(args.sam2)))
+        for key, ref in sk.state_dict.items():
+            inp.sam2.add(key, ref, args.sam2, key)
+        for k in sk.extra:
+            inp.drop(args.sam2, "<%s>" % k, "not a model tensor")
+        inp.source_of["sam2"] = args.sam2
+        inp.sam2_config_spec = getattr(args, "sam2_config", None)
+        inp.sam2.where = (os.path.basename(args.sam2), "")
+    elif getattr(args, "sam2_config", None):
+        raise ConvertError("--sam2-config needs --sam2 (the SAM2.1 checkpoint)")
 
     bpe = args.bpe or (DEFAULT_BPE if inp.clip else None)
     if bpe:
@@ -868,6 +884,19 @@ def _count_planned(pl, src, stack):
     return max(idx) + 1 if idx else 0
 
 
+def plan_sam2(inp):
+    """--sam2's variant and the entries of its refinement path (sam2_plan)."""
+    shapes = {k: tuple(r.shape) for k, r in inp.sam2.tensors.items()}
+    try:
+        cfg, how = sam2_plan.resolve(shapes, inp.source_of["sam2"], getattr(inp, "sam2_config_spec", None))
+        pl = Planner(inp)
+        path = inp.source_of["sam2"]
+        sam2_plan.plan(inp.sam2, cfg, pl.keep, lambda key, why: inp.drop(path, key, why))
+    except sam2_plan.Sam2PlanError as e:
+        raise ConvertError(str(e)) from None
+    return cfg, how, pl.entries
+
+
 def make_plan(inp, cfg):
     pl = Planner(inp)
     pl.spar(cfg)
@@ -919,6 +948,8 @@ def is_matrix(name, shape):
         return False
     if name.endswith("view_type_embedding.weight"):
         return False
+    if name.startswith(sam2_plan.PACKED_PREFIX) and name.endswith(("_token.weight", "_tokens.weight")):
+        return False  # SAM2's learned decoder tokens (iou, mask, object-score)
     return name.endswith(".weight") or name.endswith("in_proj_weight") or \
         name.endswith("text_projection")
 
@@ -986,6 +1017,13 @@ def build_parser():
                                   "as the U8 tensor %s; default: the repository's copy "
                                   "(text/data/clip/) when the model has a CLIP text encoder"
                                   % BPE_NAME)
+    ap.add_argument("--sam2", metavar="SAM2.pt",
+                    help="SAM2.1 checkpoint (sam2.1_hiera_{t,s,b+,l}.pt, official key layout) for "
+                         "the optional mask refinement: only the tensors of its path are packed")
+    ap.add_argument("--sam2-config", metavar="NAME|YAML",
+                    help="the SAM2.1 variant: sam2.1_hiera_t, _s, _b+, _l, or a YAML in the "
+                         "official layout; default: the one --sam2's file name says, else the "
+                         "official variant its tensor shapes are")
     ap.add_argument("--model-card", metavar="CARD.json",
                     help="what the model is, stored with it (spar_convert/model_card.py): e.g. "
                          "that it is a demonstration model, and its measured quality; spar render "
@@ -1058,13 +1096,17 @@ def convert(args, out=None):
             raise ConvertError("configuration (%s) is not usable: %s"
                                % (how, _one_line(e) or "validation failed")) from None
         entries, warnings = make_plan(inp, cfg)
+        sam2_cfg = sam2_from = None
+        if inp.sam2:
+            sam2_cfg, sam2_from, sam2_entries = plan_sam2(inp)
+            entries += sam2_entries
         converted = {}
         for e in entries:
             if e.dtype == "U8":
                 continue
             e.dtype = "F16" if (args.fp16 and is_matrix(e.name, e.shape)) else "F32"
             if e.kind == "kept":
-                comp = e.name.split(".", 1)[0] if e.name.split(".", 1)[0] in ("dino", "lseg", "clip") else "spar"
+                comp = e.name.split(".", 1)[0] if e.name.split(".", 1)[0] in ("dino", "lseg", "clip", "sam2") else "spar"
                 src = getattr(inp, comp)
                 key = e.name[len(PREFIX[comp]):]
                 sd = src.tensors[key].dtype
@@ -1075,6 +1117,8 @@ def convert(args, out=None):
 
         components = {"spar": True, "dino": True, "lseg": bool(cfg.use_lseg),
                       "clip": bool(inp.clip), "bpe": inp.bpe is not None}
+        if inp.sam2:  # only then: a file without SAM2 stays byte for byte what it was
+            components["sam2"] = True
         record = {
             "converter": PROG,
             "fp16": bool(args.fp16),
@@ -1100,6 +1144,10 @@ def convert(args, out=None):
         }
         if card is not None:
             metadata["model_card"] = card_text(card)
+        if sam2_cfg is not None:
+            metadata["sam2_config"] = json.dumps(sam2_cfg.to_dict(), sort_keys=True, separators=(",", ":"))
+            record["sam2_config_from"] = sam2_from
+            metadata["conversion"] = json.dumps(record, sort_keys=True, separators=(",", ":"))
 
         say("%s: configuration %s" % (PROG, how))
         for n in notes:
@@ -1134,6 +1182,11 @@ def convert(args, out=None):
             say("converted: nothing (all F32)")
         if inp.bpe is not None:
             say("packed %s: %d bytes (gzip)" % (BPE_NAME, inp.bpe.size))
+        if sam2_cfg is not None:
+            n = sum(1 for e in entries if e.name.startswith(sam2_plan.PACKED_PREFIX))
+            params = sum(int(np.prod(e.shape)) for e in entries if e.name.startswith(sam2_plan.PACKED_PREFIX))
+            say("SAM2 refinement: %s (from %s), %d tensors, %.2f M parameters"
+                % (sam2_cfg.name, sam2_from, n, params / 1e6))
 
         specs = [TensorSpec(e.name, e.dtype, e.shape, _producer(e)) for e in entries]
         write_safetensors(args.output, specs, metadata)

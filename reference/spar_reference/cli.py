@@ -690,6 +690,23 @@ def cmd_make_checkpoint(args) -> int:
     return 0
 
 
+def cmd_make_sam2_checkpoint(args) -> int:
+    from spar_convert.sam2_config import Sam2ConfigError, read_sam2_config
+    from .sam2 import make_checkpoint as make_sam2, video_path_shapes
+    try:
+        cfg = read_sam2_config(args.variant)
+    except Sam2ConfigError as e:
+        raise CliError(str(e))
+    out = os.path.abspath(args.output)
+    if not os.path.isdir(os.path.dirname(out)):
+        raise CliError(f"parent directory does not exist: {os.path.dirname(out)}")
+    # an official variant's file holds the video path too; a YAML-described test variant not
+    # (its decoder width need not be the official 256)
+    unused = video_path_shapes() if cfg.d_model == 256 else {}
+    save_checkpoint(make_sam2(cfg, args.seed, unused), out)
+    return 0
+
+
 def save_checkpoint(ck: Dict[str, Any], out: str) -> None:
     """torch.save(ck) to ``out`` through a temporary file beside it (no partial file)."""
     import torch
@@ -810,6 +827,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="no Adam moments in the optimizer state (param groups only): smaller")
     _add_threads_arg(p)
     p.set_defaults(func=cmd_make_checkpoint)
+
+    p = sub.add_parser("make-sam2-checkpoint", help="write a SAM2.1 checkpoint in the official layout",
+                       description="A SAM2.1 checkpoint ({'model': state_dict}, the official "
+                       "keys of the variant) with random weights of sensible scale from --seed: "
+                       "every tensor of the refinement path, the discarded heads, and for the "
+                       "official widths the video path's tensors. For tests of spar-convert --sam2 "
+                       "and the engine; not a trained model.")
+    p.add_argument("--variant", required=True, metavar="NAME|YAML",
+                   help="sam2.1_hiera_t, _s, _b+, _l, or a YAML in the official layout")
+    p.add_argument("-o", "--output", required=True, metavar="SAM2.pt")
+    p.add_argument("--seed", type=int, default=0)
+    _add_threads_arg(p)
+    p.set_defaults(func=cmd_make_sam2_checkpoint)
 
     p = sub.add_parser("render", help="run the reference and write images, masks, cameras",
                        description="Run SPAR on one ordered sequence of views and write "
