@@ -10,6 +10,7 @@ writes OUT_DIR/
     camera/           make_camera_golden.py  (tests/test_plucker_rays.cpp)
     block/<case>/     make_block_golden.py, every case (tests/test_transformer_block.cpp)
     size/             make_size_model.py     (tests/test_spar_size.cpp)
+    sam2_block/<case>/ make_sam2_block_golden.py (tests/test_sam2_hiera_block.cpp)
 """
 import os
 import shutil
@@ -20,6 +21,7 @@ import make_block_golden  # noqa: E402
 import make_camera_golden  # noqa: E402
 import make_image_golden  # noqa: E402
 import make_path_golden  # noqa: E402
+import make_sam2_block_golden  # noqa: E402
 import make_size_model  # noqa: E402
 
 
@@ -31,6 +33,7 @@ def main(out: str) -> int:
     for case in sorted(make_block_golden.CASES) + sorted(make_block_golden.FP16_CASES):
         make_block_golden.main(["--case", case, "--out", os.path.join(out, "block", case)])
     make_size_model.main(os.path.join(out, "size"))
+    make_sam2_block_golden.main(["--out", os.path.join(out, "sam2_block")])
     return 0
 
 
