@@ -49,6 +49,41 @@ void requireWindows(const Tensor& t, int64_t nW, int64_t window, int64_t C, cons
 
 }  // namespace
 
+void sam2ChannelsLast(Recorder& rec, const Tensor& x, const Tensor& y) {
+  const std::string op = "sam2ChannelsLast";
+  if (!x.defined() || !y.defined()) throw Error(op + ": missing tensor");
+  ops::requireF32(x, op, "x");
+  ops::requireF32(y, op, "y");
+  if (x.rank() != 4 || x.dim(0) != 1) throw Error(op + ": x must be [1, C, H, W], got " + x.describe());
+  const int64_t C = x.dim(1), H = x.dim(2), W = x.dim(3);
+  if (y.rank() != 2 || y.dim(0) != H * W || y.dim(1) != C)
+    throw Error(op + ": y must be [" + std::to_string(H * W) + ", " + std::to_string(C) + "], got " + y.describe());
+  dispatch(rec, "sam2_channels_last", op, x, y, {uint32_t(y.numel()), uint32_t(H), uint32_t(W), uint32_t(C), 0, 0});
+}
+
+void sam2AddNearestUp2x(Recorder& rec, const Tensor& lateral, const Tensor& coarse, const Tensor& y) {
+  const std::string op = "sam2AddNearestUp2x";
+  requireMap(lateral, op, "lateral");
+  requireMap(coarse, op, "coarse");
+  requireMap(y, op, "y");
+  const int64_t H = lateral.dim(0), W = lateral.dim(1), C = lateral.dim(2);
+  if (H % 2 || W % 2 || coarse.dim(0) != H / 2 || coarse.dim(1) != W / 2 || coarse.dim(2) != C || y.shape() != lateral.shape())
+    throw Error(op + ": lateral " + lateral.describe() + ", coarse " + coarse.describe() + " and y " + y.describe() +
+                " do not fit (coarse must be half the lateral's even size)");
+  Engine& engine = rec.engine();
+  if (ops::overlaps(y, coarse)) throw Error(op + ": y overlaps coarse");
+  if (uint64_t(y.numel()) > 0x7fffffffull) throw Error(op + ": too many values for 32-bit indexing");
+  if (uint64_t(y.bytes()) > engine.device().bindingRangeLimit()) throw Error(op + ": y exceeds one storage binding");
+  if (y.numel() == 0) return;
+  registerModelShaders();  // model/shaders/sam2_windows.comp
+  const Kernel& kernel = engine.kernel({"sam2_add_nearest_up2x", {Bind::Read, Bind::Write, Bind::Read},
+                                        sizeof(WindowsPush), {ops::elementLocalX(engine.caps()), 1, 1}});
+  const WindowsPush push{uint32_t(y.numel()), uint32_t(H), uint32_t(W), uint32_t(C), 0, 0};
+  const ops::Grid grid =
+      ops::linearGrid(engine.caps(), ops::ceilDiv(uint64_t(y.numel()), uint64_t(ops::elementLocalX(engine.caps()))), op);
+  rec.dispatch(kernel, {Arg::in(lateral), Arg::out(y), Arg::in(coarse)}, push, grid.x, grid.y, 1, op);
+}
+
 int64_t sam2WindowsAlong(int64_t extent, int64_t window) { return (extent + window - 1) / window; }
 
 void sam2WindowPartition(Recorder& rec, const Tensor& x, int64_t window, const Tensor& windows) {

@@ -1,0 +1,96 @@
+// A SAM2.1 variant (model/sam2_config.h).
+#include "model/sam2_config.h"
+
+#include <algorithm>
+
+#include <nlohmann/json.hpp>
+
+#include "engine/error.h"
+
+namespace spar {
+namespace {
+
+std::vector<int64_t> ints(const nlohmann::json& j, const char* key, size_t n) {
+  if (!j.contains(key) || !j[key].is_array()) throw Error(std::string("sam2_config: no list ") + key);
+  std::vector<int64_t> v;
+  for (const auto& e : j[key]) {
+    if (!e.is_number_integer()) throw Error(std::string("sam2_config: ") + key + " holds a non-integer");
+    v.push_back(e.get<int64_t>());
+  }
+  if (n && v.size() != n) throw Error(std::string("sam2_config: ") + key + " must have " + std::to_string(n) + " entries");
+  return v;
+}
+
+int64_t positive(const nlohmann::json& j, const char* key) {
+  if (!j.contains(key) || !j[key].is_number_integer() || j[key].get<int64_t>() <= 0)
+    throw Error(std::string("sam2_config: ") + key + " must be a positive integer");
+  return j[key].get<int64_t>();
+}
+
+}  // namespace
+
+Sam2Config Sam2Config::fromJson(const std::string& text) {
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(text);
+  } catch (const nlohmann::json::exception& e) {
+    throw Error(std::string("sam2_config is not valid JSON: ") + e.what());
+  }
+  if (!j.is_object()) throw Error("sam2_config is not a JSON object");
+  Sam2Config c;
+  c.name = j.value("name", std::string("sam2"));
+  c.embedDim = positive(j, "embed_dim");
+  c.numHeads = positive(j, "num_heads");
+  c.dModel = positive(j, "d_model");
+  c.stages = ints(j, "stages", 4);
+  c.globalAttBlocks = ints(j, "global_att_blocks", 0);
+  c.windowSpec = ints(j, "window_spec", 4);
+  c.backgroundSize = ints(j, "window_pos_embed_bkg_spatial_size", 2);
+  c.backboneChannels = ints(j, "backbone_channel_list", 4);
+  for (int64_t s : c.stages)
+    if (s <= 0) throw Error("sam2_config: stages must be positive");
+  for (int64_t w : c.windowSpec)
+    if (w <= 0) throw Error("sam2_config: window_spec must be positive");
+  if (c.embedDim % c.numHeads) throw Error("sam2_config: embed_dim is not a multiple of num_heads");
+  for (size_t i = 0; i < 4; ++i)
+    if (c.backboneChannels[i] != c.embedDim << (3 - i))
+      throw Error("sam2_config: backbone_channel_list does not match the trunk's stage widths");
+  if (c.tokenSide() % c.windowSpec[0]) throw Error("sam2_config: window_spec[0] does not tile the token map");
+  for (const Sam2BlockSpec& b : c.blocks())
+    if (b.qPool && b.window % 2) throw Error("sam2_config: a q-pooling block has an odd window");
+  return c;
+}
+
+std::vector<int64_t> Sam2Config::stageEnds() const {
+  std::vector<int64_t> ends;
+  int64_t sum = 0;
+  for (int64_t s : stages) ends.push_back((sum += s) - 1);
+  return ends;
+}
+
+std::vector<Sam2BlockSpec> Sam2Config::blocks() const {
+  // hieradet.Hiera.__init__: dims and heads x2 at the first block of stages 2-4, which also
+  // pools q; the window lags a block (that block still has the previous stage's window)
+  const std::vector<int64_t> ends = stageEnds();
+  std::vector<Sam2BlockSpec> out;
+  int64_t dim = embedDim, heads = numHeads;
+  size_t stage = 0;
+  for (int64_t i = 0; i < ends.back() + 1; ++i) {
+    Sam2BlockSpec b;
+    b.dim = dim;
+    b.window = std::count(globalAttBlocks.begin(), globalAttBlocks.end(), i) ? 0 : windowSpec[stage];
+    b.dimOut = dim;
+    if (std::count(ends.begin(), ends.end(), i - 1)) {
+      b.dimOut = dim * 2;
+      heads *= 2;
+      ++stage;
+      b.qPool = true;
+    }
+    b.heads = heads;
+    out.push_back(b);
+    dim = b.dimOut;
+  }
+  return out;
+}
+
+}  // namespace spar

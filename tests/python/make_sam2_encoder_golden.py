@@ -1,0 +1,62 @@
+#!/usr/bin/python3
+"""Goldens of tests/test_sam2_image_encoder.cpp: SAM2.1's image encoder
+(spar_reference.sam2.image_encoder) of a tiny variant in float64 on float32 weights:
+
+    OUT/config.json       the variant (Sam2Config.to_dict(), as a packed file's sam2_config)
+    OUT/weights/<key>.npy every tensor of the path, f32, official keys
+    OUT/images.npy        [2, 3, 48, 40] f32 in [0, 1] (view 1 is encoded)
+    OUT/stage_<i>.npy     the trunk's 4 stage maps [H, W, C] f64
+    OUT/image_embed.npy [64 * 64, d], feat_s0.npy [256 * 256, d / 8], feat_s1.npy [128 * 128, d / 4]
+                          f64, channel-last tokens
+
+The variant crosses what the trunk's schedule does: 6 blocks over 4 stages with q pooling at
+blocks 1, 2, 4, a global block on the 64x64 map (4096 tokens), windows 6 on 64x64 (padded to
+66) pooled to 3 at the transition into stage 4, and windows of 3 on 32x32 (padded to 33)."""
+import argparse
+import json
+import os
+
+import numpy as np
+import torch
+
+from spar_convert.sam2_config import Sam2Config, used_tensors
+from spar_reference import sam2
+
+CONFIG = Sam2Config(name="tiny_test", embed_dim=8, num_heads=1, stages=[1, 1, 2, 2], global_att_blocks=[3],
+                    window_spec=[8, 4, 6, 3], window_pos_embed_bkg_spatial_size=[7, 7], d_model=32,
+                    backbone_channel_list=[64, 32, 16, 8]).validate()
+VIEW = 1
+
+
+def tokens(nchw: torch.Tensor) -> np.ndarray:
+    """[1, C, H, W] -> [H * W, C] float64."""
+    return np.ascontiguousarray(nchw[0].permute(1, 2, 0).reshape(-1, nchw.shape[1]).numpy())
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", required=True)
+    args = ap.parse_args(argv)
+    os.makedirs(os.path.join(args.out, "weights"), exist_ok=True)
+    sd = sam2.make_checkpoint(CONFIG, seed=21)["model"]
+    used = {k: sd[k] for k in used_tensors(CONFIG)}
+    for k, v in used.items():
+        np.save(os.path.join(args.out, "weights", k + ".npy"), v.numpy())
+    g = torch.Generator().manual_seed(4)
+    images = torch.rand(2, 3, 48, 40, generator=g)
+    np.save(os.path.join(args.out, "images.npy"), images.numpy())
+    with open(os.path.join(args.out, "config.json"), "w") as f:
+        json.dump(CONFIG.to_dict(), f)
+    record = {}
+    sd64 = sam2.as_dtype(sd, CONFIG, torch.float64)
+    with torch.no_grad():
+        out = sam2.image_encoder(sam2.preprocess(images[VIEW], torch.float64), sd64, CONFIG, record)
+    for i in range(4):
+        s = np.ascontiguousarray(record["sam2_trunk_%d" % i][0].permute(1, 2, 0).numpy())  # [H, W, C]
+        np.save(os.path.join(args.out, "stage_%d.npy" % i), s)
+    for k in ("image_embed", "feat_s0", "feat_s1"):
+        np.save(os.path.join(args.out, k + ".npy"), tokens(out[k]))
+
+
+if __name__ == "__main__":
+    main()

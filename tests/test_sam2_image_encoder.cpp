@@ -1,0 +1,82 @@
+// model/sam2_image_encoder (SAM2.1's image encoder: pre-processing, patch embedding, position
+// table, the Hiera blocks, the FPN neck, conv_s0 / conv_s1, no_mem_embed) against the PyTorch
+// reference in float64 (tests/python/make_sam2_encoder_golden.py, fixture op_goldens), stage by
+// stage, on a tiny variant whose schedule crosses q pooling, a global block over 4096 tokens,
+// padded windows of 6 pooled to 3 and padded windows of 3. Model/sam2_config's parse of the
+// variant is checked against the converter's block schedule on the way.
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "formats/npy.h"
+#include "model/sam2_config.h"
+#include "model/sam2_image_encoder.h"
+#include "tests/golden_support.h"
+#include "tests/test_support.h"
+
+namespace spar::test {
+namespace {
+
+namespace fs = std::filesystem;
+
+std::string dir() { return opGoldenPath("sam2_encoder"); }
+
+std::string readText(const std::string& path) {
+  std::ifstream in(path);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+class Sam2ImageEncoderTest : public EngineTest {};
+
+TEST_F(Sam2ImageEncoderTest, MatchesReferenceStageByStage) {
+  const Sam2Config c = Sam2Config::fromJson(readText(dir() + "/config.json"));
+  const std::vector<Sam2BlockSpec> blocks = c.blocks();
+  ASSERT_EQ(blocks.size(), 6u);
+  EXPECT_TRUE(blocks[1].qPool && blocks[2].qPool && blocks[4].qPool && !blocks[3].qPool);
+  EXPECT_EQ(blocks[3].window, 0);  // global
+  EXPECT_EQ(blocks[4].window, 6);  // the window lags a block
+  EXPECT_EQ(blocks[5].window, 3);
+  EXPECT_EQ(blocks[5].heads, 8);
+
+  WeightLookup weights = [this](const std::string& key) -> Tensor {
+    const fs::path p = fs::path(dir()) / "weights" / (key.substr(std::string("sam2.").size()) + ".npy");
+    if (!fs::exists(p)) return Tensor();
+    const NpyArray a = readNpy(p.string());
+    return eng().fromFloats(a.shape, a.toFloats());
+  };
+  const Sam2ImageEncoder encoder(eng(), c, weights);
+  const NpyArray images = readNpy(dir() + "/images.npy");
+  const Tensor timages = eng().fromFloats(images.shape, images.toFloats());
+  Recorder rec(eng());
+  const Sam2ImageFeatures f = encoder.encode(rec, timages, 1);
+  rec.run();
+  // fp32 against float64 through 6 blocks (LayerNorms, attention over up to 4096 keys, GEMMs)
+  // and the neck: measured NMSE 1e-13 .. 1e-12; thresholds those of the model-level stages
+  // (model/stage_tolerances.cpp) for a stack this deep.
+  for (int i = 0; i < 4; ++i) {
+    const NpyArray s = readNpy(dir() + "/stage_" + std::to_string(i) + ".npy");
+    ASSERT_EQ(s.shape, f.stages[size_t(i)].shape()) << "stage " << i;
+    expectClose(eng().download(f.stages[size_t(i)]), s.toDoubles(), 1e-10, 1e-4, "stage " + std::to_string(i));
+  }
+  const std::pair<const char*, Tensor> outs[] = {{"image_embed", f.imageEmbed}, {"feat_s0", f.featS0}, {"feat_s1", f.featS1}};
+  for (const auto& [name, t] : outs) {
+    const NpyArray g = readNpy(dir() + "/" + name + ".npy");
+    ASSERT_EQ(g.shape, t.shape()) << name;
+    expectClose(eng().download(t), g.toDoubles(), 1e-10, 1e-4, name);
+  }
+}
+
+TEST_F(Sam2ImageEncoderTest, ConfigRefusesWhatTheConverterRefuses) {
+  const std::string ok = readText(dir() + "/config.json");
+  EXPECT_NO_THROW(Sam2Config::fromJson(ok));
+  EXPECT_THROW(Sam2Config::fromJson("{"), Error);
+  EXPECT_THROW(Sam2Config::fromJson(R"({"embed_dim": 8})"), Error);
+  std::string badChannels = ok;
+  badChannels.replace(badChannels.find("[64, 32, 16, 8]"), 15, "[64, 32, 16, 9]");
+  EXPECT_THROW(Sam2Config::fromJson(badChannels), Error);
+}
+
+}  // namespace
+}  // namespace spar::test
