@@ -56,8 +56,12 @@ Sam2Config Sam2Config::fromJson(const std::string& text) {
     if (c.backboneChannels[i] != c.embedDim << (3 - i))
       throw Error("sam2_config: backbone_channel_list does not match the trunk's stage widths");
   if (c.tokenSide() % c.windowSpec[0]) throw Error("sam2_config: window_spec[0] does not tile the token map");
-  for (const Sam2BlockSpec& b : c.blocks())
+  for (const Sam2BlockSpec& b : c.blocks()) {
     if (b.qPool && b.window % 2) throw Error("sam2_config: a q-pooling block has an odd window");
+    if ((b.dimOut / b.heads) % 4) throw Error("sam2_config: Hiera heads must have a multiple of 4 channels");
+  }
+  // the decoder's cross-attention: 8 heads of d_model / 16 channels, a multiple of 4
+  if (c.dModel % 64) throw Error("sam2_config: d_model must be a multiple of 64");
   return c;
 }
 

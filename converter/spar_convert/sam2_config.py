@@ -107,9 +107,13 @@ class Sam2Config:
         if self.backbone_channel_list != want:
             raise Sam2ConfigError("neck.backbone_channel_list %r does not match the trunk's stage "
                                   "widths %r (deepest first)" % (self.backbone_channel_list, want))
-        if self.d_model % 32 or self.d_model % (2 * DECODER_HEADS):
-            raise Sam2ConfigError("neck.d_model %d: the mask decoder needs a multiple of 32 (8 heads, "
-                                  "conv_s0 of d_model/8 channels)" % self.d_model)
+        if self.d_model % 64:
+            raise Sam2ConfigError("neck.d_model %d: the engine needs a multiple of 64 (the decoder's "
+                                  "cross-attention has 8 heads of d_model/16, a multiple of 4)" % self.d_model)
+        for i, b in enumerate(self.blocks()):
+            if (b["dim_out"] // b["heads"]) % 4:
+                raise Sam2ConfigError("block %d: heads of %d channels; the engine needs a multiple of 4"
+                                      % (i, b["dim_out"] // b["heads"]))
         # the window embedding is tiled over the 256x256 token map
         side = IMAGE_SIZE // PATCH_STRIDE
         if side % self.window_spec[0]:

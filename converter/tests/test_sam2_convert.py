@@ -41,7 +41,7 @@ model:
       window_spec: [8, 4, 6, 3]
       window_pos_embed_bkg_spatial_size: [7, 7]
     neck:
-      d_model: 32
+      d_model: 64
       backbone_channel_list: [64, 32, 16, 8]
 """
 
@@ -147,7 +147,7 @@ def test_yaml_variant_converts_and_fp16_keeps_tokens(work):
     assert f.info("sam2.image_encoder.trunk.blocks.0.attn.qkv.weight").dtype == "F16"
     assert f.info("sam2.image_encoder.trunk.pos_embed").dtype == "F32"
     assert f.info("sam2.sam_prompt_encoder.pe_layer.positional_encoding_gaussian_matrix").dtype == "F32"
-    assert not is_matrix("sam2.sam_mask_decoder.obj_score_token.weight", (1, 32))
+    assert not is_matrix("sam2.sam_mask_decoder.obj_score_token.weight", (1, 64))
     # without --sam2-config the tiny file is no official variant: refused, asking for one
     rc, so, se = run(work.spar, "--sam2", work.dir / "tiny_sam2.pt", "-o", work.dir / "no.spar")
     assert rc == 1 and "matches none of the official variants" in se and "--sam2-config" in se

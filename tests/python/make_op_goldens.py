@@ -11,7 +11,7 @@ writes OUT_DIR/
     block/<case>/     make_block_golden.py, every case (tests/test_transformer_block.cpp)
     size/             make_size_model.py     (tests/test_spar_size.cpp)
     sam2_block/<case>/ make_sam2_block_golden.py (tests/test_sam2_hiera_block.cpp)
-    sam2_encoder/     make_sam2_encoder_golden.py (tests/test_sam2_image_encoder.cpp)
+    sam2_path/        make_sam2_path_golden.py (tests/test_sam2_path.cpp)
 """
 import os
 import shutil
@@ -23,7 +23,7 @@ import make_camera_golden  # noqa: E402
 import make_image_golden  # noqa: E402
 import make_path_golden  # noqa: E402
 import make_sam2_block_golden  # noqa: E402
-import make_sam2_encoder_golden  # noqa: E402
+import make_sam2_path_golden  # noqa: E402
 import make_size_model  # noqa: E402
 
 
@@ -36,7 +36,7 @@ def main(out: str) -> int:
         make_block_golden.main(["--case", case, "--out", os.path.join(out, "block", case)])
     make_size_model.main(os.path.join(out, "size"))
     make_sam2_block_golden.main(["--out", os.path.join(out, "sam2_block")])
-    make_sam2_encoder_golden.main(["--out", os.path.join(out, "sam2_encoder")])
+    make_sam2_path_golden.main(["--out", os.path.join(out, "sam2_path")])
     return 0
 
 

@@ -1,5 +1,7 @@
 // model/sam2_image_encoder (SAM2.1's image encoder: pre-processing, patch embedding, position
-// table, the Hiera blocks, the FPN neck, conv_s0 / conv_s1, no_mem_embed) against the PyTorch
+// table, the Hiera blocks, the FPN neck, conv_s0 / conv_s1, no_mem_embed) and
+// model/sam2_mask_decoder (mask prompt, dense prompt, two-way transformer, upscaling,
+// hypernetworks, IoU, the chosen mask's logits) against the PyTorch
 // reference in float64 (tests/python/make_sam2_encoder_golden.py, fixture op_goldens), stage by
 // stage, on a tiny variant whose schedule crosses q pooling, a global block over 4096 tokens,
 // padded windows of 6 pooled to 3 and padded windows of 3. Model/sam2_config's parse of the
@@ -11,6 +13,7 @@
 #include "formats/npy.h"
 #include "model/sam2_config.h"
 #include "model/sam2_image_encoder.h"
+#include "model/sam2_mask_decoder.h"
 #include "tests/golden_support.h"
 #include "tests/test_support.h"
 
@@ -19,7 +22,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::string dir() { return opGoldenPath("sam2_encoder"); }
+std::string dir() { return opGoldenPath("sam2_path"); }
 
 std::string readText(const std::string& path) {
   std::ifstream in(path);
@@ -62,6 +65,22 @@ TEST_F(Sam2ImageEncoderTest, MatchesReferenceStageByStage) {
   }
   const std::pair<const char*, Tensor> outs[] = {{"image_embed", f.imageEmbed}, {"feat_s0", f.featS0}, {"feat_s1", f.featS1}};
   for (const auto& [name, t] : outs) {
+    const NpyArray g = readNpy(dir() + "/" + name + ".npy");
+    ASSERT_EQ(g.shape, t.shape()) << name;
+    expectClose(eng().download(t), g.toDoubles(), 1e-10, 1e-4, name);
+  }
+
+  // the decoder on those features, prompted by view 1's P(dynamic) (48 x 40 -> 256 x 256)
+  const Sam2MaskDecoder decoder(eng(), c, weights);
+  const NpyArray probs = readNpy(dir() + "/probs.npy");
+  Recorder rec2(eng());
+  const Sam2MaskResult m = decoder.decode(rec2, f, eng().fromFloats(probs.shape, probs.toFloats()), 1, true);
+  rec2.run();
+  const std::pair<const char*, Tensor> decoded[] = {{"prompt", m.prompt},       {"dense", m.dense},
+                                                    {"tokens_out", m.tokensOut}, {"upscaled", m.upscaled},
+                                                    {"low_res_logits", m.allLogits}, {"iou", m.iou},
+                                                    {"chosen_logits", m.chosenLogits}};
+  for (const auto& [name, t] : decoded) {
     const NpyArray g = readNpy(dir() + "/" + name + ".npy");
     ASSERT_EQ(g.shape, t.shape()) << name;
     expectClose(eng().download(t), g.toDoubles(), 1e-10, 1e-4, name);

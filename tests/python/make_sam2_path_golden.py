@@ -1,6 +1,7 @@
 #!/usr/bin/python3
-"""Goldens of tests/test_sam2_image_encoder.cpp: SAM2.1's image encoder
-(spar_reference.sam2.image_encoder) of a tiny variant in float64 on float32 weights:
+"""Goldens of tests/test_sam2_path.cpp: SAM2.1's image encoder and mask decoder
+(spar_reference.sam2.image_encoder, mask_prompt, prompt_dense, mask_decoder) of a tiny variant
+in float64 on float32 weights:
 
     OUT/config.json       the variant (Sam2Config.to_dict(), as a packed file's sam2_config)
     OUT/weights/<key>.npy every tensor of the path, f32, official keys
@@ -8,6 +9,10 @@
     OUT/stage_<i>.npy     the trunk's 4 stage maps [H, W, C] f64
     OUT/image_embed.npy [64 * 64, d], feat_s0.npy [256 * 256, d / 8], feat_s1.npy [128 * 128, d / 4]
                           f64, channel-last tokens
+    OUT/probs.npy         [2, 48, 40] f32 P(dynamic) (view 1's is the prompt)
+    OUT/prompt.npy [256 * 256], dense.npy [64 * 64, d], tokens_out.npy [6, d],
+    upscaled.npy [256 * 256, d / 8], low_res_logits.npy [256 * 256, 3], iou.npy [1, 3],
+    chosen_logits.npy [256 * 256] f64
 
 The variant crosses what the trunk's schedule does: 6 blocks over 4 stages with q pooling at
 blocks 1, 2, 4, a global block on the 64x64 map (4096 tokens), windows 6 on 64x64 (padded to
@@ -23,7 +28,7 @@ from spar_convert.sam2_config import Sam2Config, used_tensors
 from spar_reference import sam2
 
 CONFIG = Sam2Config(name="tiny_test", embed_dim=8, num_heads=1, stages=[1, 1, 2, 2], global_att_blocks=[3],
-                    window_spec=[8, 4, 6, 3], window_pos_embed_bkg_spatial_size=[7, 7], d_model=32,
+                    window_spec=[8, 4, 6, 3], window_pos_embed_bkg_spatial_size=[7, 7], d_model=64,
                     backbone_channel_list=[64, 32, 16, 8]).validate()
 VIEW = 1
 
@@ -56,6 +61,24 @@ def main(argv=None) -> None:
         np.save(os.path.join(args.out, "stage_%d.npy" % i), s)
     for k in ("image_embed", "feat_s0", "feat_s1"):
         np.save(os.path.join(args.out, k + ".npy"), tokens(out[k]))
+    # the decoder, prompted by a blob with soft edges around 0.5 (48 x 40 -> 256 x 256)
+    yy, xx = torch.meshgrid(torch.arange(48.0), torch.arange(40.0), indexing="ij")
+    probs = torch.stack([torch.sigmoid(2.0 - ((yy - cy) ** 2 + (xx - cx) ** 2) / 40.0) for cy, cx in ((20, 12), (30, 25))])
+    np.save(os.path.join(args.out, "probs.npy"), probs.numpy().astype(np.float32))
+    with torch.no_grad():
+        prompt = sam2.mask_prompt(probs[VIEW].to(torch.float32).to(torch.float64), torch.float64)
+        dense = sam2.prompt_dense(sd64, prompt)
+        pe = sam2.dense_pe(sd64, out["image_embed"].shape[-1], torch.float64)
+        rec = {}
+        logits, iou = sam2.mask_decoder(sd64, out, dense, pe, rec)
+    np.save(os.path.join(args.out, "prompt.npy"), prompt.reshape(-1).numpy())
+    np.save(os.path.join(args.out, "dense.npy"), tokens(dense))
+    np.save(os.path.join(args.out, "tokens_out.npy"), rec["sam2_tokens_out"][0].numpy())
+    np.save(os.path.join(args.out, "upscaled.npy"), tokens(rec["sam2_upscaled"]))
+    np.save(os.path.join(args.out, "low_res_logits.npy"), tokens(logits[None]))
+    np.save(os.path.join(args.out, "iou.npy"), iou[None].numpy())
+    chosen = int(torch.argmax(iou).item())
+    np.save(os.path.join(args.out, "chosen_logits.npy"), logits[chosen].reshape(-1).numpy())
 
 
 if __name__ == "__main__":
