@@ -2,6 +2,8 @@
 // model/shaders/sam2_decoder.comp.
 #include "model/sam2_mask_decoder.h"
 
+#include <cstring>
+
 #include "engine/error.h"
 #include "engine/ops/attention.h"
 #include "engine/ops/binary.h"
@@ -42,6 +44,30 @@ void channelsFirst(Recorder& rec, const Tensor& x, const Tensor& y) {
 }
 
 }  // namespace
+
+void sam2Threshold(Recorder& rec, const Tensor& x, float t, const Tensor& y) {
+  if (!x.defined() || !y.defined() || x.numel() != y.numel()) throw Error("sam2Threshold: x and y must have one size");
+  ops::requireF32(x, "sam2Threshold", "x");
+  ops::requireF32(y, "sam2Threshold", "y");
+  uint32_t bits = 0;
+  std::memcpy(&bits, &t, sizeof(bits));
+  if (y.numel() == 0) return;
+  glue(rec, "sam2_threshold", {Arg::in(x), Arg::out(y)}, {Bind::Read, Bind::Write}, {uint32_t(y.numel()), bits, 0});
+}
+
+void sam2CountDynamic(Recorder& rec, const Tensor& probs, const Tensor& counts) {
+  if (!probs.defined() || probs.rank() != 3) throw Error("sam2CountDynamic: probs must be [V, H, W]");
+  ops::requireF32(probs, "sam2CountDynamic", "probs");
+  const int64_t V = probs.dim(0), hw = probs.dim(1) * probs.dim(2);
+  if (!counts.defined() || counts.dtype() != DType::I32 || counts.numel() != V)
+    throw Error("sam2CountDynamic: counts must be i32 [" + std::to_string(V) + "]");
+  const std::vector<int32_t> zeros(size_t(V), 0);
+  rec.engine().write(counts, zeros.data(), zeros.size() * sizeof(int32_t));
+  const int64_t runs = (hw + 63) / 64;
+  if (V == 0 || hw == 0) return;
+  glue(rec, "sam2_count_dynamic", {Arg::in(probs), Arg::inout(counts)}, {Bind::Read, Bind::ReadWrite},
+       {uint32_t(V * runs), uint32_t(hw), uint32_t(runs)});
+}
 
 Sam2MaskDecoder::Sam2MaskDecoder(Engine& engine, const Sam2Config& config, WeightLookup weights, std::string prefix)
     : engine_(engine), config_(config), weights_(std::move(weights)), prefix_(std::move(prefix)) {

@@ -34,6 +34,14 @@ struct Sam2MaskResult {
   Tensor allLogits;     // [256 * 256, 3] all three (only with allMasks)
 };
 
+// The refinement's two small kernels (model/shaders/sam2_decoder.comp):
+// y = x > t ? 1 : 0 elementwise (f32, the same element count; the binary prompt at t = 0.5,
+// the refined mask at t = 0).
+void sam2Threshold(Recorder& rec, const Tensor& x, float t, const Tensor& y);
+// counts [V] i32 = the number of P(dynamic) > 0.5 of each view of probs [V, H, W]; counts are
+// zeroed here (a host write) before the dispatch is recorded.
+void sam2CountDynamic(Recorder& rec, const Tensor& probs, const Tensor& counts);
+
 class Sam2MaskDecoder {
  public:
   Sam2MaskDecoder(Engine& engine, const Sam2Config& config, WeightLookup weights, std::string prefix = "sam2.");

@@ -6,6 +6,8 @@
 // stage, on a tiny variant whose schedule crosses q pooling, a global block over 4096 tokens,
 // padded windows of 6 pooled to 3 and padded windows of 3. Model/sam2_config's parse of the
 // variant is checked against the converter's block schedule on the way.
+#include <cmath>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -14,6 +16,7 @@
 #include "model/sam2_config.h"
 #include "model/sam2_image_encoder.h"
 #include "model/sam2_mask_decoder.h"
+#include "model/sam2_refinement.h"
 #include "tests/golden_support.h"
 #include "tests/test_support.h"
 
@@ -85,6 +88,51 @@ TEST_F(Sam2ImageEncoderTest, MatchesReferenceStageByStage) {
     ASSERT_EQ(g.shape, t.shape()) << name;
     expectClose(eng().download(t), g.toDoubles(), 1e-10, 1e-4, name);
   }
+}
+
+// The whole refinement of 3 views (a blob; nothing dynamic; exactly 10 dynamic pixels) against
+// the reference's refine_masks: the skip rule, the IoU scores (bar: 1e-5), the chosen mask, and
+// the refined masks pixel by pixel (bar: at most 0.1 % differ, only where the logit is within
+// 1e-4 of 0).
+TEST_F(Sam2ImageEncoderTest, RefinesLikeTheReference) {
+  const std::string d = dir() + "/refine";
+  const Sam2Config c = Sam2Config::fromJson(readText(dir() + "/config.json"));
+  WeightLookup weights = [this](const std::string& key) -> Tensor {
+    const fs::path p = fs::path(dir()) / "weights" / (key.substr(std::string("sam2.").size()) + ".npy");
+    if (!fs::exists(p)) return Tensor();
+    const NpyArray a = readNpy(p.string());
+    return eng().fromFloats(a.shape, a.toFloats());
+  };
+  Sam2Refiner refiner(eng(), c, weights);
+  const NpyArray images = readNpy(d + "/images.npy"), probs = readNpy(d + "/probs.npy");
+  const Sam2Refined r = refiner.refine(eng().fromFloats(images.shape, images.toFloats()),
+                                       eng().fromFloats(probs.shape, probs.toFloats()));
+  const nlohmann::json summary = nlohmann::json::parse(readText(d + "/summary.json"));
+  const std::vector<double> refined = readNpy(d + "/refined.npy").toDoubles(), logits = readNpy(d + "/logits.npy").toDoubles();
+  ASSERT_EQ(r.views.size(), 3u);
+  ASSERT_EQ(r.masks.size(), refined.size());
+  const size_t hw = refined.size() / 3;
+  for (size_t v = 0; v < 3; ++v) {
+    const auto& want = summary[v];
+    EXPECT_EQ(r.views[v].skipped, want["skipped"].get<bool>()) << v;
+    EXPECT_EQ(r.views[v].dynamicPixels, want["dynamic_pixels"].get<int64_t>()) << v;
+    if (!r.views[v].skipped) {
+      EXPECT_EQ(r.views[v].chosen, want["chosen"].get<int>()) << v;
+      for (size_t i = 0; i < 3; ++i) EXPECT_NEAR(r.views[v].iou[i], want["iou"][i].get<double>(), 1e-5) << v;
+      EXPECT_EQ(r.views[v].logits.size(), size_t(256 * 256));
+    }
+    size_t differ = 0;
+    for (size_t i = v * hw; i < (v + 1) * hw; ++i)
+      if (double(r.masks[i]) != refined[i]) {
+        ++differ;
+        EXPECT_LT(std::abs(logits[i]), 1e-4) << "view " << v << " pixel " << i - v * hw;
+      }
+    std::printf("  refined view %zu: %s, %zu of %zu pixels differ from the reference\n", v,
+                r.views[v].skipped ? "skipped" : "refined", differ, hw);
+    EXPECT_LE(double(differ), 0.001 * double(hw)) << "view " << v;
+  }
+  EXPECT_TRUE(r.views[1].skipped);
+  EXPECT_FALSE(r.views[2].skipped);  // 10 dynamic pixels: the skip rule's edge, refined
 }
 
 TEST_F(Sam2ImageEncoderTest, ConfigRefusesWhatTheConverterRefuses) {

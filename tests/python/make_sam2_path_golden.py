@@ -13,6 +13,11 @@ in float64 on float32 weights:
     OUT/prompt.npy [256 * 256], dense.npy [64 * 64, d], tokens_out.npy [6, d],
     upscaled.npy [256 * 256, d / 8], low_res_logits.npy [256 * 256, 3], iou.npy [1, 3],
     chosen_logits.npy [256 * 256] f64
+    OUT/refine/           spar_reference.sam2.refine_masks of 3 views: images.npy, probs.npy
+                          [3, 48, 40] f32 (a blob; nothing dynamic; exactly 10 dynamic pixels,
+                          the skip rule's edge), refined.npy [3, 48, 40] f64 0/1, logits.npy
+                          [3, 48, 40] f64 (the chosen mask's at full size; 0 where skipped),
+                          summary.json (per view: skipped, iou, chosen, dynamic pixels)
 
 The variant crosses what the trunk's schedule does: 6 blocks over 4 stages with q pooling at
 blocks 1, 2, 4, a global block on the 64x64 map (4096 tokens), windows 6 on 64x64 (padded to
@@ -79,6 +84,34 @@ def main(argv=None) -> None:
     np.save(os.path.join(args.out, "iou.npy"), iou[None].numpy())
     chosen = int(torch.argmax(iou).item())
     np.save(os.path.join(args.out, "chosen_logits.npy"), logits[chosen].reshape(-1).numpy())
+    refine(os.path.join(args.out, "refine"), sd, probs[0])
+
+
+def refine(out, sd, blob):
+    """The whole refinement of 3 views as SPAR runs it."""
+    os.makedirs(out, exist_ok=True)
+    g = torch.Generator().manual_seed(8)
+    images = torch.rand(3, 3, 48, 40, generator=g)
+    edge = torch.zeros(48 * 40)
+    edge[100:110] = 0.9
+    probs = torch.stack([blob, torch.full((48, 40), 0.2), edge.reshape(48, 40)]).to(torch.float32)
+    np.save(os.path.join(out, "images.npy"), images.numpy())
+    np.save(os.path.join(out, "probs.npy"), probs.numpy())
+    results = sam2.refine_masks(sd, CONFIG, images, probs.to(torch.float64), torch.float64)
+    refined, full, summary = [], [], []
+    for v, r in enumerate(results):
+        refined.append(r["refined"].numpy())
+        if r["skipped"]:
+            full.append(np.zeros((48, 40)))
+        else:
+            full.append(torch.nn.functional.interpolate(r["logits"][None, None], size=(48, 40), mode="bilinear",
+                                                        align_corners=False)[0, 0].numpy())
+        summary.append(dict(skipped=r["skipped"], dynamic_pixels=r["dynamic_pixels"], chosen=r["chosen"],
+                            iou=None if r["iou"] is None else [float(x) for x in r["iou"]]))
+    np.save(os.path.join(out, "refined.npy"), np.stack(refined))
+    np.save(os.path.join(out, "logits.npy"), np.stack(full))
+    with open(os.path.join(out, "summary.json"), "w") as f:
+        json.dump(summary, f)
 
 
 if __name__ == "__main__":
