@@ -86,26 +86,25 @@ void sam2AddNearestUp2x(Recorder& rec, const Tensor& lateral, const Tensor& coar
 
 int64_t sam2WindowsAlong(int64_t extent, int64_t window) { return (extent + window - 1) / window; }
 
-void sam2WindowPartition(Recorder& rec, const Tensor& x, int64_t window, const Tensor& windows) {
-  const std::string op = "sam2WindowPartition";
-  requireMap(x, op, "x");
+// partition (map -> windows) and merge (windows -> map) check and dispatch alike
+static void windowLayout(Recorder& rec, bool partition, const Tensor& map, int64_t window, const Tensor& windows) {
+  const std::string op = partition ? "sam2WindowPartition" : "sam2WindowMerge";
+  requireMap(map, op, "x");
   if (window <= 0) throw Error(op + ": window must be positive");
-  const int64_t H = x.dim(0), W = x.dim(1), C = x.dim(2);
+  const int64_t H = map.dim(0), W = map.dim(1), C = map.dim(2);
   const int64_t nWx = sam2WindowsAlong(W, window), nW = sam2WindowsAlong(H, window) * nWx;
   requireWindows(windows, nW, window, C, op);
-  dispatch(rec, "sam2_window_partition", op, x, windows,
-           {uint32_t(windows.numel()), uint32_t(H), uint32_t(W), uint32_t(C), uint32_t(window), uint32_t(nWx)});
+  const Tensor& out = partition ? windows : map;
+  dispatch(rec, partition ? "sam2_window_partition" : "sam2_window_merge", op, partition ? map : windows, out,
+           {uint32_t(out.numel()), uint32_t(H), uint32_t(W), uint32_t(C), uint32_t(window), uint32_t(nWx)});
+}
+
+void sam2WindowPartition(Recorder& rec, const Tensor& x, int64_t window, const Tensor& windows) {
+  windowLayout(rec, true, x, window, windows);
 }
 
 void sam2WindowMerge(Recorder& rec, const Tensor& windows, int64_t window, const Tensor& x) {
-  const std::string op = "sam2WindowMerge";
-  requireMap(x, op, "x");
-  if (window <= 0) throw Error(op + ": window must be positive");
-  const int64_t H = x.dim(0), W = x.dim(1), C = x.dim(2);
-  const int64_t nWx = sam2WindowsAlong(W, window), nW = sam2WindowsAlong(H, window) * nWx;
-  requireWindows(windows, nW, window, C, op);
-  dispatch(rec, "sam2_window_merge", op, windows, x,
-           {uint32_t(x.numel()), uint32_t(H), uint32_t(W), uint32_t(C), uint32_t(window), uint32_t(nWx)});
+  windowLayout(rec, false, x, window, windows);
 }
 
 void sam2MaxPool2x2(Recorder& rec, const Tensor& x, const Tensor& y) {
