@@ -17,6 +17,9 @@ function(spar_embed_shaders SET DIR OUT_SOURCES)
   set(includes_text "")
   set(table_text "")
   foreach(src IN LISTS shader_sources)
+    # The variant lines (and TEXEL_INPUT, below) are read here, at configure time: a change to
+    # a shader configures again, so a new variant or twin is never missing from the build.
+    set_property(DIRECTORY APPEND PROPERTY CMAKE_CONFIGURE_DEPENDS ${src})
     file(STRINGS ${src} variant_lines REGEX "^//! variant ")
     # "//! spirv coopmat-khr": written against GL_NV_cooperative_matrix (what Debian 12's
     # glslang compiles) and rewritten into SPV_KHR_cooperative_matrix after compiling.

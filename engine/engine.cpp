@@ -41,7 +41,7 @@ const Kernel& Engine::kernel(const KernelSpec& spec) {
   KernelSpec twin = spec;
   twin.shader += "_sx";
   for (Bind& b : twin.bindings)
-    if (b == Bind::Texel) b = Bind::Read;
+    if (b == Bind::Texel) b = Bind::StorageInput;
   return pipelines_->get(twin);
 }
 

@@ -41,6 +41,10 @@ class Engine {
   // The kernel for a spec; on a device whose texel buffers are too short (plan().storageInputs)
   // the storage-input twin of a kernel with texel bindings (shaders/common.glsl, TEXEL_INPUT).
   const Kernel& kernel(const KernelSpec& spec);
+  // Whether kernels can read fp16 inputs (fp16 weights) here: always through storage inputs
+  // (halves unpacked from 32-bit words), through texel buffers where the device has fp16
+  // storage and fp16 texel formats. Writing fp16 needs caps().storageBuffer16BitAccess.
+  bool readsFp16Inputs() { return plan().storageInputs || caps().supportsFp16Storage(); }
 
   // A new tensor with its own buffer; contents undefined.
   Tensor tensor(const Shape& shape, DType dtype = DType::F32);

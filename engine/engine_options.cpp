@@ -81,6 +81,8 @@ void KernelTuning::validate() const {
     throw Error("GPU attention tiles (SPAR_GPU_ATTENTION_TILES): at most 1024 queries, keys a multiple of 4");
   if (!kernels.empty() && kernels != "cpu" && kernels != "gpu" && kernels != "gpu-fp16" && kernels != "coopmat")
     throw Error("kernel family (SPAR_KERNELS) must be cpu, gpu, gpu-fp16 or coopmat, got '" + kernels + "'");
+  if (!inputs.empty() && inputs != "texel" && inputs != "storage")
+    throw Error("kernel inputs (SPAR_INPUTS) must be texel or storage, got '" + inputs + "'");
   if (lineGroup) {
     const auto [split, x, y] = *lineGroup;
     if ((split != 0 && split != 1) || x <= 0 || x % 8 || y <= 0)
@@ -109,6 +111,8 @@ EngineOptions EngineOptions::fromEnvironment(EngineOptions base) {
   if (!t.lineGroup) t.lineGroup = ints<3>("SPAR_LINE_GROUP", "SPLIT,LX,LY");
   if (t.kernels.empty())
     if (const char* k = env("SPAR_KERNELS")) t.kernels = k;
+  if (t.inputs.empty())
+    if (const char* i = env("SPAR_INPUTS")) t.inputs = i;
   if (!t.gpuGemmTiles) t.gpuGemmTiles = ints<5>("SPAR_GPU_GEMM_TILES", "BM,BN,BK,TM,TN");
   if (!t.gpuAttentionTiles) t.gpuAttentionTiles = ints<2>("SPAR_GPU_ATTENTION_TILES", "QUERIES,KEYS");
   if (!t.coopMatTiles) t.coopMatTiles = ints<5>("SPAR_COOPMAT_TILES", "WM,WN,SGM,SGN,KSTEPS");

@@ -58,10 +58,14 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
   const std::string& forced = tuning.kernels;
   const bool gpu = forced.empty() ? !caps.isCpu() : forced != "cpu";
   plan.source = forced.empty() ? "device properties" : "SPAR_KERNELS=" + forced;
-  plan.storageInputs = caps.maxTexelBufferElements * 4 < caps.maxStorageBufferRange;
-  if (plan.storageInputs)
-    plan.reasons.push_back("inputs through storage buffers (*_sx kernels): a texel buffer holds " +
-                           std::to_string(caps.maxTexelBufferElements) + " texels, less than a storage binding's " +
+  const bool shortTexels = caps.maxTexelBufferElements * 4 < caps.maxStorageBufferRange;
+  plan.storageInputs = tuning.inputs.empty() ? shortTexels : tuning.inputs == "storage";
+  if (!tuning.inputs.empty())
+    plan.reasons.push_back("inputs through " + std::string(plan.storageInputs ? "storage buffers (*_sx kernels)" : "texel buffers") +
+                           ": forced (SPAR_INPUTS=" + tuning.inputs + ")");
+  else if (plan.storageInputs)
+    plan.reasons.push_back("inputs through storage buffers of 32-bit words, fp32 or fp16 (*_sx kernels): a texel buffer "
+                           "holds " + std::to_string(caps.maxTexelBufferElements) + " texels, less than a storage binding's " +
                            std::to_string(caps.maxStorageBufferRange >> 20) + " MiB");
   if (!gpu) {
     plan.reasons.push_back(forced.empty()
@@ -170,6 +174,8 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
   }
   out.push_back("cooperative matrices: " + (caps.cooperativeMatrix ? sizes : std::string("none")));
   out.push_back(std::string("chosen from: ") + plan.source);
+  out.push_back(std::string("inputs: ") + (plan.storageInputs ? "storage buffers of 32-bit words, fp32 or fp16 (*_sx kernels)"
+                                                               : "texel buffers"));
   auto gemmText = [&](KernelFamily f, bool f16) {
     if (f == KernelFamily::CpuBlocks) return std::string("gemm.comp (") + familyName(f) + ")";
     if (f == KernelFamily::CoopMat) return "gemm_coopmat.comp (" + plan.coop.text() + ")";

@@ -60,7 +60,8 @@ struct KernelPlan {
   bool subgroupReductions = false;  // norms and softmax combine partial results with subgroup ops
   // Inputs read through storage buffers instead of texel buffers (the *_sx kernels): where a
   // texel binding holds fewer floats than a storage binding (Vulkan's minimum is 65536 texels
-  // against 128 MiB), so splitting by the storage range is all the ops need.
+  // against 128 MiB), so splitting by the storage range is all the ops need; SPAR_INPUTS forces
+  // either way. fp16 inputs are read as pairs of halves in 32-bit words: no 16-bit storage needed.
   bool storageInputs = false;
   TiledGemmTiles gemmTiles;                          // products that fill the device
   TiledGemmTiles gemmSmallTiles{32, 32, 16, 2, 2};   // products with few output tiles

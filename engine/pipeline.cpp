@@ -31,6 +31,21 @@ VkDescriptorType descriptorType(Bind b) {
   return b == Bind::Texel ? VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER : VK_DESCRIPTOR_TYPE_STORAGE_BUFFER;
 }
 
+// The fp16 bits of a storage-input twin (kStorageInputF16ConstantId): the signature's i-th
+// entry is the format of the kernel's i-th StorageInput binding.
+int32_t storageInputF16Bits(const Kernel& kernel, const std::string& signature) {
+  int32_t bits = 0;
+  size_t entry = 0;
+  for (size_t b = 0; b < kernel.bindings.size(); ++b) {
+    if (kernel.bindings[b] != Bind::StorageInput) continue;
+    if (signature.compare(entry, 3, "f16") == 0) bits |= int32_t(1) << b;
+    entry = signature.find(',', entry);
+    if (entry == std::string::npos) break;
+    ++entry;
+  }
+  return bits;
+}
+
 // The signature is only worth a name when it is not all f32.
 std::string pipelineName(const Kernel& kernel, const std::string& signature) {
   bool allF32 = true;
@@ -103,7 +118,7 @@ const Kernel& PipelineCache::get(const KernelSpec& spec) {
   kernel->spec = spec;
   kernel->bindings = spec.bindings;
   kernel->pushBytes = spec.pushBytes;
-  kernel->storageInputs = spec.shader.size() > 3 && spec.shader.compare(spec.shader.size() - 3, 3, "_sx") == 0;
+  kernel->storageInputs = std::count(spec.bindings.begin(), spec.bindings.end(), Bind::StorageInput) > 0;
   for (int i = 0; i < 3; ++i) kernel->localSize[i] = static_cast<uint32_t>(spec.constants[i]);
   if (kernel->localSize[0] * kernel->localSize[1] * kernel->localSize[2] > device_.caps().maxWorkGroupInvocations)
     throw Error("kernel " + spec.shader + ": workgroup larger than the device allows");
@@ -135,7 +150,7 @@ const Kernel& PipelineCache::get(const KernelSpec& spec) {
   return *(kernels_[key] = std::move(kernel));
 }
 
-VkPipeline PipelineCache::build(const Kernel& kernel, double* ms) {
+VkPipeline PipelineCache::build(const Kernel& kernel, const std::string& signature, double* ms) {
   VkDevice dev = device_.handle();
   const DeviceCaps& caps = device_.caps();
   if (kernel.spec.subgroupSize && !caps.fullSubgroups)
@@ -147,10 +162,16 @@ VkPipeline PipelineCache::build(const Kernel& kernel, double* ms) {
   VkShaderModule module = VK_NULL_HANDLE;
   SPAR_VK(vkCreateShaderModule(dev, &moduleInfo, nullptr, &module));
 
-  const auto& constants = kernel.spec.constants;
+  std::vector<int32_t> constants = kernel.spec.constants;
   std::vector<VkSpecializationMapEntry> entries;
   for (uint32_t i = 0; i < constants.size(); ++i)
     entries.push_back({i, static_cast<uint32_t>(i * sizeof(int32_t)), sizeof(int32_t)});
+  if (kernel.storageInputs) {
+    if (constants.size() > kStorageInputF16ConstantId)
+      throw Error("kernel " + kernel.name + ": constant ids reach the storage-input id");
+    entries.push_back({kStorageInputF16ConstantId, static_cast<uint32_t>(constants.size() * sizeof(int32_t)), sizeof(int32_t)});
+    constants.push_back(storageInputF16Bits(kernel, signature));
+  }
   VkSpecializationInfo specInfo{};
   specInfo.mapEntryCount = static_cast<uint32_t>(entries.size());
   specInfo.pMapEntries = entries.data();
@@ -215,7 +236,7 @@ void PipelineCache::create(const std::vector<std::pair<const Kernel*, std::strin
   auto work = [&] {
     for (size_t i; (i = next++) < fresh.size();) {
       try {
-        fresh[i]->handle = build(*fresh[i]->kernel, &fresh[i]->stats.createMs);
+        fresh[i]->handle = build(*fresh[i]->kernel, fresh[i]->signature, &fresh[i]->stats.createMs);
       } catch (const std::exception& e) {
         errors[i] = e.what();
       }

@@ -28,7 +28,14 @@ enum class Bind : uint8_t {
   Write,      // writeonly storage buffer
   ReadWrite,  // storage buffer read and written (in-place ops)
   Texel,      // uniform texel buffer (samplerBuffer): llvmpipe gathers these ~2x faster than SSBO loads
+  // A texel input of a storage-input twin (*_sx, Engine::kernel): a readonly storage buffer of
+  // 32-bit words that the shader decodes as fp32 or fp16 (shaders/common.glsl, TEXEL_INPUT).
+  StorageInput,
 };
+
+// Specialization constant of the *_sx twins: bit b set = binding b holds fp16 (its words are
+// pairs of halves). Set per pipeline from the formats bound (PipelineCache::build).
+constexpr uint32_t kStorageInputF16ConstantId = 63;
 
 struct KernelSpec {
   std::string shader;            // variant name from a "//! variant" line
@@ -50,7 +57,8 @@ struct Kernel {
   uint32_t pushBytes = 0;
   uint32_t localSize[3] = {1, 1, 1};
   // The storage-input twin of a texel kernel (shader "<variant>_sx"): what ops pass as texel
-  // arguments is bound as storage buffers (Engine::kernel chooses it; engine/kernel_plan.h).
+  // arguments is bound as storage buffers of words, fp32 or fp16 (Bind::StorageInput; Engine::kernel
+  // chooses it, engine/kernel_plan.h).
   bool storageInputs = false;
   VkDescriptorSetLayout setLayout = VK_NULL_HANDLE;
   VkPipelineLayout layout = VK_NULL_HANDLE;
@@ -59,7 +67,9 @@ struct Kernel {
 // One driver pipeline: a kernel for one texel signature.
 struct Pipeline {
   const Kernel* kernel = nullptr;
-  std::string signature;  // e.g. "f32x4,f16x4,f32x1"; "" for kernels without texel bindings
+  // e.g. "f32x4,f16x4,f32x1": the formats of the texel (or storage-input) bindings in binding
+  // order; "" for kernels without them
+  std::string signature;
   std::string name;       // kernel name, plus the signature when a texel binding is not f32
   VkPipeline handle = VK_NULL_HANDLE;
   PipelineStats stats;
@@ -91,7 +101,7 @@ class PipelineCache {
   PipelineTotals totals() const;
 
  private:
-  VkPipeline build(const Kernel& kernel, double* ms);
+  VkPipeline build(const Kernel& kernel, const std::string& signature, double* ms);
   Pipeline* find(const Kernel& kernel, const std::string& signature);
 
   Device& device_;

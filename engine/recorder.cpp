@@ -171,13 +171,17 @@ void Recorder::dispatch(const Kernel& kernel, const std::vector<Arg>& args, cons
   std::vector<VkBufferView> newViews(args.size(), VK_NULL_HANDLE);
   for (size_t i = 0; i < args.size(); ++i) {
     // A texel input of a kernel's storage-input twin (*_sx, engine/kernel_plan.h storageInputs)
-    // is bound as a storage buffer of floats.
+    // is bound as a storage buffer of words, fp32 or fp16 (its format joins the signature: the
+    // pipeline decodes what it is given).
     Arg a = args[i];
-    if (a.kind == Bind::Texel && kernel.storageInputs && kernel.bindings[i] == Bind::Read) {
-      if (a.tensor.dtype() != DType::F32)
-        throw Error(name + ": input " + a.tensor.describe() + " is not fp32; this device's texel buffers are too short " +
-                    "for the engine's inputs and its storage-buffer inputs read fp32 only");
-      a.kind = Bind::Read;
+    if (a.kind == Bind::Texel && kernel.bindings[i] == Bind::StorageInput) {
+      if (a.tensor.dtype() != DType::F32 && a.tensor.dtype() != DType::F16)
+        throw Error(name + ": input " + a.tensor.describe() + " is neither fp32 nor fp16");
+      if (a.tensor.bytes() % (dtypeSize(a.tensor.dtype()) * a.components))
+        throw Error(name + ": tensor " + a.tensor.describe() + " is not a whole number of " +
+                    std::to_string(a.components) + "-element texels");
+      a.kind = Bind::StorageInput;
+      d.signature += (d.signature.empty() ? "" : ",") + texelTypeName(a.tensor.dtype(), a.components);
     }
     if (!a.tensor.defined()) throw Error(name + ": binding " + std::to_string(i) + " has no tensor");
     if (a.kind != kernel.bindings[i]) throw Error(name + ": binding " + std::to_string(i) + " has the wrong kind");
@@ -207,7 +211,8 @@ void Recorder::dispatch(const Kernel& kernel, const std::vector<Arg>& args, cons
       d.signature += (d.signature.empty() ? "" : ",") + texelTypeName(a.tensor.dtype(), a.components);
       d.texelState += texelStateOf(a.tensor.buffer().size(), vi.range);
     } else {
-      if ((a.kind != Bind::Read) && a.tensor.dtype() == DType::F16 && !caps.storageBuffer16BitAccess)
+      if ((a.kind == Bind::Write || a.kind == Bind::ReadWrite) && a.tensor.dtype() == DType::F16 &&
+          !caps.storageBuffer16BitAccess)
         throw Error(name + ": this device cannot store fp16 buffers; use fp32");
       if (offset % caps.minStorageBufferOffsetAlignment)
         throw Error(name + ": tensor " + a.tensor.describe() + " starts at an offset the device cannot bind");

@@ -19,10 +19,10 @@ WeightSet::WeightSet(Engine& engine, const PackedModel& model, DType matrixType)
     : engine_(engine), model_(model), matrixType_(matrixType) {
   if (matrixType != DType::F32 && matrixType != DType::F16)
     throw Error(std::string("weight matrices can be f32 or f16, not ") + dtypeName(matrixType));
-  // fp16 matrices reach the kernels as fp16 texel buffers: refused up front where the device
-  // (or its device-limit profile) has no fp16 storage or its inputs go through storage buffers.
-  if (matrixType == DType::F16 && (!engine.caps().supportsFp16Storage() || engine.plan().storageInputs))
-    throw Error("fp16 weights need fp16 storage and long texel buffers, which " + engine.caps().name +
+  // fp16 matrices reach the kernels as fp16 texel buffers or as halves in the words of a
+  // storage input: refused up front where neither is possible (Engine::readsFp16Inputs).
+  if (matrixType == DType::F16 && !engine.readsFp16Inputs())
+    throw Error("fp16 weights need fp16 texel buffers or storage-buffer inputs, which " + engine.caps().name +
                 (engine.caps().limitsProfile.empty() ? "" : " under device-limit profile " + engine.caps().limitsProfile) +
                 " lacks: use fp32 weights");
 }

@@ -36,9 +36,9 @@ layout(constant_id = 20) const uint CM_M = 16;
 layout(constant_id = 21) const uint CM_N = 16;
 layout(constant_id = 22) const uint CM_K = 16;
 
-layout(binding = 0) uniform textureBuffer Q;
-layout(binding = 1) uniform textureBuffer K;
-layout(binding = 2) uniform textureBuffer V;
+TEXEL_INPUT(0, Q, 4)
+TEXEL_INPUT(1, K, 4)
+TEXEL_INPUT(2, V, 4)
 layout(binding = 3) writeonly buffer O { OUT_T o[]; };
 
 layout(push_constant) uniform Push {
@@ -69,11 +69,11 @@ void stage(bool isV, bool isQ, int b, int head, int row0, uint rows) {
     const int row = row0 + int(r);
     vec4 x = vec4(0.0);
     if (isQ) {
-      if (row < p.Nq) x = texelFetch(Q, (b * p.qBatch + row * p.qStride + p.qOff + head * int(DH)) / 4 + int(c));
+      if (row < p.Nq) x = fetch_Q((b * p.qBatch + row * p.qStride + p.qOff + head * int(DH)) / 4 + int(c));
     } else if (isV) {
-      if (row < p.Nk) x = texelFetch(V, (b * p.vBatch + row * p.vStride + p.vOff + head * int(DH)) / 4 + int(c));
+      if (row < p.Nk) x = fetch_V((b * p.vBatch + row * p.vStride + p.vOff + head * int(DH)) / 4 + int(c));
     } else {
-      if (row < p.Nk) x = texelFetch(K, (b * p.kBatch + row * p.kStride + p.kOff + head * int(DH)) / 4 + int(c));
+      if (row < p.Nk) x = fetch_K((b * p.kBatch + row * p.kStride + p.kOff + head * int(DH)) / 4 + int(c));
     }
     const f16vec4 h = f16vec4(clamp(x, vec4(-65504.0), vec4(65504.0)));
     [[unroll]] for (uint e = 0; e < 4; ++e) {

@@ -22,16 +22,26 @@
 #endif
 
 // Inputs read as texels: fetch_NAME(i) is the vec4 texelFetch gives of texel i, COMPONENTS
-// (1 or 4) floats of an R or RGBA texel. The *_sx twin of every variant of a shader that
-// declares its inputs so (STORAGE_INPUTS=1, made by cmake/EmbedShaders.cmake) reads the same
-// floats from a storage buffer instead, for devices whose texel buffers are too short
-// (65536 texels is all Vulkan guarantees; engine/kernel_plan.h, storageInputs). fp32 only.
+// (1 or 4) floats of an R or RGBA texel (fp32 or fp16: the texel format converts). The *_sx
+// twin of every variant of a shader that declares its inputs so (STORAGE_INPUTS=1, made by
+// cmake/EmbedShaders.cmake) reads the same values from a storage buffer of 32-bit words
+// instead, for devices whose texel buffers are too short (65536 texels is all Vulkan
+// guarantees; engine/kernel_plan.h, storageInputs). Bit BINDING of STORAGE_INPUT_F16 (set per
+// pipeline from the tensors bound: engine/pipeline.cpp) says the binding holds fp16: its words
+// are pairs of halves, unpacked with unpackHalf2x16, so reading fp16 needs no 16-bit storage.
 #if defined(STORAGE_INPUTS) && STORAGE_INPUTS
+layout(constant_id = 63) const int STORAGE_INPUT_F16 = 0;  // kStorageInputF16ConstantId
 #define TEXEL_INPUT(BINDING, NAME, COMPONENTS)                                                  \
-  layout(binding = BINDING) readonly buffer NAME##_floats { float NAME##_v[]; };                \
+  layout(binding = BINDING) readonly buffer NAME##_words { uint NAME##_w[]; };                  \
   vec4 fetch_##NAME(int i) {                                                                    \
-    if ((COMPONENTS) == 4) return vec4(NAME##_v[4 * i], NAME##_v[4 * i + 1], NAME##_v[4 * i + 2], NAME##_v[4 * i + 3]); \
-    return vec4(NAME##_v[i], 0.0, 0.0, 1.0);                                                    \
+    if ((STORAGE_INPUT_F16 & (1 << (BINDING))) != 0) {                                          \
+      if ((COMPONENTS) == 4) return vec4(unpackHalf2x16(NAME##_w[2 * i]), unpackHalf2x16(NAME##_w[2 * i + 1])); \
+      const vec2 pair = unpackHalf2x16(NAME##_w[i >> 1]);                                        \
+      return vec4((i & 1) != 0 ? pair.y : pair.x, 0.0, 0.0, 1.0);                                \
+    }                                                                                           \
+    if ((COMPONENTS) == 4)                                                                      \
+      return uintBitsToFloat(uvec4(NAME##_w[4 * i], NAME##_w[4 * i + 1], NAME##_w[4 * i + 2], NAME##_w[4 * i + 3])); \
+    return vec4(uintBitsToFloat(NAME##_w[i]), 0.0, 0.0, 1.0);                                   \
   }
 #else
 #define TEXEL_INPUT(BINDING, NAME, COMPONENTS)    \

@@ -5,7 +5,7 @@
 //   y[b][m][n] = act(sum_k x[b][m][k] * w[b][n][k] + bias[n])
 // A workgroup of SG_M x SG_N subgroups computes (CM_M*WM*SG_M) x (CM_N*WN*SG_N) outputs; each
 // subgroup owns WM x WN accumulators of the device's CM_M x CM_N x CM_K multiply-add. Per step
-// of CM_K*KSTEPS, the x and w slices are copied into shared memory as fp16 (the texel fetch
+// of CM_K*KSTEPS, the x and w slices are copied into shared memory as fp16 (the fetch
 // converts fp32 activations; values beyond fp16's range saturate at +-65504), then the
 // subgroups load their A and B fragments from there (B = w^T: w's rows read column-major).
 // The accumulators leave through a small per-subgroup staging area, where bias, activation,
@@ -38,9 +38,9 @@ layout(constant_id = 20) const uint CM_M = 16;
 layout(constant_id = 21) const uint CM_N = 16;
 layout(constant_id = 22) const uint CM_K = 16;
 
-layout(binding = 0) uniform textureBuffer X;
-layout(binding = 1) uniform textureBuffer W;
-layout(binding = 2) uniform textureBuffer BIAS;  // R texels; bound to w when HAS_BIAS is false
+TEXEL_INPUT(0, X, TEXEL_K)
+TEXEL_INPUT(1, W, TEXEL_K)
+TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
 layout(binding = 3) writeonly buffer Y { OUT_T y[]; };
 
 layout(push_constant) uniform Push {
@@ -66,9 +66,9 @@ void copySlice(bool isX, int img, int row0, int k0) {
     const int row = row0 + r;
     vec4 v = vec4(0.0);
     if (isX) {
-      if (row < p.M && kt0 + kt < p.K) v = texelFetch(X, img * p.xBatch + row * p.ldx + kt0 + kt);
+      if (row < p.M && kt0 + kt < p.K) v = fetch_X(img * p.xBatch + row * p.ldx + kt0 + kt);
     } else {
-      if (row < p.N && kt0 + kt < p.K) v = texelFetch(W, img * p.wBatch + row * p.ldw + kt0 + kt);
+      if (row < p.N && kt0 + kt < p.K) v = fetch_W(img * p.wBatch + row * p.ldw + kt0 + kt);
     }
     v = clamp(v, vec4(-65504.0), vec4(65504.0));
     [[unroll]] for (int c = 0; c < TEXEL_K; ++c) {
@@ -117,7 +117,7 @@ void main() {
         const int n = n0 + int((sgCol * WN + j) * CM_N + e % CM_N);
         if (m >= p.M || n >= p.N) continue;
         float v = staging[stage + e];
-        if (HAS_BIAS) v += texelFetch(BIAS, n).x;
+        if (HAS_BIAS) v += fetch_BIAS(n).x;
         y[img * p.yBatch + m * p.ldy + n] = TO_OUT(activate(v, ACT));
       }
       barrier();

@@ -6,7 +6,7 @@
 //   softmax:     y = exp(x - max) / sum(exp(x - max)), online per invocation (running max
 //                starts at -FLT_MAX, not -inf); a line with nothing above -inf gives zeros
 //   l2normalize: y = x / max(||x||, eps) (torch.nn.functional.normalize); the norm is taken
-//                as m * ||x / m|| with m = max |x|, so huge values do not overflow
+//                as 2^e * ||x * 2^-e|| with max |x| near 2^e, so huge values do not overflow
 //   argmax:      first index of the maximum as int32; NaN counts as the maximum (torch)
 // VEC4 (inner = 1 and C a multiple of 4): lines are read as vec4s.
 //! variant softmax OP=0 IN_PLACE=0
@@ -111,20 +111,23 @@ void main() {
 #elif OP == OP_L2
   float m = 0.0;
   for (uint u = lane; u < units; u += lanes) m = max(m, unitMax(abs(loadX(base + u * w * stride))));
-  const float scale = lineMax(m);
+  // The line is scaled by a power of two, 2^-e with max |x| = f * 2^e (f in [0.5, 1)), applied as
+  // two factors so that neither is subnormal: a GPU computes x / m as x * (1 / m), and 1 / 3e38
+  // is subnormal, which GPUs flush to zero (0 / 0 then). Powers of two scale exactly.
+  int e = 0;
+  frexp(lineMax(m), e);
+  const float down0 = ldexp(1.0, -(e / 2)), down1 = ldexp(1.0, -(e - e / 2));
   float s = 0.0;
-  if (scale > 0.0) {
-    for (uint u = lane; u < units; u += lanes) {
-      const vec4 t = loadX(base + u * w * stride) / scale;
-      s += unitSum(t * t);
-    }
-  }
-  const float scaledNorm = sqrt(lineSum(s));       // ||x / scale||, in [1, sqrt(C)] unless all zero
-  const bool aboveEps = scale * scaledNorm > p.eps;  // the product may be +inf: still above eps
   for (uint u = lane; u < units; u += lanes) {
-    const uint e = base + u * w * stride;
-    const vec4 v = loadX(e);
-    storeY(e, aboveEps ? (v / scale) / scaledNorm : v / p.eps);
+    const vec4 t = (loadX(base + u * w * stride) * down0) * down1;
+    s += unitSum(t * t);
+  }
+  const float scaledNorm = sqrt(lineSum(s));          // ||x|| * 2^-e, in [0.5, sqrt(C)) unless all zero
+  const bool aboveEps = ldexp(scaledNorm, e) > p.eps;  // ||x||, which may be +inf: still above eps
+  for (uint u = lane; u < units; u += lanes) {
+    const uint e2 = base + u * w * stride;
+    const vec4 v = loadX(e2);
+    storeY(e2, aboveEps ? ((v * down0) * down1) / scaledNorm : v / p.eps);
   }
 #else
   float best = 0.0;

@@ -93,7 +93,8 @@ TEST_F(EngineTest, AttentionOneKeyDominates) {
   expectClose(out.read(), ref, 1e-9, 1e-5, "dominant key");
 }
 
-// fp16 q/k/v with fp32 accumulation: exact up to fp32 error on the fp16-rounded inputs.
+// fp16 q/k/v with fp32 accumulation: exact up to fp32 error on the fp16-rounded inputs (up to
+// fp16 products on cooperative matrices).
 TEST_F(EngineTest, AttentionFp16Storage) {
   if (!eng().caps().supportsFp16Storage()) GTEST_SKIP() << "device without fp16 storage";
   const int64_t N = 77;
@@ -111,7 +112,10 @@ TEST_F(EngineTest, AttentionFp16Storage) {
                                  1.0 / std::sqrt(double(dh)));
   auto refExact = attentionRef(qkv, 3 * D, 0, qkv, 3 * D, D, qkv, 3 * D, 2 * D, 1, N, N, heads, dh, false,
                                1.0 / std::sqrt(double(dh)));
-  expectClose(out32.read(), refRounded, 1e-9, 1e-4, "f16 in, f32 out vs rounded");
+  // Where the plan sends fp16 inputs to cooperative matrices (plan().attentionF16), the products
+  // are fp16 (probabilities rounded too): tests/coopmat/test_coopmat.cpp's bound for that kernel.
+  const bool coopMat = eng().plan().attentionF16 == KernelFamily::CoopMat;
+  expectClose(out32.read(), refRounded, coopMat ? 1e-6 : 1e-9, coopMat ? 2e-2 : 1e-4, "f16 in, f32 out vs rounded");
   expectClose(out.read(), refExact, 1e-5, 1e-2, "f16 in, f16 out vs fp32");
   out.expectAllWritten();
 }

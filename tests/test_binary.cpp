@@ -95,13 +95,12 @@ TEST_F(EngineTest, BinarySplitIntoChunks) {
   auto a = randomUniform(N * C * HW, -4, 4, 86), b = randomUniform(C, -1, 1, 87);
   Tensor ta = eng().fromFloats({N, C, HW}, a), tb = eng().fromFloats({C, 1}, b);
   GuardedOutput out(eng(), {N, C, HW});
-  const uint64_t saved = eng().device().bindingRangeLimit();
-  eng().device().setBindingRangeLimitForTesting(4100 * 4);  // chunks of 4100: not a multiple of HW or C*HW
+  ScopedBindingRange lowered(eng(), 4100 * 4);  // chunks of 4100: not a multiple of HW or C*HW
   Recorder rec(eng());
   add(rec, ta, tb, out.tensor());
   EXPECT_EQ(rec.pending(), 6u);
   rec.run();
-  eng().device().setBindingRangeLimitForTesting(saved);
+  lowered.restore();
   expectClose(out.read(), binaryRef(BinaryOp::Add, a, b, HW), 1e-10, 1e-6, "chunked");
   out.expectAllWritten();
 }

@@ -136,14 +136,13 @@ TEST_F(EngineTest, ConvTranspose2dOutputSplitIntoChunks) {
   Tensor tx = eng().fromFloats({c.N, c.Cin, c.H, c.W}, x), tw = eng().fromFloats({c.Cin, c.Cout, 2, 2}, w);
   Tensor tb = eng().fromFloats({c.Cout}, b);
   GuardedOutput y(eng(), {c.N, c.Cout, c.H * 2, c.W * 2});
-  const uint64_t saved = eng().device().bindingRangeLimit();
   // Room for just under one image's output: its channel blocks go to different dispatches.
-  eng().device().setBindingRangeLimitForTesting(uint64_t(c.Cout * c.H * 2 * c.W * 2) * 4);
+  ScopedBindingRange lowered(eng(), uint64_t(c.Cout * c.H * 2 * c.W * 2) * 4);
   Recorder rec(eng());
   convTranspose2d(rec, tx, tw, tb, y.tensor());
   EXPECT_GT(rec.pending(), size_t(c.N));
   rec.run();
-  eng().device().setBindingRangeLimitForTesting(saved);
+  lowered.restore();
   expectClose(y.read(), convTRef(c, x, w, b), 1e-8, 1e-4, "chunked");
   y.expectAllWritten();
 }

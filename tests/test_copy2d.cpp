@@ -94,13 +94,12 @@ TEST_F(EngineTest, Copy2dSplitIntoChunks) {
   const int64_t R = 1000, a = 24, b = 16;
   auto xa = randomUniform(R * a, -1, 1, 101), xb = randomUniform(R * b, -1, 1, 102);
   GuardedOutput out(eng(), {R, a + b});
-  const uint64_t saved = eng().device().bindingRangeLimit();
-  eng().device().setBindingRangeLimitForTesting(300 * (a + b) * 4);  // 300 rows of out a chunk
+  ScopedBindingRange lowered(eng(), 300 * (a + b) * 4);  // 300 rows of out a chunk
   Recorder rec(eng());
   concatColumns(rec, {eng().fromFloats({R, a}, xa), eng().fromFloats({R, b}, xb)}, out.tensor());
   EXPECT_EQ(rec.pending(), 8u);  // 4 chunks per part
   rec.run();
-  eng().device().setBindingRangeLimitForTesting(saved);
+  lowered.restore();
   EXPECT_EQ(out.read(), concatRef({xa, xb}, {{R, a}, {R, b}}, 1));
 }
 

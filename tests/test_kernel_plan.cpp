@@ -3,6 +3,7 @@
 // and the fp16-arithmetic GEMM of the GPU family against float64 (its own thresholds).
 // The GPU kernels themselves run every op test a second time (CTest entries gpu_family.*, the
 // op executables under SPAR_KERNELS=gpu); cooperative matrices: tests/coopmat/.
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -118,6 +119,32 @@ TEST(KernelPlan, ForcedFamilies) {
   EXPECT_EQ(forced.gemmTiles, (TiledGemmTiles{64, 32, 8, 4, 2}));
   EXPECT_FALSE(forced.measureTiles);
   t.gpuGemmTiles = std::array<int, 5>{64, 32, 6, 4, 2};  // BK not a multiple of 4
+  EXPECT_THROW(t.validate(), Error);
+}
+
+// NVIDIA's driver (seen on an H200, 2026-12-04): 2^27 texels a texel buffer, 4 GiB a storage
+// binding, so inputs go through storage buffers; the first run there found the *_sx twins of the
+// cooperative-matrix kernels missing and fp16 weights refused. SPAR_INPUTS forces either way.
+TEST(KernelPlan, StorageInputsWhereTexelBuffersAreShorterThanStorage) {
+  DeviceCaps nv = gpuCaps();
+  nv.maxTexelBufferElements = 1ull << 27;
+  nv.maxStorageBufferRange = (4ull << 30) - 1;
+  EXPECT_TRUE(planKernels(nv, {}).storageInputs);
+  DeviceCaps lavapipe = cpuCaps();
+  lavapipe.maxTexelBufferElements = 1ull << 27;
+  lavapipe.maxStorageBufferRange = 1ull << 27;
+  EXPECT_FALSE(planKernels(lavapipe, {}).storageInputs);
+  KernelTuning t;
+  t.inputs = "storage";
+  EXPECT_TRUE(planKernels(lavapipe, t).storageInputs);
+  t.inputs = "texel";
+  const KernelPlan texel = planKernels(nv, t);
+  EXPECT_FALSE(texel.storageInputs);
+  const auto lines = describePlan(texel, nv);
+  EXPECT_TRUE(std::any_of(lines.begin(), lines.end(), [](const std::string& l) { return l == "inputs: texel buffers"; }));
+  EXPECT_TRUE(std::any_of(lines.begin(), lines.end(),
+                          [](const std::string& l) { return l.find("forced (SPAR_INPUTS=texel)") != std::string::npos; }));
+  t.inputs = "ssbo";
   EXPECT_THROW(t.validate(), Error);
 }
 

@@ -129,13 +129,12 @@ TEST_F(EngineTest, LinearOutputSplitIntoChunks) {
   auto x = randomUniform(M * K, -1, 1, 13), w = randomUniform(N * K, -1, 1, 14);
   Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w);
   GuardedOutput y(eng(), {M, N});
-  const uint64_t saved = eng().device().bindingRangeLimit();
-  eng().device().setBindingRangeLimitForTesting(256 * N * 4);  // 256 rows a chunk: 4 chunks
+  ScopedBindingRange lowered(eng(), 256 * N * 4);  // 256 rows a chunk: 4 chunks
   Recorder rec(eng());
   linear(rec, tx, tw, Tensor(), y.tensor());
   EXPECT_EQ(rec.pending(), 4u);
   rec.run();
-  eng().device().setBindingRangeLimitForTesting(saved);
+  lowered.restore();
   expectClose(y.read(), linearRef(x, w, {}, 1, M, N, K, false, Activation::None), 1e-10, 1e-4, "chunked");
   y.expectAllWritten();
 }

@@ -160,7 +160,7 @@ TEST_F(LSegTest, LsegInputNormalization) {
 // The error is that of fp16 weights, not of the fp32 path: measured NMSE 6.0e-7, max abs 6.0e-3;
 // thresholds 5e-6 and 5e-2.
 TEST_F(LSegTest, Fp16WeightMatrices) {
-  if (!eng().caps().supportsFp16Storage() || eng().plan().storageInputs) GTEST_SKIP() << "device without fp16 inputs";
+  if (!eng().readsFp16Inputs()) GTEST_SKIP() << "device without fp16 inputs";
   WeightSet half(eng(), *model_, DType::F16);
   LSegEncoder lseg(eng(), half, config_);
   expectCase(lseg, lsegGoldenDir() + "/nonsquare", 5e-6, 5e-2, "96x160 fp16 matrices");

@@ -136,13 +136,12 @@ TEST_F(EngineTest, LayerNormSplitIntoChunks) {
   auto w = randomUniform(d, 0.5f, 1.5f, 33), b = randomUniform(d, -1, 1, 34);
   Tensor tx = eng().fromFloats({10, 100, d}, x), tw = eng().fromFloats({d}, w), tb = eng().fromFloats({d}, b);
   GuardedOutput y(eng(), {10, 100, d});
-  const uint64_t saved = eng().device().bindingRangeLimit();
-  eng().device().setBindingRangeLimitForTesting(256 * d * 4);  // 256 rows a chunk: 4 chunks
+  ScopedBindingRange lowered(eng(), 256 * d * 4);  // 256 rows a chunk: 4 chunks
   Recorder rec(eng());
   layerNorm(rec, tx, tw, tb, y.tensor());
   EXPECT_EQ(rec.pending(), 4u);
   rec.run();
-  eng().device().setBindingRangeLimitForTesting(saved);
+  lowered.restore();
   expectClose(y.read(), layerNormRef(x, rows, d, w, b, 1e-5), 1e-9, 1e-5, "chunked");
   y.expectAllWritten();
 }

@@ -82,8 +82,7 @@ TEST_F(EngineTest, PatchifySplitIntoChunks) {
   Tensor timg = eng().fromFloats({V, C, H, W}, img);
   GuardedOutput tok(eng(), {V, 6, 48});
   GuardedOutput back(eng(), {V, C, H, W});
-  const uint64_t saved = eng().device().bindingRangeLimit();
-  eng().device().setBindingRangeLimitForTesting(uint64_t(2 * C * H * W + 64) * 4);  // two images a binding
+  ScopedBindingRange lowered(eng(), uint64_t(2 * C * H * W + 64) * 4);  // two images a binding
   Recorder rec(eng());
   patchify(rec, timg, tok.tensor(), p);
   const size_t patchifyDispatches = rec.pending();
@@ -91,7 +90,7 @@ TEST_F(EngineTest, PatchifySplitIntoChunks) {
   EXPECT_EQ(patchifyDispatches, 3u);
   EXPECT_EQ(rec.pending(), 6u);
   rec.run();
-  eng().device().setBindingRangeLimitForTesting(saved);
+  lowered.restore();
   expectClose(tok.read(), patchifyRef(img, V, C, H, W, p), 0.0, 0.0, "chunked patchify");
   expectClose(back.read(), toDouble(img), 0.0, 0.0, "chunked round trip");
 }

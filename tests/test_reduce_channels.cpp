@@ -235,13 +235,12 @@ TEST_F(EngineTest, SoftmaxSplitIntoChunks) {
   auto x = randomUniform(N * C * HW, -5, 5, 59);
   Tensor tx = eng().fromFloats({N, C, HW}, x);
   GuardedOutput y(eng(), {N, C, HW});
-  const uint64_t saved = eng().device().bindingRangeLimit();
-  eng().device().setBindingRangeLimitForTesting(2 * C * HW * 4);  // 2 images a chunk: 3 chunks
+  ScopedBindingRange lowered(eng(), 2 * C * HW * 4);  // 2 images a chunk: 3 chunks
   Recorder rec(eng());
   softmax(rec, tx, y.tensor(), 1);
   EXPECT_EQ(rec.pending(), 3u);
   rec.run();
-  eng().device().setBindingRangeLimitForTesting(saved);
+  lowered.restore();
   expectClose(y.read(), softmaxRef(x, N, C, HW), 1e-9, 1e-6, "chunked");
   y.expectAllWritten();
 }

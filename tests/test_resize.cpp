@@ -124,13 +124,12 @@ TEST_F(EngineTest, ResizeOutputSplitIntoChunks) {
   auto x = randomUniform(N * C * H * W, -1, 1, 3);
   Tensor tx = eng().fromFloats({N, C, H, W}, x);
   GuardedOutput y(eng(), {N, C, Ho, Wo});
-  const uint64_t saved = eng().device().bindingRangeLimit();
-  eng().device().setBindingRangeLimitForTesting(uint64_t(5 * Ho * Wo) * 4);  // one block of 4 channels
+  ScopedBindingRange lowered(eng(), uint64_t(5 * Ho * Wo) * 4);  // one block of 4 channels
   Recorder rec(eng());
   resizeBilinear(rec, tx, y.tensor(), false);
   EXPECT_GT(rec.pending(), 2u);
   rec.run();
-  eng().device().setBindingRangeLimitForTesting(saved);
+  lowered.restore();
   expectClose(y.read(), resizeRef(x, N * C, H, W, Ho, Wo, false), 1e-10, 1e-5, "chunked");
   y.expectAllWritten();
 }

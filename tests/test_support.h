@@ -131,6 +131,24 @@ class ScopedKernels {
   KernelTuning saved_;
 };
 
+// Lowers the device's storage-binding range for one scope so that an op splits its work at a
+// small size; restored at restore() or at the end of the scope, so a test that throws midway
+// leaves the limit as it found it for the tests after it.
+class ScopedBindingRange {
+ public:
+  ScopedBindingRange(Engine& engine, uint64_t bytes) : device_(engine.device()), saved_(device_.bindingRangeLimit()) {
+    device_.setBindingRangeLimitForTesting(bytes);
+  }
+  ~ScopedBindingRange() { restore(); }
+  void restore() { device_.setBindingRangeLimitForTesting(saved_); }
+  ScopedBindingRange(const ScopedBindingRange&) = delete;
+  ScopedBindingRange& operator=(const ScopedBindingRange&) = delete;
+
+ private:
+  Device& device_;
+  uint64_t saved_;
+};
+
 // Sets an environment variable for one scope (e.g. a tile override such as SPAR_CONV_TILES,
 // to test the GPU path on a CPU device), restoring the previous value or absence after.
 class ScopedEnv {

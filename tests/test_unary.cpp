@@ -169,13 +169,12 @@ TEST_F(EngineTest, UnarySplitIntoChunks) {
   auto x = randomUniform(n, -5, 5, 75);
   Tensor tx = eng().fromFloats({7, 1429, 1}, x);
   GuardedOutput y(eng(), {n});
-  const uint64_t saved = eng().device().bindingRangeLimit();
-  eng().device().setBindingRangeLimitForTesting(4096 * 4);  // 3 chunks
+  ScopedBindingRange lowered(eng(), 4096 * 4);  // 3 chunks
   Recorder rec(eng());
   unary(rec, UnaryOp::Silu, tx, y.tensor());
   EXPECT_EQ(rec.pending(), 3u);
   rec.run();
-  eng().device().setBindingRangeLimitForTesting(saved);
+  lowered.restore();
   expectClose(y.read(), unaryRef(UnaryOp::Silu, x), 1e-10, 1e-5, "chunked");
   y.expectAllWritten();
 }

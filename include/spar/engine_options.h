@@ -26,6 +26,10 @@ struct SPAR_API KernelTuning {
   // fp16 weights compute in fp16 (fp32 accumulation); "coopmat": "gpu", and GEMMs with fp16
   // weights run on VK_KHR_cooperative_matrix (an error on a device without it).
   std::string kernels;
+  // How kernels read their inputs, forced (SPAR_INPUTS): "" lets the engine choose per device
+  // (storage buffers where texel buffers are shorter than a storage binding); "texel": texel
+  // buffers; "storage": storage buffers of 32-bit words (the *_sx kernels), as on such a device.
+  std::string inputs;
   std::optional<std::array<int, 5>> gpuGemmTiles;       // BM, BN, BK, TM, TN (SPAR_GPU_GEMM_TILES)
   std::optional<std::array<int, 2>> gpuAttentionTiles;  // queries per workgroup, keys per block
   // gemm_coopmat.comp: MMAs per subgroup WM x WN, subgroups SG_M x SG_N, K blocks a step
@@ -75,7 +79,7 @@ struct SPAR_API EngineOptions {
   // `base` with what the environment sets: SPAR_DEVICE, SPAR_VALIDATION=1, SPAR_LOG_PIPELINES=1,
   // SPAR_PROFILE=1, SPAR_GEMM_TILES=RM,RN,LX,LY,KU, SPAR_ATTENTION_TILES=QPI,KB,LX,
   // SPAR_CONV_TILES / SPAR_CONVT_TILES=RC,RY,RX,LX,LY, SPAR_LINE_GROUP=SPLIT,LX,LY,
-  // SPAR_KERNELS=cpu|gpu|gpu-fp16|coopmat, SPAR_GPU_GEMM_TILES=BM,BN,BK,TM,TN,
+  // SPAR_KERNELS=cpu|gpu|gpu-fp16|coopmat, SPAR_INPUTS=texel|storage, SPAR_GPU_GEMM_TILES=BM,BN,BK,TM,TN,
   // SPAR_GPU_ATTENTION_TILES=QUERIES,KEYS, SPAR_COOPMAT_TILES=WM,WN,SGM,SGN,KSTEPS,
   // SPAR_MEASURE_KERNELS=0|1,
   // SPAR_SUBMIT_TIMEOUT_MS, SPAR_MEMORY_LIMIT_MB, SPAR_DEVICE_LIMITS=PROFILE|FILE.json, SPAR_FAULT_ALLOCATION=N, SPAR_FAULT_SUBMISSION=N. A field

@@ -260,7 +260,7 @@ std::vector<SelftestCheck> runSelftestChecks(Engine& engine) {
   // 768 x 518 weights are 397824 R texels: more than the 65536 Vulkan guarantees a texel binding.
   checks.push_back(linearCheck(engine, 130, 768, 518, false, 21));
   // fp16 weights where the device can read them (elsewhere the engine keeps weights fp32).
-  if (engine.caps().supportsFp16Storage() && !engine.plan().storageInputs) checks.push_back(linearF16Check(engine));
+  if (engine.readsFp16Inputs()) checks.push_back(linearF16Check(engine));
   checks.push_back(attentionCheck(engine));
   checks.push_back(layerNormCheck(engine));
   checks.push_back(softmaxCheck(engine));

@@ -27,7 +27,8 @@
 #   3. spar-bench: every op case (4096^3 GEMMs on a GPU) with the plan, JSON
 #   4. gpu_reference_bench.py --ops: cuBLAS GEMM (TF32 off) and SDPA on the same GPU
 #   5. the full-size model (official configuration, random weights made there, seed 11):
-#      spar-bench --model fp32 and fp16, 4 inputs + 4 targets at 256x256, per stage
+#      spar-bench --model fp32 and fp16, 4 inputs + 4 targets at 256x256, per stage; fp32 again
+#      with inputs through texel buffers (SPAR_INPUTS=texel)
 #   6. gpu_reference_bench.py on the same checkpoint and frames: fp32 eager and bf16
 #   7. goldens made there (tests/python/make_spar_goldens.py) and the model-level tests
 #   8. scripts/gpu/gpu_check_report.py: report.json, report.md (side by side, the issue's bars)
@@ -49,8 +50,11 @@ model_tests=(test_dino_v3 test_cv_drp)
 if [ "$mode" = pack ]; then
   build=${SPAR_BUILD:-build}
   export DIR=${DIR:-$build/mesa-trixie}  # where scripts/portability/coopmat-lavapipe.sh keeps Debian 13's files
-  bash scripts/portability/coopmat-lavapipe.sh >/dev/null || exit 1
   trixie="$DIR/root/usr/lib/x86_64-linux-gnu"
+  # libGLdispatch.so.0 (glvnd) travels too: NVIDIA's Vulkan driver, libGLX_nvidia.so.0, needs it
+  # and the GPU machine's image has none (2026-12-04: without it the loader found no driver).
+  [ -f "$trixie/libGLdispatch.so.0" ] || rm -f "$DIR/lvp_icd.json"  # a download from before: fetch again
+  bash scripts/portability/coopmat-lavapipe.sh >/dev/null || exit 1
   stage=$(mktemp -d)
   mkdir -p "$stage/bin" "$stage/runtime" "$stage/layers"
   for b in "${bins[@]}"; do
@@ -61,7 +65,7 @@ if [ "$mode" = pack ]; then
     fi
     strip -o "$stage/bin/$b" "$f"
   done
-  for l in ld-linux-x86-64.so.2 libc.so.6 libm.so.6 libstdc++.so.6 libgcc_s.so.1 libvulkan.so.1; do
+  for l in ld-linux-x86-64.so.2 libc.so.6 libm.so.6 libstdc++.so.6 libgcc_s.so.1 libvulkan.so.1 libGLdispatch.so.0; do
     cp -L "$trixie/$l" "$stage/runtime/$l"
   done
   cp -L "$trixie/libVkLayer_khronos_validation.so" "$stage/layers/"
@@ -221,6 +225,11 @@ for p in fp32 fp16; do
   step "bench-model-$p" 300 "${plan[@]}" $bin spar-bench --model "$work/model.spar" --views 4 --targets 4 "${sizearg[@]}" \
     --precision $p --repeat $reps --json
 done
+# The same fp32 run with inputs through texel buffers (SPAR_INPUTS=texel): NVIDIA's plan takes
+# storage buffers (its texel buffers are shorter than a storage binding); which is faster there
+# was not measured before.
+step bench-model-fp32-texel 300 env "${plan[@]}" SPAR_INPUTS=texel $bin spar-bench --model "$work/model.spar" --views 4 \
+  --targets 4 "${sizearg[@]}" --precision fp32 --repeat $reps --json
 step reference-model 420 "$py" scripts/gpu/gpu_reference_bench.py --checkpoint "$work/model.pt" --config "$work/model.json" \
   --views 4 --targets 4 "${sizearg[@]}" --repeat $reps --out "$out/reference_model.json"
 

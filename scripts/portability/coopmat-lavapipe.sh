@@ -31,8 +31,10 @@ if [ ! -f "$icd" ]; then
             -o Dir::State::Lists="$dir/apt/lists" -o Dir::Cache="$dir/apt/cache"
             -o Dir::State::status="$dir/apt/status" -o Debug::NoLocking=1 -o APT::Sandbox::User=root)
   apt-get "${apt_opts[@]}" update -q >/dev/null
+  # libglvnd0: not for lavapipe; NVIDIA's Vulkan driver (libGLX_nvidia.so.0) needs its
+  # libGLdispatch.so.0, which the GPU check's bundle carries (scripts/gpu/gpu-check.sh pack).
   apt-get "${apt_opts[@]}" install --download-only -y -q --no-install-recommends \
-    mesa-vulkan-drivers/trixie-backports libvulkan1 vulkan-validationlayers >/dev/null
+    mesa-vulkan-drivers/trixie-backports libvulkan1 vulkan-validationlayers libglvnd0 >/dev/null
   rm -rf "$root.tmp" && mkdir -p "$root.tmp"
   for deb in "$dir"/apt/cache/archives/*.deb; do dpkg -x "$deb" "$root.tmp"; done
   rm -rf "$root" && mv "$root.tmp" "$root"
@@ -40,6 +42,7 @@ if [ ! -f "$icd" ]; then
   # The package's manifest names the library without a path: point a copy at the unpacked one.
   sed "s#\"library_path\": *\"[^\"]*\"#\"library_path\": \"$lib/libvulkan_lvp.so\"#" \
     "$root/usr/share/vulkan/icd.d/lvp_icd.json" > "$icd"
+  [ -f "$lib/libGLdispatch.so.0" ] || { echo "coopmat-lavapipe: no libGLdispatch.so.0 unpacked" >&2; exit 1; }
   grep -q VK_KHR_cooperative_matrix "$lib/libvulkan_lvp.so" ||
     { echo "coopmat-lavapipe: the fetched lavapipe has no VK_KHR_cooperative_matrix" >&2; exit 1; }
 fi

@@ -39,7 +39,8 @@ STEP_LIMITS = {"kernels": 120, "selftest": 120, "op-goldens": 120, "reference-op
 def check_steps(coopmat, report=True):
     """gpu-check.sh run's steps in order (test_coopmat where the device has cooperative matrices)."""
     return (["kernels", "selftest", "op-goldens"] + [f"test-{t}" for t in OP_TESTS] + (["test-test_coopmat"] if coopmat else []) +
-            ["bench-ops", "reference-ops", "make-model", "bench-model-fp32", "bench-model-fp16", "reference-model",
+            ["bench-ops", "reference-ops", "make-model", "bench-model-fp32", "bench-model-fp16", "bench-model-fp32-texel",
+             "reference-model",
              "goldens"] + [f"test-{t}" for t in MODEL_TESTS] + (["report"] if report else []))
 
 VARIANTS = {  # gpu-train.sh's variants on a GPU: name -> options besides the shared ones
@@ -117,7 +118,7 @@ elif name == "spar-train":
 # the bundle's programs (one script, told apart by its name) and its dynamic loader
 BUNDLE_BIN = r"""#!/bin/sh
 name=${0##*/}
-echo "bin $name $* | kernels=${SPAR_KERNELS-} measure=${SPAR_MEASURE_KERNELS-} shards=${GTEST_TOTAL_SHARDS-}/${GTEST_SHARD_INDEX-} driver=${VK_DRIVER_FILES-} icd=${VK_ICD_FILENAMES-} layers=${VK_LAYER_PATH-} goldens=${SPAR_GOLDENS_DIR-} op_goldens=${SPAR_OP_GOLDENS_DIR-}" >> "$STUB_LOG"
+echo "bin $name $* | kernels=${SPAR_KERNELS-} inputs=${SPAR_INPUTS-} measure=${SPAR_MEASURE_KERNELS-} shards=${GTEST_TOTAL_SHARDS-}/${GTEST_SHARD_INDEX-} driver=${VK_DRIVER_FILES-} icd=${VK_ICD_FILENAMES-} layers=${VK_LAYER_PATH-} goldens=${SPAR_GOLDENS_DIR-} op_goldens=${SPAR_OP_GOLDENS_DIR-}" >> "$STUB_LOG"
 case $name in
   spar-bench)
     case "$*" in
@@ -484,7 +485,8 @@ def test_check_cpu_runs_every_step(tmp_path, mode):
         "spar-bench --list-devices", "spar-bench --list-kernels --json",
         f"spar-bench --selftest --selftest-model-dir {repo.root}/samples/data/selftest",
         "spar-bench --json --repeat 2 --only _f32",
-        f"{model} fp32 --repeat 2 --json", f"{model} fp16 --repeat 2 --json"]
+        f"{model} fp32 --repeat 2 --json", f"{model} fp16 --repeat 2 --json", f"{model} fp32 --repeat 2 --json"]
+    assert [s["inputs"] for c, s in runs["spar-bench"]] == [""] * 6 + ["texel"]  # the last: texel inputs
     for cmd, seen in runs["spar-bench"][1:]:
         assert {k: seen[k] for k in plan} == plan, cmd
     for t in tests:
@@ -516,7 +518,8 @@ def test_check_cpu_runs_every_step(tmp_path, mode):
 
 # --- pack: the bundle the device machine gets, and the teacher ----------------------------------------
 
-RUNTIME = ["ld-linux-x86-64.so.2", "libc.so.6", "libm.so.6", "libstdc++.so.6", "libgcc_s.so.1", "libvulkan.so.1"]
+RUNTIME = ["ld-linux-x86-64.so.2", "libc.so.6", "libm.so.6", "libstdc++.so.6", "libgcc_s.so.1", "libvulkan.so.1",
+           "libGLdispatch.so.0"]
 
 
 def pack_inputs(repo, base):
@@ -532,7 +535,7 @@ def pack_inputs(repo, base):
     subprocess.run(["objcopy", "--add-section", f".debug_stub={debug}", os.path.join(build, "samples", "spar-bench")],
                    check=True)  # something for strip to take away
     lib = os.path.join(mesa, "root", "usr", "lib", "x86_64-linux-gnu")
-    for name in RUNTIME[:-1] + ["libVkLayer_khronos_validation.so"]:
+    for name in [x for x in RUNTIME if x != "libvulkan.so.1"] + ["libVkLayer_khronos_validation.so"]:
         write(os.path.join(lib, name), f"{name} of Debian 13\n")
     write(os.path.join(lib, "libvulkan.so.1.4.309"), "libvulkan.so.1 of Debian 13\n")
     os.symlink("libvulkan.so.1.4.309", os.path.join(lib, "libvulkan.so.1"))
@@ -716,8 +719,9 @@ def test_session_check_used_our_own_driver_manifest(session):
     icd = os.path.join(repo.check_work, "nvidia_icd.json")
     assert json.load(open(icd))["ICD"]["library_path"] == f"{nv}/usr/lib/x86_64-linux-gnu/libGLX_nvidia.so.0"
     seen = [line.split(" | ")[1] for line in repo.records("bin ")]
-    # the test programs once each, spar-bench 6 times (devices, kernels, selftest, ops, model fp32 and fp16)
-    assert len(seen) == len(BINS) - 1 + 6 and all(f"driver={icd} icd={icd} " in s for s in seen)
+    # the test programs once each, spar-bench 7 times (devices, kernels, selftest, ops, model fp32, fp16
+    # and fp32 with texel inputs)
+    assert len(seen) == len(BINS) - 1 + 7 and all(f"driver={icd} icd={icd} " in s for s in seen)
     assert set(repo.records("ld ")) == {f"{repo.check_work}/runtime:{nv}/usr/local/nvidia/lib:"
                                         f"{nv}/usr/lib/x86_64-linux-gnu"}
 
