@@ -41,7 +41,7 @@ def small():
 def test_demonstration_note(shipped, small):
     """What the model file says it is: the shipped model's card, the same sentence spar render prints."""
     note = shipped.demonstration_note
-    assert note.startswith("Demonstration model: ") and "PSNR 18.1 dB, below the 20.0 dB" in note, note
+    assert note.startswith("Demonstration model: ") and "PSNR 21.0 dB, above the 20.0 dB" in note, note
     assert note.endswith("; for real photos, convert the official checkpoint (docs/checkpoints.md).")
     assert small[0].demonstration_note == ""
 
