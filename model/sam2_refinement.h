@@ -11,6 +11,7 @@
 // the one readback that decides which views run the encoder.
 #pragma once
 #include <array>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -19,6 +20,13 @@
 #include "model/sam2_mask_decoder.h"
 
 namespace spar {
+
+class WeightSet;
+
+// SAM2's weights from a model's weight set: convolution kernels (rank 4) as f32, which the
+// engine's convolutions read (an fp16 set gives them fp16-rounded), everything else as the set
+// gives it (matrices fp16 under fp16 weights).
+WeightLookup sam2Weights(WeightSet& weights);
 
 struct Sam2ViewRefinement {
   bool skipped = false;
@@ -37,8 +45,11 @@ class Sam2Refiner {
  public:
   Sam2Refiner(Engine& engine, const Sam2Config& config, const WeightLookup& weights, const std::string& prefix = "sam2.");
 
-  // images [V, 3, H, W] in [0, 1], probs [V, H, W] P(dynamic).
-  Sam2Refined refine(const Tensor& images, const Tensor& probs);
+  // images [V, 3, H, W] in [0, 1], probs [V, H, W] P(dynamic). `ran`, when given, is called
+  // after each submission with its recorder (profiled, stage "sam2_refine"): the caller's
+  // stage times.
+  Sam2Refined refine(const Tensor& images, const Tensor& probs,
+                     const std::function<void(const Recorder&)>& ran = {});
 
   static constexpr int64_t kSkipMin = 10;  // SPAR: refined only when 10 <= dynamic <= H*W - 10
 

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <set>
@@ -20,6 +21,8 @@
 #include "model/plucker_rays.h"
 #include "model/pose_estimator.h"
 #include "model/renderer.h"
+#include "model/sam2_config.h"
+#include "model/sam2_refinement.h"
 #include "model/scene_encoder.h"
 #include "model/semantic_tokens.h"
 #include "model/stack.h"
@@ -54,6 +57,7 @@ struct SparPipeline::Stages {
   std::unique_ptr<SemanticTokens> semantic;
   std::unique_ptr<SceneEncoder> scene;
   std::unique_ptr<Renderer> renderer;
+  std::unique_ptr<Sam2Refiner> sam2;
   TransformerWorkspace ws;
   // Device state between encode() and render*().
   Tensor c2w, fxfycxcy, sceneSeq, sceneTokens;
@@ -93,6 +97,22 @@ using Clock = std::chrono::steady_clock;
 double msSince(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
+}  // namespace
+
+namespace {
+
+// The views `positions` of images [V, 3, H, W] (or masks [V, H, W]: channels 1) as a tensor of their own.
+Tensor selectViews(Recorder& rec, const Tensor& all, const std::vector<int64_t>& positions, int64_t perView,
+                   const Shape& viewShape) {
+  Shape shape{int64_t(positions.size())};
+  shape.insert(shape.end(), viewShape.begin(), viewShape.end());
+  const Tensor out = rec.engine().tensor(shape);
+  for (size_t j = 0; j < positions.size(); ++j)
+    copy2d(rec, all.view(positions[j] * perView, {1, perView}), perView, 0, out.view(int64_t(j) * perView, {1, perView}),
+           perView, 0, 1, perView);
+  return out;
+}
+
 }  // namespace
 
 void SparPipeline::addStageTimes(const Recorder& rec, double wallMs) {
@@ -150,6 +170,21 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
   if (!request.lsegFeatures.empty() && (!c.useLseg || int64_t(request.lsegFeatures.size()) != featureValues))
     throw Error("precomputed LSeg features: expected " + std::to_string(c.useLseg ? featureValues : 0) + " values, got " +
                 std::to_string(request.lsegFeatures.size()));
+  const bool refine = request.refine || request.maskSource == MaskSource::Refined;
+  if (refine && !model_.metadata().count("sam2_config"))
+    throw Error("this model has no SAM2.1 weights (spar-convert --sam2): no mask refinement");
+  if (request.maskSource == MaskSource::Refined && request.assumeStatic)
+    throw Error("refined masks gate nothing in a scene declared static (not --assume-static)");
+  if (!request.refinePrompts.empty()) {
+    if (!refine) throw Error("masks to refine were given without asking for refinement");
+    if (int64_t(request.refinePrompts.size()) != v * h * w)
+      throw Error("masks to refine: expected " + std::to_string(v) + " masks of " + std::to_string(h) + "x" +
+                  std::to_string(w) + " values, got " + std::to_string(request.refinePrompts.size()) + " values");
+    for (float p : request.refinePrompts)
+      if (!std::isfinite(p)) throw Error("masks to refine hold a value that is not finite");
+  } else if (refine && request.assumeStatic) {
+    throw Error("refinement needs CV-DRP's masks (not --assume-static) or masks given to refine");
+  }
   request_ = request;
   request_.height = h;
   request_.width = w;
@@ -245,6 +280,14 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
     finish(t0);
   }
 
+  // ---- SAM2.1 refinement (only when asked: no SAM2 weight is uploaded otherwise)
+  Tensor gateMask = probInput;  // what gates the input tokens: CV-DRP's, or the refined masks
+  if (refine) {
+    const Tensor refinedInput = refineMasks(images, probInput, probTarget);
+    if (request.maskSource == MaskSource::Refined) gateMask = refinedInput;
+    keep("refined_input", refinedInput);
+  }
+
   // ---- mlp_fuse and gating of the input tokens
   if (!st.gating) st.gating = std::make_unique<TokenGating>(engine_, weights_, c);
   const Tensor fused = engine_.tensor({k * n, d});
@@ -253,10 +296,10 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
   rec.setStage("gating");
   st.gating->fuse(rec, imgTokens, rayTokens, request.plan.inputs, fused);
   // Without gating the fused tokens go on as they are (as with assumeStatic), masks or not.
-  if (probInput.defined() && request.gating) {
+  if (gateMask.defined() && request.gating) {
     gated = engine_.tensor({k * n, d});
     const Tensor dynPatch = engine_.tensor({k, 1, gh, gw});
-    st.gating->gate(rec, fused, probInput, dynPatch, gated);
+    st.gating->gate(rec, fused, gateMask, dynPatch, gated);
     keep("dynamic_patch", dynPatch);
   }
   watch_->watch(rec, "gating", gated);
@@ -276,12 +319,9 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
       // LSeg on the input views only (SPAR feeds it the [0, 1] images as they are).
       if (!st.lseg) st.lseg = std::make_unique<LSegEncoder>(engine_, weights_, c);
       features = engine_.tensor({k, c.semanticDim, h / 2, w / 2});
-      const Tensor inputImages = engine_.tensor({k, 3, h, w});
       t0 = Clock::now();
       rec.setStage("lseg");
-      for (int64_t j = 0; j < k; ++j)
-        copy2d(rec, images.view(request.plan.inputs[j] * 3 * h * w, {1, 3 * h * w}), 3 * h * w, 0,
-               inputImages.view(j * 3 * h * w, {1, 3 * h * w}), 3 * h * w, 0, 1, 3 * h * w);
+      const Tensor inputImages = selectViews(rec, images, request.plan.inputs, 3 * h * w, {3, h, w});
       st.lseg->forward(rec, inputImages, features, st.ws);
       watch_->watch(rec, "lseg", features);
       rec.run();
@@ -296,10 +336,10 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
     t0 = Clock::now();
     rec.setStage("semantic_tokens");
     st.semantic->forward(rec, features, rays, request.plan.inputs, semTokens, pooled);
-    if (probInput.defined() && request.gating) {
+    if (gateMask.defined() && request.gating) {
       gatedSem = engine_.tensor({k * hs * ws, d});
       const Tensor dynSem = engine_.tensor({k, 1, hs, ws});
-      st.gating->gate(rec, semTokens, probInput, dynSem, gatedSem);
+      st.gating->gate(rec, semTokens, gateMask, dynSem, gatedSem);
       keep("dynamic_patch_sem", dynSem);
     }
     watch_->watch(rec, "semantic_tokens", gatedSem);
@@ -339,6 +379,42 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
   encoded_.canonicalIndex = c.canonicalIndex(v);
   st.encoded = true;
   return encoded_;
+}
+
+// SAM2.1 refinement of the inputs' masks (and the targets' with targetMotion), prompted by
+// CV-DRP's P(dynamic) or the request's own masks, on the views' captured images (the official
+// _sam2_refine_masks: real target frames, not renders). Fills encoded_'s refined fields and
+// returns the inputs' refined masks [K, 1, H, W] on the device.
+Tensor SparPipeline::refineMasks(const Tensor& images, const Tensor& probInput, const Tensor& probTarget) {
+  Stages& st = *stages_;
+  const SparRequest& r = request_;
+  const int64_t v = r.plan.views, h = r.height, w = r.width;
+  if (!st.sam2)
+    st.sam2 = std::make_unique<Sam2Refiner>(engine_, Sam2Config::fromJson(model_.metadata().at("sam2_config")),
+                                            sam2Weights(weights_));
+  const auto t0 = Clock::now();
+  const Tensor given = r.refinePrompts.empty() ? Tensor() : engine_.fromFloats({v, h, w}, r.refinePrompts);
+  const auto ran = [this](const Recorder& rec) { addStageTimes(rec, 0.0); };
+  const auto refineViews = [&](const std::vector<int64_t>& positions, const Tensor& cvDrp, std::vector<float>& masks) {
+    const int64_t count = int64_t(positions.size());
+    Recorder rec(engine_);
+    const Tensor viewImages = selectViews(rec, images, positions, 3 * h * w, {3, h, w});
+    const Tensor prompts = given.defined() ? selectViews(rec, given, positions, h * w, {h, w}) : cvDrp.reshape({count, h, w});
+    rec.run();
+    Sam2Refined out = st.sam2->refine(viewImages, prompts, options_.profile ? ran : std::function<void(const Recorder&)>());
+    masks = std::move(out.masks);
+    for (size_t j = 0; j < positions.size(); ++j) {
+      const Sam2ViewRefinement& s = out.views[j];
+      encoded_.refineViews.push_back({positions[j], s.skipped, s.dynamicPixels, s.iou, s.chosen, s.logits});
+    }
+  };
+  refineViews(r.plan.inputs, probInput, encoded_.refinedInput);
+  if (r.targetMotion && !r.plan.targets.empty()) refineViews(r.plan.targets, probTarget, encoded_.refinedTarget);
+  const double wall = msSince(t0);
+  auto it = std::find_if(stageTimes_.begin(), stageTimes_.end(), [](const StageTime& s) { return s.name == "sam2_refine"; });
+  if (it == stageTimes_.end()) stageTimes_.push_back({"sam2_refine", 0.0, wall, 0.0});
+  else it->wallMs += wall;
+  return engine_.fromFloats({int64_t(r.plan.inputs.size()), 1, h, w}, encoded_.refinedInput);
 }
 
 std::vector<float> SparPipeline::renderRays(const Tensor& c2w, const Tensor& fxfycxcy, int64_t count) {

@@ -7,6 +7,7 @@
 //          -> Plücker rays -> ray tokens                      model/plucker_rays.*, model/view_tokens.*
 //          -> DINOv3 patch tokens                             model/dino_v3.*
 //          -> CV-DRP motion probability per view              model/cv_drp.*
+//          -> (asked for) SAM2.1 refinement of the masks        model/sam2_refinement.*
 //          -> mlp_fuse + soft_with_pe gating                  model/gating.*
 //          -> (semantic models) LSeg features -> semantic tokens, gated  model/lseg.*, model/semantic_tokens.*
 //          -> scene encoder -> scene tokens                   model/scene_encoder.*
@@ -94,6 +95,7 @@ class SparPipeline {
   void keep(const std::string& name, const Tensor& t);
   void addStageTimes(const class Recorder& rec, double wallMs);
   std::vector<float> renderRays(const Tensor& c2w, const Tensor& fxfycxcy, int64_t count);
+  Tensor refineMasks(const Tensor& images, const Tensor& probInput, const Tensor& probTarget);
 
   Engine& engine_;
   const PackedModel& model_;

@@ -201,7 +201,8 @@ PYBIND11_MODULE(spar, m) {
       .def(
           "encode",
           [](SessionBox& s, const py::handle& images, py::object inputs, py::object targets, bool assumeStatic,
-             bool targetMotion, bool semanticFeatures) {
+             bool targetMotion, bool semanticFeatures, bool refine, const std::string& maskSource,
+             const py::object& refinePrompts) {
             spar::Request r;
             r.images = floats(images, "images", {-1, 3, -1, -1});
             const py::array a = py::reinterpret_borrow<py::array>(images);
@@ -223,6 +224,11 @@ PYBIND11_MODULE(spar, m) {
             r.assumeStatic = assumeStatic;
             r.targetMotion = targetMotion;
             r.semanticFeatures = semanticFeatures;
+            r.refine = refine;
+            if (maskSource != "raw" && maskSource != "refined")
+              throw spar::Error("mask_source must be 'raw' or 'refined', got '" + maskSource + "'");
+            r.maskSource = maskSource == "refined" ? spar::MaskSource::Refined : spar::MaskSource::Raw;
+            if (!refinePrompts.is_none()) r.refinePrompts = floats(refinePrompts, "refine_prompts", {views, r.height, r.width});
             spar::Session& session = s.open();
             {
               py::gil_scoped_release free;
@@ -244,15 +250,36 @@ PYBIND11_MODULE(spar, m) {
             out["motion_input"] = motion(s.encoded.motionInput);
             out["motion_target"] = motion(s.encoded.motionTarget);
             out["canonical_index"] = s.encoded.canonicalIndex;
+            if (!s.encoded.refineViews.empty()) {
+              out["refined_input"] = motion(s.encoded.refinedInput);
+              out["refined_target"] = motion(s.encoded.refinedTarget);
+              py::list views;
+              for (const spar::RefinedView& rv : s.encoded.refineViews) {
+                py::dict d;
+                d["view"] = rv.view;
+                d["skipped"] = rv.skipped;
+                d["dynamic_pixels"] = rv.dynamicPixels;
+                d["iou"] = rv.skipped ? py::object(py::none()) : py::object(py::make_tuple(rv.iou[0], rv.iou[1], rv.iou[2]));
+                d["chosen"] = rv.skipped ? py::object(py::none()) : py::object(py::int_(rv.chosen));
+                d["logits"] = rv.skipped ? py::object(py::none()) : toNumpy(std::vector<float>(rv.logits), {256, 256});
+                views.append(d);
+              }
+              out["refine_views"] = views;
+            }
             return out;
           },
           py::arg("images"), py::arg("inputs") = py::none(), py::arg("targets") = py::none(),
           py::arg("assume_static") = false, py::arg("target_motion") = false, py::arg("semantic_features") = false,
+          py::arg("refine") = false, py::arg("mask_source") = "raw", py::arg("refine_prompts") = py::none(),
           "images: float32 (V, 3, H, W) in [0, 1] in capture order (spar.load_image prepares a file); inputs: "
           "positions of the input views (default all); targets: the views to render with render_targets() "
           "(default the rest). Returns a dict: c2w (V, 4, 4) OpenCV camera-to-world in the canonical view's "
           "frame, fxfycxcy (V, 4) normalized intrinsics, motion_input (K, H, W) P(dynamic) of the inputs "
-          "(None with assume_static), motion_target (T, H, W) with target_motion, canonical_index.")
+          "(None with assume_static), motion_target (T, H, W) with target_motion, canonical_index. refine: "
+          "SAM2.1 refinement of the masks (a model packed with spar-convert --sam2): adds refined_input (K, H, W) "
+          "and refined_target (T, H, W with target_motion) of 0 / 1 and refine_views (per refined view: view, "
+          "skipped, dynamic_pixels, iou, chosen, logits 256 x 256); mask_source 'refined' gates the input tokens "
+          "with them (implies refine); refine_prompts: float32 (V, H, W) P(dynamic) to refine instead of CV-DRP's.")
       .def(
           "render_targets",
           [](SessionBox& s) {

@@ -101,8 +101,17 @@ int main(int argc, char** argv) {
       ->check(CLI::IsMember({"fp32", "fp16"}));
   std::string renderSize;
   auto* renderSizeOpt = render->add_option("--size", renderSize, kSizeHelp)->type_name("HxW");
-  render->add_flag("--assume-static", a.assumeStatic,
-                   "the scene is static: skip DINOv3 and CV-DRP, gate no token, write no motion maps");
+  auto* assumeStaticOpt = render->add_flag("--assume-static", a.assumeStatic,
+                                           "the scene is static: skip DINOv3 and CV-DRP, gate no token, write no motion maps");
+  render->add_flag("--refine", a.refine,
+                   "refine the inputs' motion masks with SAM2.1 (refined_XX.png; a model packed with spar-convert "
+                   "--sam2)")
+      ->excludes(assumeStaticOpt);
+  render->add_option("--mask-source", a.maskSource,
+                     "which masks gate the input tokens: raw (CV-DRP's, the default) or refined (SAM2.1's; implies "
+                     "--refine)")
+      ->check(CLI::IsMember({"raw", "refined"}))
+      ->excludes(assumeStaticOpt);
   auto* outOpt = render->add_option("--out", a.out,
                                     "output directory (must not exist; written as DIR.tmp-XXXXXX, then renamed)");
   std::string jobsFile, shardText = "0/1";

@@ -100,6 +100,16 @@ bool erasePage(std::set<std::string>& names, size_t inputs) {
   return all;
 }
 
+// An 8-bit image's pixels as written (empty when it cannot be read).
+std::vector<uint8_t> readPng8(const fs::path& file) {
+  std::unique_ptr<OIIO::ImageInput> in = OIIO::ImageInput::open(file.string());
+  if (!in) return {};
+  const OIIO::ImageSpec& spec = in->spec();
+  std::vector<uint8_t> px(size_t(spec.width) * size_t(spec.height) * size_t(spec.nchannels));
+  if (!in->read_image(0, 0, 0, spec.nchannels, OIIO::TypeDesc::UINT8, px.data())) return {};
+  return px;
+}
+
 // No DIR.tmp-* next to the output directory.
 void expectNoTemp(const fs::path& out) {
   const std::string prefix = out.filename().string() + ".tmp";
@@ -180,6 +190,11 @@ TEST(spar_render, WrongInputIsOneLineAndNoOutput) {
        "this model has no semantic branch"},
       {"features_photometric", cat(m, {"--images", f[0], f[1], "--targets", f[2], "--features"}), 1,
        "this model has no semantic branch"},
+      {"refine_without_sam2", cat(m, {"--images", f[0], f[1], "--refine"}), 1, "this model has no SAM2.1 weights"},
+      {"mask_source_without_sam2", cat(m, {"--images", f[0], f[1], "--mask-source", "refined"}), 1,
+       "this model has no SAM2.1 weights"},
+      {"refine_static", cat(m, {"--images", f[0], f[1], "--refine", "--assume-static"}), 2, "excludes"},
+      {"mask_source_unknown", cat(m, {"--images", f[0], f[1], "--mask-source", "sam2"}), 2, "--mask-source"},
       {"unknown_option", cat(m, {"--images", f[0], f[1], "--colour"}), 2, "--colour"},
   };
   for (const auto& c : cases) expectRefused(c);
@@ -619,6 +634,48 @@ TEST(spar_render, SemanticHeadOnlyWhenAsked) {
     EXPECT_NE(st["name"], "labels");
   }
   for (const auto& n : entries(plain)) EXPECT_NE(n.rfind("labels_", 0), 0u) << n;
+}
+
+// --refine: SAM2.1-refined masks beside the raw ones (refined_XX.png, 0 / 255), and in
+// report.json what SAM2 decided per input view and its stage; without it no SAM2 stage, weight
+// or file. --mask-source refined gates with them, which changes the views. (The tiny model finds
+// nothing dynamic in these frames, so SAM2 skips both views here; tests/test_sam2_path.cpp
+// refines real prompts through the same request.)
+TEST(spar_render, RefineWritesRefinedMasksOnlyWhenAsked) {
+  const fs::path plain = scratch() / "refine_plain", refined = scratch() / "refine_asked",
+                 gated = scratch() / "refine_gated";
+  for (const auto& d : {plain, refined, gated}) fs::remove_all(d);
+  const auto base = cat({"--model", goldenPath("tiny_sam2.spar"), "--images", frame(0), frame(2), "--targets", frame(1)}, {});
+  ASSERT_EQ(spar(cat(base, {"--out", plain.string()})).code, 0);
+  ASSERT_EQ(spar(cat(base, {"--refine", "--out", refined.string()})).code, 0);
+  ASSERT_EQ(spar(cat(base, {"--mask-source", "refined", "--out", gated.string()})).code, 0);
+  const ojson a = readJson(plain / "report.json"), b = readJson(refined / "report.json"),
+              c = readJson(gated / "report.json");
+  EXPECT_TRUE(a["refine"].is_null());
+  for (const auto& st : a["stages"]) EXPECT_NE(st["name"], "sam2_refine");
+  for (const auto& n : entries(plain)) EXPECT_NE(n.rfind("refined_", 0), 0u) << n;
+  EXPECT_LT(a["weights_bytes_loaded"].get<double>(), b["weights_bytes_loaded"].get<double>());
+  bool stage = false;
+  for (const auto& st : b["stages"]) stage = stage || st["name"] == "sam2_refine";
+  EXPECT_TRUE(stage);
+  ASSERT_EQ(b["refine"]["views"].size(), 2u);
+  EXPECT_EQ(b["refine"]["mask_source"], "raw");
+  EXPECT_EQ(c["refine"]["mask_source"], "refined");
+  for (int k = 0; k < 2; ++k) {
+    const std::string name = "refined_0" + std::to_string(k) + ".png";
+    const auto mask = readPng8(refined / name);
+    ASSERT_FALSE(mask.empty()) << name;
+    for (uint8_t px : mask) ASSERT_TRUE(px == 0 || px == 255) << name;
+    const ojson& view = b["refine"]["views"][size_t(k)];
+    EXPECT_EQ(view["view"].get<int>(), k == 0 ? 0 : 1);  // sequence positions of the inputs
+    if (!view["skipped"].get<bool>()) EXPECT_EQ(view["iou"].size(), 3u);
+    // the same masks whichever gates the tokens; raw gating renders the plain run's view
+    EXPECT_EQ(mask, readPng8(gated / name)) << name;
+  }
+  EXPECT_EQ(readPng8(plain / "view_00.png"), readPng8(refined / "view_00.png"));
+  // The refined masks are hard 0 / 1 (a skipped view's too: its thresholded mask), the raw ones
+  // CV-DRP's soft probabilities: gating with them renders another view.
+  EXPECT_NE(readPng8(plain / "view_00.png"), readPng8(gated / "view_00.png"));
 }
 
 // --scores: per-label score maps at H/2 x W/2 (the official logits) whose x2 bilinear upsampling's

@@ -30,6 +30,10 @@ struct RenderCameras {
   size_t size() const { return c2w.size(); }
 };
 
+// Which motion masks gate the input tokens (the official mask_source): CV-DRP's probabilities
+// (Raw, the official release's default) or the SAM2.1-refined hard masks (Refined).
+enum class MaskSource { Raw, Refined };
+
 struct Request {
   std::vector<float> images;  // [V, 3, H, W] prepared images in [0, 1], sequence order (spar/images.h)
   int64_t height = 0, width = 0;  // 0: the model's image size
@@ -47,6 +51,29 @@ struct Request {
   // Semantic models: precomputed LSeg features of the input views [K, C, H/2, W/2] instead of
   // running the LSeg encoder (tests; features computed elsewhere). Empty: the engine runs LSeg.
   std::vector<float> lsegFeatures;
+  // SAM2.1 refinement of the motion masks (a model packed with spar-convert --sam2; else an
+  // Error): each input view's P(dynamic) > 0.5 prompts SAM2 on that view's image, giving a hard
+  // 0/1 mask (a view with fewer than 10 dynamic pixels, or all but fewer than 10, keeps its
+  // thresholded mask and runs nothing); with targetMotion the targets' too. Results in
+  // Encoded::refinedInput / refinedTarget / refineViews. Without it no SAM2 weight is uploaded.
+  bool refine = false;
+  // Refined: the refined masks gate the input tokens (average-pooled per patch, as the official
+  // mask_source: refined); implies refine. Not with assumeStatic.
+  MaskSource maskSource = MaskSource::Raw;
+  // The masks to refine instead of CV-DRP's: P(dynamic) [V, H, W] for every view of the sequence
+  // (a caller's own masks; the inputs' rows are used, and the targets' with targetMotion).
+  // Empty: CV-DRP's. Needs refine (or maskSource Refined).
+  std::vector<float> refinePrompts;
+};
+
+// One view's SAM2.1 refinement (Encoded::refineViews).
+struct RefinedView {
+  int64_t view = 0;            // position in the sequence
+  bool skipped = false;        // too few or too many dynamic pixels: the thresholded mask kept
+  int64_t dynamicPixels = 0;   // P(dynamic) > 0.5
+  std::array<float, 3> iou{};  // SAM2's IoU predictions of its three masks (not skipped)
+  int chosen = -1;             // the mask of the highest IoU, the first of equal ones (not skipped)
+  std::vector<float> logits;   // the chosen mask's 256 x 256 logits (not skipped): > 0 is the mask
 };
 
 // What encoding a request leaves on the host.
@@ -55,6 +82,11 @@ struct Encoded {
   std::vector<float> fxfycxcy;     // [V, 4] normalized intrinsics
   std::vector<float> motionInput;  // [K, H, W] P(dynamic) of the input views (empty if assumeStatic)
   std::vector<float> motionTarget; // [T, H, W] with targetMotion (else empty)
+  // With refine: the refined masks, 0 or 1, in motionInput's / motionTarget's layout (targets
+  // with targetMotion), and per refined view (inputs, then targets) what SAM2 decided.
+  std::vector<float> refinedInput;
+  std::vector<float> refinedTarget;
+  std::vector<RefinedView> refineViews;
   int64_t canonicalIndex = 0;
 };
 

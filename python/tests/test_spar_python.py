@@ -119,6 +119,37 @@ def test_bad_arguments_are_spar_errors(ctx, small):
         assert "\n" not in str(e)
 
 
+def test_sam2_refinement(ctx):
+    """refine / mask_source / refine_prompts: the refined masks and what SAM2 decided per view."""
+    model = spar.Model.open(os.environ["SPAR_SAM2_MODEL"])  # the tiny model with a tiny SAM2.1
+    h, w = model.image_size
+    rng = np.random.default_rng(5)
+    images = rng.random((3, 3, h, w), dtype=np.float32)
+    prompts = np.full((3, h, w), 0.1, np.float32)
+    prompts[0, 30:80, 40:90] = 0.9  # view 0: a block (refined); view 2: nothing (skipped)
+    with spar.Session(ctx, model) as s:
+        plain = s.encode(images, inputs=[0, 2], targets=[1])
+        assert "refined_input" not in plain
+        e = s.encode(images, inputs=[0, 2], targets=[1], refine=True, refine_prompts=prompts)
+        assert e["refined_input"].shape == (2, h, w) and e["refined_target"] is None
+        assert set(np.unique(e["refined_input"])) <= {0.0, 1.0}
+        views = e["refine_views"]
+        assert [v["view"] for v in views] == [0, 2] and [v["skipped"] for v in views] == [False, True]
+        assert views[0]["logits"].shape == (256, 256) and len(views[0]["iou"]) == 3 and views[1]["iou"] is None
+        # the mask is what its logits say, resized (> 0) and > 0 where SAM2 chose
+        assert e["refined_input"][0].sum() > 0 and e["refined_input"][1].sum() == 0
+        gated = s.encode(images, inputs=[0, 2], targets=[1], mask_source="refined", refine_prompts=prompts)
+        np.testing.assert_array_equal(gated["refined_input"], e["refined_input"])
+        with pytest.raises(spar.Error, match="mask_source must be"):
+            s.encode(images, inputs=[0, 2], mask_source="sam2")
+        with pytest.raises(spar.Error, match="refine_prompts: shape"):
+            s.encode(images, inputs=[0, 2], refine=True, refine_prompts=prompts[:2])
+    photometric = spar.Session(ctx, spar.Model.open(os.environ["SPAR_PHOTOMETRIC_MODEL"]))
+    with pytest.raises(spar.Error, match="no SAM2.1 weights"):
+        photometric.encode(images[:, :, :128, :128], inputs=[0, 2], refine=True)
+    photometric.close()
+
+
 def test_device_work_releases_the_gil(ctx, small):
     model, images = small
     counted = [0]

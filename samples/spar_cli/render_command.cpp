@@ -120,6 +120,9 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
   }
   v.height = int(a.height ? a.height : v.config.imageHeight);
   v.width = int(a.width ? a.width : v.config.imageWidth);
+  if ((a.refine || a.maskSource == "refined") && !v.model->metadata().count("sam2_config"))
+    throw Error("this model has no SAM2.1 weights (spar-convert --sam2): --refine / --mask-source refined are not "
+                "available");
   if (a.labels || a.features) {
     if (!v.config.semanticDecoding())
       throw Error("this model has no semantic branch (use_lseg / semantic loss weight): --labels / --features are "
@@ -181,6 +184,23 @@ void noteModelCard(const PackedModel& model) {
   static std::set<std::string> said;
   if (const auto& card = model.modelCard(); card && said.insert(model.path()).second)
     std::fprintf(stderr, "spar: note: %s\n", modelCardSentence(*card).c_str());
+}
+
+// report.json's "refine": null unless refinement ran; else the mask source and, per refined
+// view, its sequence position, whether it was skipped (too few or too many dynamic pixels),
+// the dynamic pixels, SAM2's three IoU predictions and the mask chosen.
+nlohmann::ordered_json refineReport(const SparEncoded& enc, const std::string& maskSource, bool ran) {
+  if (!ran) return nullptr;
+  nlohmann::ordered_json views = nlohmann::ordered_json::array();
+  for (const RefinedView& r : enc.refineViews) {
+    nlohmann::ordered_json j = {{"view", r.view}, {"skipped", r.skipped}, {"dynamic_pixels", r.dynamicPixels}};
+    if (!r.skipped) {
+      j["iou"] = {r.iou[0], r.iou[1], r.iou[2]};
+      j["chosen"] = r.chosen;
+    }
+    views.push_back(j);
+  }
+  return {{"mask_source", maskSource}, {"views", views}};
 }
 
 std::string viewsText(const PlannedViews& p) {
@@ -264,6 +284,8 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
     req.plan.targets = v.views.targets;
     req.assumeStatic = a.assumeStatic;
     req.semanticFeatures = a.labels.has_value() || a.features;
+    req.refine = a.refine;
+    req.maskSource = a.maskSource == "refined" ? MaskSource::Refined : MaskSource::Raw;
     req.plan.validate();
 
     progress.step("encoding " + viewsText(v.views) + " at " + std::to_string(h) + "x" + std::to_string(w) + " (HxW) on " +
@@ -372,6 +394,7 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
     const std::vector<float> noMotion;
     writer.finish(a.assumeStatic ? noMotion : enc.motionInput, a.assumeStatic ? 0 : int64_t(v.views.inputs.size()),
                   cfg.maskThreshold, cd);
+    if (!enc.refinedInput.empty()) writer.writeRefined(enc.refinedInput, int64_t(v.views.inputs.size()));
     int written = writer.files() + int(v.views.inputs.size());
     host.push_back({{"name", "write_outputs"}, {"wall_ms", writeMs + msSince(t)}});
 
@@ -401,6 +424,9 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
         // the size the views were prepared and rendered at, and whether --size chose it
         {"image_size", {{"height", h}, {"width", w}, {"from", a.height ? "--size" : "model"}}},
         {"assume_static", a.assumeStatic},
+        // SAM2.1 refinement (only when asked): which masks gated the tokens, and per input view
+        // what SAM2 decided (refined_XX.png beside mask_XX.png)
+        {"refine", refineReport(enc, a.maskSource, req.refine || a.maskSource == "refined")},
         // from the start of the command to here: everything but writing this file
         {"total_seconds", msSince(start) / 1000.0},
         {"stages", stages},          // GPU stages that ran (pipeline.stageTimes())

@@ -3,6 +3,7 @@
 //   view_XX.png    rendered views (targets, --path or --cameras cameras), in order
 //   motion_XX.png  P(dynamic) of each input view, 8-bit grey   (not with --assume-static)
 //   mask_XX.png    P(dynamic) > mask threshold as 0 / 255       (not with --assume-static)
+//   refined_XX.png with --refine / --mask-source refined: the SAM2.1-refined mask as 0 / 255
 //   path.mp4       with --path: the views (beside their label maps) as an H.264 video, when
 //                  ffmpeg is installed (--animation auto|mp4); path.gif otherwise (--animation gif)
 //   cameras.json   every view's estimated camera (nerfstudio convention), order, render cameras
@@ -32,6 +33,8 @@ struct RenderArgs {
   std::string cameras;             // --cameras transforms.json | COLMAP model dir | images.txt
   std::optional<int> path;         // --path N
   bool assumeStatic = false;
+  bool refine = false;             // --refine: SAM2.1 refinement of the inputs' motion masks
+  std::string maskSource = "raw";  // --mask-source raw | refined: which masks gate the input tokens
   std::string precision = "fp32";  // fp32 | fp16 (weight matrices stored as fp16 on the device)
   int64_t height = 0, width = 0;   // --size HxW; 0: the model's image size (its training size)
   std::string out;

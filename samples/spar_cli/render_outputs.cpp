@@ -149,6 +149,15 @@ void RenderWriter::addViews(const RenderedViews& v) {
   next_ += n;
 }
 
+void RenderWriter::writeRefined(const std::vector<float>& masks, int64_t views) {
+  const size_t plane = size_t(layout_.width) * layout_.height;
+  if (masks.size() != size_t(views) * plane) throw Error("render result: wrong number of refined mask values");
+  for (int64_t j = 0; j < views; ++j) {
+    writePng(numbered(dir_, "refined", j), masks.data() + size_t(j) * plane, 1, layout_.height, layout_.width);
+    ++files_;
+  }
+}
+
 void RenderWriter::finish(const std::vector<float>& motion, int64_t motionViews, float maskThreshold,
                           const CamerasDocument& cams) {
   const size_t plane = size_t(layout_.width) * layout_.height;

@@ -52,6 +52,8 @@ class RenderWriter {
   // completes the animation. report.json is the caller's, written last so that it can count
   // the time spent here.
   void finish(const std::vector<float>& motion, int64_t motionViews, float maskThreshold, const CamerasDocument& cams);
+  // The inputs' SAM2.1-refined masks [K, H, W] (0 or 1) as refined_XX.png, 0 / 255.
+  void writeRefined(const std::vector<float>& masks, int64_t views);
 
   int files() const { return files_; }
   int64_t views() const { return next_; }

@@ -48,6 +48,19 @@ ROOT = os.path.dirname(os.path.dirname(HERE))
 from spar_convert.model_config import full, tiny  # noqa: E402
 
 
+def tiny_sam2(ck, cfg_path, out):
+    """tiny_sam2.spar: the tiny model with tests/python/make_sam2_path_golden.py's SAM2.1 variant."""
+    import torch
+    from make_sam2_path_golden import CONFIG
+    from spar_reference import sam2
+    sam2_ck, sam2_cfg = os.path.join(out, "tiny_sam2_weights.pt"), os.path.join(out, "tiny_sam2_config.json")
+    torch.save(sam2.make_checkpoint(CONFIG, seed=21), sam2_ck)
+    with open(sam2_cfg, "w") as f:
+        json.dump(CONFIG.to_dict(), f)
+    convert("-q", ck, "--config", cfg_path, "--sam2", sam2_ck, "--sam2-config", sam2_cfg,
+            "-o", os.path.join(out, "tiny_sam2.spar"))
+
+
 def frames(out_dir, count=5, width=160, height=120, seed=3):
     """A textured static background and a disk that moves from frame to frame."""
     rng = np.random.default_rng(seed)
@@ -208,6 +221,9 @@ def main():
     convert("-q", ck, "--config", cfg_path, "-o", packed)
     # The same checkpoint packed with --fp16 (tests/test_spar_precision.cpp).
     convert("-q", "--fp16", ck, "--config", cfg_path, "-o", os.path.join(out, "tiny16.spar"))
+    # And with a tiny SAM2.1 (the variant of tests/test_sam2_path.cpp's goldens, random weights):
+    # the refinement wired into a request (the same test program).
+    tiny_sam2(ck, cfg_path, out)
     cases = {
         "interleaved": ["--frames", *f, "--inputs", "0,2,4"],
         "odd_targets": ["--frames", *f, "--inputs", "1,3"],
