@@ -94,6 +94,7 @@ class SparPipeline {
   struct Stages;
   void keep(const std::string& name, const Tensor& t);
   void addStageTimes(const class Recorder& rec, double wallMs);
+  void addStageTime(const std::string& name, double gpuMs, double wallMs, double buildMs);  // accumulated by name
   std::vector<float> renderRays(const Tensor& c2w, const Tensor& fxfycxcy, int64_t count);
   Tensor refineMasks(const Tensor& images, const Tensor& probInput, const Tensor& probTarget);
 

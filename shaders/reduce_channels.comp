@@ -125,9 +125,9 @@ void main() {
   const float scaledNorm = sqrt(lineSum(s));          // ||x|| * 2^-e, in [0.5, sqrt(C)) unless all zero
   const bool aboveEps = ldexp(scaledNorm, e) > p.eps;  // ||x||, which may be +inf: still above eps
   for (uint u = lane; u < units; u += lanes) {
-    const uint e2 = base + u * w * stride;
-    const vec4 v = loadX(e2);
-    storeY(e2, aboveEps ? ((v * down0) * down1) / scaledNorm : v / p.eps);
+    const uint at = base + u * w * stride;
+    const vec4 v = loadX(at);
+    storeY(at, aboveEps ? ((v * down0) * down1) / scaledNorm : v / p.eps);
   }
 #else
   float best = 0.0;
