@@ -21,4 +21,10 @@ constexpr double kMaskTieBand = 1e-4;
 // labels score closer than this (a near-tie may go either way).
 constexpr double kLabelTieGap = 1e-5;
 
+// SAM2.1's refined masks must be identical, except pixels whose reference logit (the chosen
+// mask's, resized to the view) is closer than this to 0; its IoU predictions within this of
+// the reference's (issue 34's bars).
+constexpr double kRefineTieBand = 1e-4;
+constexpr double kRefineIouMaxAbs = 1e-5;
+
 }  // namespace spar

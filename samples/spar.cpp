@@ -163,8 +163,18 @@ int main(int argc, char** argv) {
                           ->type_name("HxW");
   auto* noGating = evalCmd->add_flag("--no-gating", e.noGating,
                                      "ablation: CV-DRP runs (mask metrics reported) but no input token is gated");
-  evalCmd->add_flag("--assume-static", e.assumeStatic, "ablation: no DINOv3 / CV-DRP, no gating, mask metrics null")
-      ->excludes(noGating);
+  auto* evalAssumeStatic =
+      evalCmd->add_flag("--assume-static", e.assumeStatic, "ablation: no DINOv3 / CV-DRP, no gating, mask metrics null")
+          ->excludes(noGating);
+  evalCmd->add_flag("--refine", e.refine,
+                    "also refine every frame's motion mask with SAM2.1 and report its IoU beside CV-DRP's (the "
+                    "paper's two rows; a model packed with spar-convert --sam2)")
+      ->excludes(evalAssumeStatic);
+  evalCmd->add_option("--mask-source", e.maskSource,
+                      "which masks gate the input tokens: raw (CV-DRP's, the default) or refined (SAM2.1's; implies "
+                      "--refine)")
+      ->check(CLI::IsMember({"raw", "refined"}))
+      ->excludes(evalAssumeStatic);
   auto* maxScenes =
       evalCmd->add_option("--max-scenes", e.maxScenes, "evaluate only the first N scenes (in folder-name order)");
   evalCmd->add_option("--device", e.device, "Vulkan device index or part of its name");

@@ -6,6 +6,7 @@
 //    --no-gating and --assume-static render the same (identical PSNR / SSIM / semantics), and
 //    the default and --no-gating runs share CV-DRP (identical mask metrics).
 //  - A photometric model: semantic metrics null, not an error.
+//  - --refine / --mask-source refined with the tiny model packed with SAM2.1 (spar_goldens).
 //  - Wrong input: exit code != 0, one line "spar: error: ...", no output file.
 // Runs asked to validate have the Khronos validation layer with synchronization validation on
 // (runValidated), which fails the test on any validation message.
@@ -125,10 +126,14 @@ void expectLayout(const json& doc, const std::string& mode, bool semantic, bool 
     const json& r = res.at(k);
     const std::string at = mode + " K=" + k + " ";
     for (const char* key : {"psnr", "ssim", "psnr_nearest_input", "ssim_nearest_input", "psnr_mean_colour",
-                            "mask_miou", "mask_iou_dynamic", "mask_recall", "sem_miou", "sem_accuracy", "target_views",
+                            "mask_miou", "mask_iou_dynamic", "mask_recall", "refined_mask_miou",
+                            "refined_mask_iou_dynamic", "refined_mask_recall", "sem_miou", "sem_accuracy", "target_views",
                             "seconds", "ms_per_scene"})
       EXPECT_TRUE(r.contains(key)) << at << key;
-    EXPECT_EQ(r.size(), 13u) << at;
+    EXPECT_EQ(r.size(), 16u) << at;
+    EXPECT_FALSE(doc.at("refine").get<bool>());
+    for (const char* key : {"refined_mask_miou", "refined_mask_iou_dynamic", "refined_mask_recall"})
+      EXPECT_TRUE(r.at(key).is_null()) << at << key;  // no SAM2.1 without --refine
     expectInRange(r.at("psnr"), at + "psnr", 0, 100);
     expectInRange(r.at("ssim"), at + "ssim", -1, 1);
     // the baselines (PROTOCOL.md): the nearest input copied, the inputs' mean colour
@@ -205,6 +210,46 @@ TEST(spar_eval, EngineAgreesWithReference) {
   }
 }
 
+// --refine: SAM2.1's masks of every frame scored beside CV-DRP's (the paper's two rows), the
+// rendering and CV-DRP's own scores unchanged; --mask-source refined gates with them (other
+// views rendered, the same masks scored). The model: the tiny one with mixed masks and a tiny
+// SAM2.1 (fixture spar_goldens), so SAM2 refines views rather than skipping them.
+TEST(spar_eval, RefineScoresSam2MasksBesideCvDrps) {
+  const fs::path scenes = makeScenes("scenes", 2, 128);
+  const std::vector<std::string> base = {"--model", goldenPath("tiny_sam2.spar"), "--scenes", scenes.string(),
+                                         "--views", "3", "--max-scenes", "1"};
+  auto with = [&](const std::string& a, const std::string& b = "") {
+    std::vector<std::string> args = base;
+    args.push_back(a);
+    if (!b.empty()) args.push_back(b);
+    return args;
+  };
+  const json plain = evalOk(base, scratch() / "refine_plain.json");
+  const json refined = evalOk(with("--refine"), scratch() / "refine.json");
+  const json gated = evalOk(with("--mask-source", "refined"), scratch() / "refine_gated.json");
+  EXPECT_FALSE(plain.at("refine").get<bool>());
+  EXPECT_TRUE(refined.at("refine").get<bool>());
+  EXPECT_EQ(refined.at("mode"), "default");
+  EXPECT_EQ(gated.at("mode"), "refined-gating");
+  const json &p = plain.at("results").at("3"), &r = refined.at("results").at("3"), &g = gated.at("results").at("3");
+  for (const char* key : {"refined_mask_miou", "refined_mask_iou_dynamic", "refined_mask_recall"}) {
+    EXPECT_TRUE(p.at(key).is_null()) << key;
+    expectInRange(r.at(key), key, 0, 1);
+    EXPECT_EQ(r.at(key), g.at(key)) << key;  // the gating comes after the masks
+  }
+  for (const char* key : {"mask_miou", "mask_iou_dynamic", "mask_recall"}) {
+    EXPECT_EQ(p.at(key), r.at(key)) << key;
+    EXPECT_EQ(p.at(key), g.at(key)) << key;
+  }
+  // SAM2's masks are its own, not CV-DRP's thresholded (which a run skipping every view keeps)
+  EXPECT_NE(r.at("refined_mask_miou"), r.at("mask_miou"));
+  EXPECT_EQ(p.at("psnr"), r.at("psnr"));  // CV-DRP's probabilities still gate
+  EXPECT_NE(p.at("psnr"), g.at("psnr"));  // the refined hard masks gate
+  std::ifstream html(scratch() / "refine.html");
+  const std::string page((std::istreambuf_iterator<char>(html)), std::istreambuf_iterator<char>());
+  EXPECT_NE(page.find("<th>refined mask mIoU</th>"), std::string::npos);
+}
+
 TEST(spar_eval, PhotometricModelHasNoSemanticMetrics) {
   const fs::path scenes = makeScenes("scenes", 2, 128);
   const json doc = evalOk({"--model", tinyModelPath(), "--scenes", scenes.string(), "--views", "3,2"},
@@ -236,6 +281,9 @@ TEST(spar_eval, WrongInputIsOneLineAndNoOutput) {
       {"gating_and_static", {"--model", model, "--scenes", dir, "--no-gating", "--assume-static"}, 2, "excludes"},
       {"max_scenes_zero", {"--model", model, "--scenes", dir, "--max-scenes", "0"}, 2, "--max-scenes"},
       {"bad_precision", {"--model", model, "--scenes", dir, "--precision", "int8"}, 2, "--precision"},
+      {"refine_without_sam2", {"--model", model, "--scenes", dir, "--refine"}, 1, "no SAM2.1 weights"},
+      {"refine_and_static", {"--model", model, "--scenes", dir, "--refine", "--assume-static"}, 2, "excludes"},
+      {"bad_mask_source", {"--model", model, "--scenes", dir, "--mask-source", "soft"}, 2, "--mask-source"},
   };
   for (const Bad& c : cases) {
     const fs::path out = scratch() / ("out_" + c.name + ".json");

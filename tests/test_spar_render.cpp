@@ -668,11 +668,18 @@ TEST(spar_render, RefineWritesRefinedMasksOnlyWhenAsked) {
     for (uint8_t px : mask) ASSERT_TRUE(px == 0 || px == 255) << name;
     const ojson& view = b["refine"]["views"][size_t(k)];
     EXPECT_EQ(view["view"].get<int>(), k == 0 ? 0 : 1);  // sequence positions of the inputs
-    if (!view["skipped"].get<bool>()) EXPECT_EQ(view["iou"].size(), 3u);
+    // the model's masks are mixed (fixture spar_goldens: make_mask_model.py), so SAM2 refines both
+    EXPECT_FALSE(view["skipped"].get<bool>());
+    EXPECT_EQ(view["iou"].size(), 3u);
     // the same masks whichever gates the tokens; raw gating renders the plain run's view
     EXPECT_EQ(mask, readPng8(gated / name)) << name;
   }
   EXPECT_EQ(readPng8(plain / "view_00.png"), readPng8(refined / "view_00.png"));
+  // The page shows each refined mask beside CV-DRP's, with what SAM2.1 decided.
+  std::ifstream pageFile(refined / "index.html");
+  const std::string page((std::istreambuf_iterator<char>(pageFile)), std::istreambuf_iterator<char>());
+  for (const char* part : {"src=\"refined_00.png\"", "src=\"refined_01.png\"", "refined by SAM2.1 (mask "})
+    EXPECT_NE(page.find(part), std::string::npos) << part;
   // The refined masks are hard 0 / 1 (a skipped view's too: its thresholded mask), the raw ones
   // CV-DRP's soft probabilities: gating with them renders another view.
   EXPECT_NE(readPng8(plain / "view_00.png"), readPng8(gated / "view_00.png"));

@@ -24,7 +24,8 @@ TEST(spar_selftest, PassesAndPrintsTheDeviceLimitsPlanAndVerdict) {
                            "model img_tokens 1x5x16x32", "model cv_drp_input.binary", " pixels differ (",
                            "model rgb 1x2x3x64x64", "model lseg_features 1x3x16x32x32", "model text_embeddings 4x16",
                            "model label_logits 2x4x32x32", "model label_maps 2x64x64",
-                           "verdict: PASS (29 of 29 checks passed)"})
+                           "model refined_input 3x64x64", "model refined_target 2x64x64", "model refine_iou 5x3",
+                           "model refine_logits 5x256x256", "verdict: PASS (33 of 33 checks passed)"})
     EXPECT_NE(r.out.find(part), std::string::npos) << part << "\n" << r.out;
 }
 
@@ -49,14 +50,14 @@ TEST(spar_selftest, JsonUnderARaspberryPiProfile) {
   }
   EXPECT_FALSE(doc.at("plan").empty());
   // The self-test model: every stage it ships a reference of, each passed (the semantic ones
-  // and the labels among them); the masks mixed.
+  // and the labels among them, and SAM2.1's refinement of every view); the masks mixed.
   const auto& model = doc.at("model").at("checks");
-  ASSERT_EQ(model.size(), 21u) << doc.at("model").dump();
+  ASSERT_EQ(model.size(), 25u) << doc.at("model").dump();
   for (const auto& c : model) {
     EXPECT_TRUE(c.at("passed").get<bool>()) << c.dump();
     EXPECT_GT(c.at("ms").get<double>(), 0.0) << c.dump();
     const std::string name = c.at("name").get<std::string>();
-    if (name.find(".binary") != std::string::npos) {
+    if (name.find(".binary") != std::string::npos || name.find("model refined_") != std::string::npos) {
       EXPECT_EQ(c.at("detail").get<std::string>().rfind("0 of ", 0), 0u) << c.dump();
       EXPECT_EQ(c.at("detail").get<std::string>().find(" 0 dynamic"), std::string::npos) << c.dump();
     } else if (name.find("label_maps") != std::string::npos) {
@@ -72,26 +73,30 @@ TEST(spar_selftest, AFailingOpFailsTheVerdict) {
   const CommandResult r = runValidated({SPAR_CLI, "selftest"}, scratch(), "SPAR_FAULT_ALLOCATION=1");
   EXPECT_EQ(r.code, 1) << r.out << r.err;
   EXPECT_NE(r.out.find("FAIL  linear 77x150x72"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("verdict: FAIL (28 of 29 checks passed)"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("verdict: FAIL (32 of 33 checks passed)"), std::string::npos) << r.out;
 }
 
 // A stage whose output is 1% off its reference fails that stage alone (here rgb, as a driver
-// that miscomputes the renderer's last layer would); a directory without the model is one
-// failing line naming where it looked.
+// that miscomputes the renderer's last layer would, and SAM2.1's IoU predictions); a directory
+// without the model is one failing line naming where it looked.
 TEST(spar_selftest, AStageOffItsReferenceOrAMissingModelFailsTheVerdict) {
   const std::filesystem::path model = scratch() / "off_model";
   std::filesystem::remove_all(model);
   std::filesystem::copy(SPAR_SELFTEST_SOURCE_DATA, model, std::filesystem::copy_options::recursive);
-  const std::string rgbFile = (model / "reference" / "rgb.npy").string();
-  NpyArray rgb = readNpy(rgbFile);
-  std::vector<double> v = rgb.toDoubles();
-  for (double& x : v) x *= 1.01;
-  writeNpy(rgbFile, rgb.shape, v.data());
+  for (const char* stage : {"rgb", "refine_iou"}) {
+    const std::string file = (model / "reference" / (std::string(stage) + ".npy")).string();
+    NpyArray golden = readNpy(file);
+    std::vector<double> v = golden.toDoubles();
+    for (double& x : v) x *= 1.01;
+    writeNpy(file, golden.shape, v.data());
+  }
   CommandResult r = runValidated({SPAR_CLI, "selftest", "--model-dir", model.string()}, scratch());
   EXPECT_EQ(r.code, 1) << r.out << r.err;
   EXPECT_NE(r.out.find("FAIL  model rgb 1x2x3x64x64"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("FAIL  model refine_iou 5x3"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("pass  model decoder_out"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("verdict: FAIL (28 of 29 checks passed)"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("pass  model refine_logits"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("verdict: FAIL (31 of 33 checks passed)"), std::string::npos) << r.out;
 
   r = runValidated({SPAR_CLI, "selftest", "--model-dir", (scratch() / "nowhere").string()}, scratch());
   EXPECT_EQ(r.code, 1) << r.out << r.err;

@@ -76,7 +76,7 @@ struct KResult {
   int64_t psnrViews = 0, ssimViews = 0, targetViews = 0;
   // PROTOCOL.md "Baselines": the nearest input copied, the inputs' mean colour (same views)
   double copyPsnrSum = 0, copySsimSum = 0, meanPsnrSum = 0;
-  MaskCounts masks;
+  MaskCounts masks, refinedMasks;  // CV-DRP's, SAM2.1's (--refine)
   std::unique_ptr<SemanticConfusion> semantic;
   double seconds = 0;
   std::vector<double> sceneMs;
@@ -106,9 +106,15 @@ void runEval(const EvalArgs& a) {
   // 1. The command line alone (exit 2).
   if (a.noGating && a.assumeStatic) throw UsageError("--no-gating and --assume-static exclude each other");
   if (a.precision != "fp32" && a.precision != "fp16") throw UsageError("--precision must be fp32 or fp16");
+  if (a.maskSource != "raw" && a.maskSource != "refined") throw UsageError("--mask-source must be raw or refined");
+  const bool refine = a.refine || a.maskSource == "refined";
+  if (refine && a.assumeStatic) throw UsageError("--refine / --mask-source refined and --assume-static exclude each other");
   if (a.maxScenes < 0) throw UsageError("--max-scenes must be at least 1");  // 0: all scenes
   const std::vector<int> ks = parseViews(a.views);
-  const std::string mode = a.assumeStatic ? "assume-static" : a.noGating ? "no-gating" : "default";
+  const std::string mode = a.assumeStatic            ? "assume-static"
+                           : a.noGating               ? "no-gating"
+                           : a.maskSource == "refined" ? "refined-gating"
+                                                       : "default";
 
   // 2. Files (exit 1), cheapest first: nothing heavy is loaded before everything named exists.
   if (!fs::exists(a.model)) throw Error("model not found: " + a.model);
@@ -145,6 +151,9 @@ void runEval(const EvalArgs& a) {
 
   const PackedModel model = PackedModel::open(a.model);
   const SparConfig cfg = SparConfig::fromJson(model.config(), model.path());
+  if (refine && !model.metadata().count("sam2_config"))
+    throw Error("this model has no SAM2.1 weights (spar-convert --sam2): --refine / --mask-source refined are not "
+                "available");
   // --size: a size this model cannot run at is a command line without meaning for it (exit 2).
   if (a.height) {
     if (const std::string problem = imageSizeProblem(cfg, a.height, a.width); !problem.empty())
@@ -217,6 +226,8 @@ void runEval(const EvalArgs& a) {
         req.targetMotion = !a.assumeStatic;
         req.gating = !a.noGating;
         req.semanticFeatures = semantic;
+        req.refine = refine;
+        req.maskSource = a.maskSource == "refined" ? MaskSource::Refined : MaskSource::Raw;
         const SparEncoded& enc = pipeline.encode(req);
         const std::vector<float> rgb = pipeline.renderTargets();
         std::vector<std::vector<int32_t>> labels;
@@ -249,6 +260,14 @@ void runEval(const EvalArgs& a) {
             r.masks.add(&enc.motionTarget[j * plane], &data.dynamic[size_t(r.targets[j]) * plane], plane,
                         kMaskThreshold);
         }
+        if (refine) {  // the refined masks hold 0 or 1: the same threshold reads them
+          for (size_t j = 0; j < r.inputs.size(); ++j)
+            r.refinedMasks.add(&enc.refinedInput[j * plane], &data.dynamic[size_t(r.inputs[j]) * plane], plane,
+                               kMaskThreshold);
+          for (size_t j = 0; j < r.targets.size(); ++j)
+            r.refinedMasks.add(&enc.refinedTarget[j * plane], &data.dynamic[size_t(r.targets[j]) * plane], plane,
+                               kMaskThreshold);
+        }
         r.seconds += msSince(t) / 1000.0;
       }
     }
@@ -271,6 +290,9 @@ void runEval(const EvalArgs& a) {
         {"mask_miou", masks ? orNull(r.masks.meanIou()) : ojson(nullptr)},
         {"mask_iou_dynamic", masks ? orNull(r.masks.iouDynamic()) : ojson(nullptr)},
         {"mask_recall", masks ? orNull(r.masks.recall()) : ojson(nullptr)},
+        {"refined_mask_miou", refine ? orNull(r.refinedMasks.meanIou()) : ojson(nullptr)},
+        {"refined_mask_iou_dynamic", refine ? orNull(r.refinedMasks.iouDynamic()) : ojson(nullptr)},
+        {"refined_mask_recall", refine ? orNull(r.refinedMasks.recall()) : ojson(nullptr)},
         {"sem_miou", r.semantic ? orNull(r.semantic->meanIou()) : ojson(nullptr)},
         {"sem_accuracy", r.semantic ? orNull(r.semantic->accuracy()) : ojson(nullptr)},
         {"target_views", r.targetViews},
@@ -284,6 +306,7 @@ void runEval(const EvalArgs& a) {
                      {"runner", "engine"},
                      {"precision", a.precision},
                      {"mode", mode},
+                     {"refine", refine},
                      {"scenes", scenes.size()},
                      {"frames", frames},
                      {"results", byK}};
@@ -321,6 +344,10 @@ void runEval(const EvalArgs& a) {
                 cell(r.semantic ? r.semantic->meanIou() : std::nullopt, "%.4f").c_str(),
                 cell(r.semantic ? r.semantic->accuracy() : std::nullopt, "%.4f").c_str(), r.seconds,
                 cell(median(r.sceneMs), "%.0f").c_str());
+    if (refine)  // the paper's second row: the same frames' masks after SAM2.1
+      std::printf("    refined (SAM2.1): mask mIoU %s, IoU dyn %s, recall %s\n",
+                  cell(r.refinedMasks.meanIou(), "%.4f").c_str(), cell(r.refinedMasks.iouDynamic(), "%.4f").c_str(),
+                  cell(r.refinedMasks.recall(), "%.4f").c_str());
   }
   std::printf("wrote %s in %.1f s\n", outPath.string().c_str(), msSince(start) / 1000.0);
 }

@@ -3,7 +3,8 @@
 // on all F frames in order with the protocol's K inputs, the other frames as targets rendered
 // with their estimated cameras; static-pixel PSNR / SSIM of the rendered targets (floats, not
 // 8-bit), motion-mask counts over all F frames, semantic confusion of the targets' label maps
-// (semantic models; the scene's class names as prompts). Writes result.json (written whole:
+// (semantic models; the scene's class names as prompts); with --refine the SAM2.1-refined masks'
+// counts too, beside CV-DRP's. Writes result.json (written whole:
 // temporary name, then rename) and prints a table on stdout; progress on stderr.
 #pragma once
 #include <cstdint>
@@ -20,6 +21,8 @@ struct EvalArgs {
   int64_t height = 0, width = 0;   // --size HxW; 0: the model's image size (its training size)
   bool noGating = false;           // CV-DRP runs, no token is gated
   bool assumeStatic = false;       // no DINOv3 / CV-DRP, no gating, no mask metrics
+  bool refine = false;             // SAM2.1-refined masks scored beside CV-DRP's
+  std::string maskSource = "raw";  // raw | refined: the masks that gate the input tokens
   int maxScenes = 0;               // 0: all
   int shard = 0, shards = 1;       // --shard I/N: every N-th scene from the I-th
   std::string device;

@@ -187,16 +187,36 @@ std::string indexPage(const std::string& dir, const json& report, const json& ca
   for (const auto& f : frames)
     if (f.value("role", "") == "input") inputFiles.push_back(f.value("file_path", ""));
   const auto inputs = files(names, "input_", ".png");
+  // --refine: per input view what SAM2.1 decided (report.json "refine"), its mask beside CV-DRP's
+  const json refineViews = report.contains("refine") && report["refine"].is_object()
+                               ? report["refine"].value("views", json::array())
+                               : json::array();
   if (!inputs.empty()) {
     h << "<h2>Inputs, with their motion masks over them</h2>\n<div class=\"grid\">";
     for (size_t k = 0; k < inputs.size(); ++k) {
-      const std::string mask = "mask_" + two(k) + ".png", motion = "motion_" + two(k) + ".png";
-      h << "<figure><div class=\"stack\"><img src=\"" << inputs[k] << "\" alt=\"input " << k << "\">";
-      if (names.count(mask)) h << "<img class=\"mask\" src=\"" << mask << "\" alt=\"motion mask " << k << "\">";
-      h << "</div>";
+      const std::string mask = "mask_" + two(k) + ".png", motion = "motion_" + two(k) + ".png",
+                        refined = "refined_" + two(k) + ".png";
+      auto overlay = [&](const std::string& file, const std::string& alt) {
+        h << "<div class=\"stack\"><img src=\"" << inputs[k] << "\" alt=\"input " << k << "\">";
+        if (names.count(file)) h << "<img class=\"mask\" src=\"" << file << "\" alt=\"" << alt << " " << k << "\">";
+        h << "</div>";
+      };
+      h << "<figure>";
+      overlay(mask, "motion mask");
       if (names.count(motion)) h << "<img src=\"" << motion << "\" alt=\"P(dynamic) of input " << k << "\">";
+      if (names.count(refined)) overlay(refined, "SAM2.1-refined mask");
       h << "<figcaption>input " << k << (k < inputFiles.size() ? ": " + esc(fs::path(inputFiles[k]).filename().string()) : "")
-        << (names.count(mask) ? "; red: moving (mask), grey below: P(dynamic)" : "") << "</figcaption></figure>";
+        << (names.count(mask) ? "; red: moving (mask), grey below: P(dynamic)" : "");
+      if (names.count(refined) && k < refineViews.size()) {
+        const json& v = refineViews[k];
+        h << "; last: refined by SAM2.1 ";
+        if (v.value("skipped", false))
+          h << "(skipped: " << v.value("dynamic_pixels", 0) << " dynamic pixels, the mask kept)";
+        else
+          h << "(mask " << v.value("chosen", -1) << " of 3, predicted IoU "
+            << num(v.value("iou", json::array()).at(size_t(v.value("chosen", 0))).get<double>(), "%.3f") << ")";
+      }
+      h << "</figcaption></figure>";
     }
     h << "</div>\n";
   }
@@ -261,11 +281,15 @@ std::string evalResultsPage(const json& result, const std::string& device, const
     << "</b><br>" << result.value("scenes", 0) << " scenes of " << result.value("frames", 0)
     << " frames (evaluation/PROTOCOL.md)</p>\n<h2>Warnings</h2>\n";
   h << warningList(warnings);
-  static const std::vector<std::pair<const char*, const char*>> columns = {
+  std::vector<std::pair<const char*, const char*>> columns = {
       {"target_views", "targets"},     {"psnr", "PSNR"},           {"psnr_nearest_input", "PSNR copy"},
       {"psnr_mean_colour", "PSNR mean"}, {"ssim", "SSIM"},        {"ssim_nearest_input", "SSIM copy"},
-      {"mask_miou", "mask mIoU"},      {"mask_iou_dynamic", "IoU dyn"}, {"mask_recall", "recall"},
-      {"sem_miou", "sem mIoU"},        {"sem_accuracy", "sem acc"}, {"ms_per_scene", "ms/scene"}};
+      {"mask_miou", "mask mIoU"},      {"mask_iou_dynamic", "IoU dyn"}, {"mask_recall", "recall"}};
+  if (result.value("refine", false))  // the paper's "w/ Refine" row beside CV-DRP's
+    columns.insert(columns.end(), {{"refined_mask_miou", "refined mask mIoU"},
+                                   {"refined_mask_iou_dynamic", "refined IoU dyn"},
+                                   {"refined_mask_recall", "refined recall"}});
+  columns.insert(columns.end(), {{"sem_miou", "sem mIoU"}, {"sem_accuracy", "sem acc"}, {"ms_per_scene", "ms/scene"}});
   h << "<h2>Results (copy: the nearest input copied; mean: its mean colour)</h2>\n<table id=\"results\"><tr><th>K inputs</th>";
   for (const auto& c : columns) h << "<th>" << c.second << "</th>";
   h << "</tr>";

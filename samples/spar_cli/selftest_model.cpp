@@ -37,6 +37,8 @@ const std::map<std::string, std::string>& stageOf() {
       {"lseg_features", "lseg"},       {"semantic_tokens", "semantic_tokens"},
       {"semantic_out_tokens", "renderer"}, {"semantic_features", "renderer"},
       {"text_embeddings", "text_encoder"}, {"label_logits", "labels"}, {"label_maps", "labels"},
+      {"refined_input", "sam2_refine"}, {"refined_target", "sam2_refine"}, {"refine_iou", "sam2_refine"},
+      {"refine_logits", "sam2_refine"},
   };
   return table;
 }
@@ -51,22 +53,31 @@ bool endsWith(const std::string& s, const std::string& tail) {
   return s.size() >= tail.size() && s.compare(s.size() - tail.size(), tail.size(), tail) == 0;
 }
 
-// A motion mask: the engine's P(dynamic) > threshold against the reference's mask, identical
-// but for near-ties (model/stage_tolerances.h).
-void compareMask(SelftestCheck& c, const std::vector<float>& prob, const std::vector<double>& wantProb,
-                 const std::vector<double>& wantMask, double threshold) {
+// A mask against the reference's, identical but for near-ties: pixels whose reference value
+// (`wantScore`) lies within `band` of its threshold (model/stage_tolerances.h).
+void compareMask(SelftestCheck& c, const std::vector<bool>& got, const std::vector<double>& wantMask,
+                 const std::vector<double>& wantScore, double threshold, double band) {
   size_t differ = 0, ties = 0, dynamic = 0;
   for (size_t i = 0; i < wantMask.size(); ++i) {
-    if (!std::isfinite(prob[i])) c.finite = false;
-    const bool mine = prob[i] > threshold, theirs = wantMask[i] != 0.0;
+    const bool theirs = wantMask[i] != 0.0;
     dynamic += theirs;
-    if (mine == theirs) continue;
-    if (std::abs(wantProb[i] - threshold) < kMaskTieBand) ++ties;
+    if (got[i] == theirs) continue;
+    if (std::abs(wantScore[i] - threshold) < band) ++ties;
     else ++differ;
   }
   c.nmse = double(differ);  // the count of differing pixels, required 0
   c.detail = std::to_string(differ) + " of " + std::to_string(wantMask.size()) + " pixels differ (" +
              std::to_string(ties) + " near-ties; " + std::to_string(dynamic) + " dynamic)";
+}
+
+// Values thresholded on the host (non-finite ones fail the check).
+std::vector<bool> above(SelftestCheck& c, const std::vector<float>& values, double threshold) {
+  std::vector<bool> out(values.size());
+  for (size_t i = 0; i < values.size(); ++i) {
+    if (!std::isfinite(values[i])) c.finite = false;
+    out[i] = values[i] > threshold;
+  }
+  return out;
 }
 
 // Label maps: the engine's against the reference's, identical but where the reference's two best
@@ -138,11 +149,20 @@ std::vector<SelftestCheck> runSelftestModel(Engine& engine, const std::string& d
     request.plan.views = views;
     request.plan.inputs = manifest.at("inputs").get<std::vector<int64_t>>();
     request.plan.targets = manifest.at("targets").get<std::vector<int64_t>>();
-    for (const std::string& s : stages) request.targetMotion |= s.rfind("cv_drp_target.", 0) == 0;
+    for (const std::string& s : stages) {
+      request.targetMotion |= s.rfind("cv_drp_target.", 0) == 0;
+      request.refine |= s.rfind("refine", 0) == 0;  // SAM2.1's refinement of every view's mask
+    }
     const std::vector<std::string> prompts = manifest.value("prompts", std::vector<std::string>{});
     request.semanticFeatures = config.semanticDecoding() && !prompts.empty();
-    pipe.encode(request);
+    const SparEncoded& encoded = pipe.encode(request);
     pipe.renderTargets();
+    // SAM2.1's per-view results (inputs, then targets), as the reference lists them.
+    std::map<std::string, std::vector<float>> refineOutputs;
+    for (const RefinedView& v : encoded.refineViews) {
+      refineOutputs["refine_iou"].insert(refineOutputs["refine_iou"].end(), v.iou.begin(), v.iou.end());
+      refineOutputs["refine_logits"].insert(refineOutputs["refine_logits"].end(), v.logits.begin(), v.logits.end());
+    }
 
     std::map<std::string, double> stageMs;
     for (const StageTime& t : pipe.stageTimes()) stageMs[t.name] += t.wallMs;
@@ -187,14 +207,27 @@ std::vector<SelftestCheck> runSelftestModel(Engine& engine, const std::string& d
             throw Error(name + ": " + std::to_string(got.size()) + " pixels, the reference has " +
                         std::to_string(want.numel()));
           c.maxNmse = 0;
-          compareMask(c, got, wantProb, want.toDoubles(), config.maskThreshold);
+          compareMask(c, above(c, got, config.maskThreshold), want.toDoubles(), wantProb, config.maskThreshold,
+                      kMaskTieBand);
+        } else if (name == "refined_input" || name == "refined_target") {
+          const std::vector<float>& got = name == "refined_input" ? encoded.refinedInput : encoded.refinedTarget;
+          const std::vector<double> logits = readNpy((dir / "reference" / (name + ".logits.npy")).string()).toDoubles();
+          if (got.size() != size_t(want.numel()) || logits.size() != got.size())
+            throw Error(name + ": " + std::to_string(got.size()) + " pixels, the reference has " +
+                        std::to_string(want.numel()));
+          c.maxNmse = 0;
+          compareMask(c, above(c, got, 0.5), want.toDoubles(), logits, 0.0, kRefineTieBand);
         } else {
           const auto label = labelOutputs.find(name);
-          const std::vector<float> got = label != labelOutputs.end() ? label->second : engine.download(pipe.intermediate(name));
+          const auto refined = refineOutputs.find(name);
+          const std::vector<float> got = label != labelOutputs.end()     ? label->second
+                                         : refined != refineOutputs.end() ? refined->second
+                                                                          : engine.download(pipe.intermediate(name));
           if (got.size() != size_t(want.numel()))
             throw Error(name + ": " + std::to_string(got.size()) + " values, the reference has " +
                         std::to_string(want.numel()));
           c.maxNmse = fp32StageNmseBound(name);
+          if (name == "refine_iou") c.maxAbsLimit = kRefineIouMaxAbs;
           measureAgainst(c, got, want.toDoubles());
         }
       } catch (const std::exception& e) {

@@ -6,7 +6,9 @@ installed as share/spar/selftest/): a tiny SPAR with every stage of the full mod
 tokens, pose estimator and heads, Plücker rays, DINOv3, CV-DRP, gating, LSeg, semantic tokens,
 scene encoder, renderer with its semantic head, CLIP's text tower with the full vocabulary at
 width 16, label maps) at 64x64 pixels and D 32, perturbed so every bias and statistic matters,
-with every weight rounded to a value fp16 holds exactly. Packed with --fp16 (2.6 MB instead of 5.2), the file then
+packed with a tiny SAM2.1 (SAM2_CONFIG: padded windows, q pooling, a global block; the
+refinement of every view's motion mask at SAM2's fixed 1024x1024), with every weight rounded
+to a value fp16 holds exactly. Packed with --fp16 (2.6 MB instead of 5.2), the file then
 holds the very model the float64 reference ran: a device with fp16 storage reads the weights as
 fp16, one without widens them to fp32, and both are compared with the same float64 outputs.
 
@@ -15,7 +17,11 @@ fp16, one without widens them to fp32, and both are compared with the same float
 writes OUT_DIR/
     model.spar        the packed model (with CLIP's merges table, as any semantic pack)
     images.npy        the five prepared input frames [5, 3, 64, 64] (float32: what the engine reads)
-    reference/*.npy   the PyTorch reference's float64 output of the stages `spar selftest` checks,
+    reference/*.npy   the PyTorch reference's float64 output of the stages `spar selftest` checks
+                      (refined_input / refined_target: SAM2's masks of CV-DRP's P(dynamic), 0/1,
+                      with *.logits.npy, the chosen logits at full size, for ties at 0;
+                      refine_iou [views, 3] and refine_logits [views, 256, 256] (float32), inputs
+                      then targets),
                       the prompts' token ids (text_tokens: the tokenizer has tests of its own) and
                       label_maps.gap (each full-resolution pixel's top-two score gap: near-ties)
     manifest.json     inputs, targets, prompts, the stages in pipeline order, how this was made
@@ -41,6 +47,7 @@ sys.path[:0] = [os.path.join(ROOT, d) for d in ("reference", "converter")]
 
 from spar_convert.convert import BN_EPS  # noqa: E402
 from spar_convert.model_config import tiny  # noqa: E402
+from spar_convert.sam2_config import Sam2Config  # noqa: E402
 
 SIZE = 64
 INPUTS, TARGETS = [0, 2, 4], [1, 3]
@@ -51,7 +58,19 @@ PROMPTS = ["wall", "floor", "sofa", "person"]
 STAGES = ["img_tokens", "cam_tokens", "c2w", "fxfycxcy", "ray_tokens", "dino",
           "cv_drp_input.prob", "cv_drp_input.binary", "cv_drp_target.prob", "cv_drp_target.binary",
           "gated_tokens", "lseg_features", "semantic_tokens", "scene_tokens", "decoder_out", "rgb",
-          "semantic_out_tokens", "semantic_features", "text_embeddings", "label_logits", "label_maps"]
+          "semantic_out_tokens", "semantic_features", "text_embeddings", "label_logits", "label_maps",
+          "refined_input", "refined_target", "refine_iou", "refine_logits"]
+# The SAM2.1 variant: make_sam2_path_golden.py's schedule (q pooling, windows of 6 padded on
+# 64x64, of 3 padded on 32x32) with its global block moved from the 64x64 map to the 32x32 one,
+# whose 1024 tokens cost the float64 reference 2.9 s a view instead of 7 (the 4096-token global
+# attention has its test in test_sam2_path).
+SAM2_CONFIG = dict(name="selftest", embed_dim=8, num_heads=1, stages=[1, 1, 1, 2], global_att_blocks=[4],
+                   window_spec=[8, 4, 6, 3], window_pos_embed_bkg_spatial_size=[7, 7], d_model=64,
+                   backbone_channel_list=[64, 32, 16, 8])
+# CV-DRP's P(dynamic) is the prompt's threshold at 0.5: a device must put every pixel on the
+# reference's side of it, so no pixel may lie closer to 0.5 than this (the engine's P is within
+# 1e-7 of the float64 reference's on lavapipe).
+PROMPT_MARGIN = 1e-5
 
 
 def selftest_config():
@@ -67,11 +86,42 @@ def selftest_config():
     return cfg.validate()
 
 
+def refine(sd, cfg, images, goldens, out):
+    """The reference's SAM2.1 refinement of CV-DRP's float64 masks (inputs, then targets, as the
+    engine refines them with targetMotion) into OUT/refined_*.npy, refine_iou.npy, refine_logits.npy."""
+    import torch
+    import torch.nn.functional as F
+    from spar_reference import sam2
+    ious, low_res = [], []
+    for which, views in (("input", INPUTS), ("target", TARGETS)):
+        prob = np.load(os.path.join(goldens, "cv_drp_%s.prob.npy" % which))[0, :, 0]  # [V, H, W]
+        margin = float(np.abs(prob - 0.5).min())
+        assert margin > PROMPT_MARGIN, "cv_drp_%s: a pixel %.1e from 0.5, the prompt's threshold" % (which, margin)
+        results = sam2.refine_masks(sd, cfg, torch.from_numpy(images[views]), torch.from_numpy(prob))
+        refined, logits = [], []
+        for r in results:
+            assert not r["skipped"], "a view SAM2 skips: the check would run no encoder"
+            refined.append(r["refined"].numpy())
+            full = F.interpolate(r["logits"][None, None], size=prob.shape[1:], mode="bilinear", align_corners=False)
+            logits.append(full[0, 0].numpy())
+            ious.append(r["iou"].numpy())
+            low_res.append(r["logits"].numpy())
+        share = float(np.mean(refined))
+        assert 0.05 < share < 0.95, "refined_%s: %.3f of the pixels dynamic, not a mixed mask" % (which, share)
+        np.save(os.path.join(out, "refined_%s.npy" % which), np.stack(refined))
+        np.save(os.path.join(out, "refined_%s.logits.npy" % which), np.stack(logits))
+    np.save(os.path.join(out, "refine_iou.npy"), np.stack(ious))
+    # float32: 1.3 MB instead of 2.6 in the repository; its rounding (NMSE ~1e-15) is far below
+    # the bound the engine's logits are held to
+    np.save(os.path.join(out, "refine_logits.npy"), np.stack(low_res).astype(np.float32))
+
+
 def main(argv):
     out = os.path.abspath(argv[0] if argv else os.path.join(ROOT, "samples", "data", "selftest"))
     import torch
     from make_spar_goldens import frames
     from spar_convert.convert import main as convert
+    from spar_reference import sam2
     from spar_reference.cli import main as reference
 
     work = tempfile.mkdtemp(prefix="selftest-model-")
@@ -124,6 +174,12 @@ def main(argv):
         sd["model"][expansion] = (sd["model"][expansion] -
                                   torch.from_numpy(feats.mean(axis=(0, 1, 3, 4))).float()).half().float()
         torch.save(sd, ck)
+        sam2_cfg = Sam2Config(**SAM2_CONFIG).validate()
+        sam2_sd = sam2.make_checkpoint(sam2_cfg, seed=23)
+        sam2_sd["model"] = {k: t.half().float() if t.is_floating_point() else t for k, t in sam2_sd["model"].items()}
+        torch.save(sam2_sd, os.path.join(work, "selftest_sam2.pt"))
+        with open(os.path.join(work, "selftest_sam2.json"), "w") as f:
+            json.dump(sam2_cfg.to_dict(), f)
         stage = out + ".tmp"
         shutil.rmtree(stage, ignore_errors=True)
         os.makedirs(os.path.join(stage, "reference"))
@@ -132,8 +188,8 @@ def main(argv):
         here = os.getcwd()
         os.chdir(work)
         try:
-            if convert(["-q", "--fp16", "selftest.pt", "--config", "selftest.json", "-o",
-                        os.path.join(stage, "model.spar")]) != 0:
+            if convert(["-q", "--fp16", "selftest.pt", "--config", "selftest.json", "--sam2", "selftest_sam2.pt",
+                        "--sam2-config", "selftest_sam2.json", "-o", os.path.join(stage, "model.spar")]) != 0:
                 raise SystemExit("make_selftest_model: spar-convert failed")
         finally:
             os.chdir(here)
@@ -147,7 +203,8 @@ def main(argv):
         for mask in ("cv_drp_input", "cv_drp_target"):
             share = float(np.load(os.path.join(goldens, mask + ".binary.npy")).mean())
             assert 0.1 < share < 0.9, "%s: %.3f of the pixels dynamic, not a mixed mask" % (mask, share)
-        for name in STAGES + ["text_tokens"]:
+        refine(sam2_sd["model"], sam2_cfg, images.reshape(-1, 3, SIZE, SIZE).astype(np.float32), goldens, os.path.join(stage, "reference"))
+        for name in [n for n in STAGES if not n.startswith("refine")] + ["text_tokens"]:
             shutil.copy(os.path.join(goldens, name + ".npy"), os.path.join(stage, "reference", name + ".npy"))
         # Where two labels nearly tie at full resolution (the logits x2, float64): a device may
         # round such a pixel either way, and the self-test allows it only there.
@@ -159,7 +216,7 @@ def main(argv):
         shares = sorted((np.bincount(maps.reshape(-1), minlength=len(PROMPTS)) / maps.size).tolist())
         assert shares[-2] > 0.05, "label maps of one label (shares %s): a check that compares little" % shares
         manifest = {
-            "what": "spar selftest's model: tiny SPAR with the semantic branch at 64x64, weights fp16-exact, "
+            "what": "spar selftest's model: tiny SPAR with the semantic branch at 64x64 and a tiny SAM2.1, weights fp16-exact, "
                     "PyTorch reference outputs in float64 (tests/python/make_selftest_model.py)",
             "inputs": INPUTS, "targets": TARGETS, "views": len(files), "prompts": PROMPTS, "stages": STAGES,
             "torch": torch.__version__, "seed": 17,

@@ -27,6 +27,7 @@ writes OUT_DIR/
     dino/                     make_dino_golden.py: DINOv3 on constant and non-square images
     cv_drp/                   make_cv_drp_golden.py: pairs.json and identical/
     masked/                   make_mask_model.py: masked.pt / masked.spar (mixed motion masks)
+    tiny_sam2.spar            masked.pt packed with a tiny SAM2.1 (make_sam2_path_golden.py's)
 --semantic writes the tiny semantic model, its goldens (semantic/, semantic_path/), and
     label_render/             spar-reference render --labels of the semantic case
     lseg/                     make_lseg_golden.py: LSeg on constant and non-square images
@@ -49,7 +50,7 @@ from spar_convert.model_config import full, tiny  # noqa: E402
 
 
 def tiny_sam2(ck, cfg_path, out):
-    """tiny_sam2.spar: the tiny model with tests/python/make_sam2_path_golden.py's SAM2.1 variant."""
+    """tiny_sam2.spar: checkpoint ck (make_mask_model.py's) with make_sam2_path_golden.py's SAM2.1 variant."""
     import torch
     from make_sam2_path_golden import CONFIG
     from spar_reference import sam2
@@ -221,9 +222,6 @@ def main():
     convert("-q", ck, "--config", cfg_path, "-o", packed)
     # The same checkpoint packed with --fp16 (tests/test_spar_precision.cpp).
     convert("-q", "--fp16", ck, "--config", cfg_path, "-o", os.path.join(out, "tiny16.spar"))
-    # And with a tiny SAM2.1 (the variant of tests/test_sam2_path.cpp's goldens, random weights):
-    # the refinement wired into a request (the same test program).
-    tiny_sam2(ck, cfg_path, out)
     cases = {
         "interleaved": ["--frames", *f, "--inputs", "0,2,4"],
         "odd_targets": ["--frames", *f, "--inputs", "1,3"],
@@ -266,6 +264,10 @@ def main():
     # A variant whose motion masks hold both values (tests/test_spar_render.cpp).
     import make_mask_model
     make_mask_model.make(out, fresh(os.path.join(out, "masked")))
+    # That variant with a tiny SAM2.1 (the variant of tests/test_sam2_path.cpp's goldens, random
+    # weights): the refinement wired into a request, spar render and spar eval. Its mixed masks
+    # make SAM2 refine views (an empty mask is skipped: no encoder would run).
+    tiny_sam2(os.path.join(out, "masked", "masked.pt"), cfg_path, out)
     return 0
 
 
