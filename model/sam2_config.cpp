@@ -21,10 +21,20 @@ std::vector<int64_t> ints(const nlohmann::json& j, const char* key, size_t n) {
   return v;
 }
 
-int64_t positive(const nlohmann::json& j, const char* key) {
-  if (!j.contains(key) || !j[key].is_number_integer() || j[key].get<int64_t>() <= 0)
-    throw Error(std::string("sam2_config: ") + key + " must be a positive integer");
+// At most `limit`: every official variant is far inside (hiera_l: embed_dim 144, 36 blocks in
+// stage 3, windows of 16), and the block schedule, the widths' doublings and the buffers sized
+// from them stay small and free of overflow.
+int64_t positive(const nlohmann::json& j, const char* key, int64_t limit) {
+  if (!j.contains(key) || !j[key].is_number_integer() || j[key].get<int64_t>() <= 0 || j[key].get<int64_t>() > limit)
+    throw Error(std::string("sam2_config: ") + key + " must be an integer in 1.." + std::to_string(limit));
   return j[key].get<int64_t>();
+}
+
+void within(const std::vector<int64_t>& v, const char* key, int64_t lo, int64_t limit) {
+  for (int64_t x : v)
+    if (x < lo || x > limit)
+      throw Error(std::string("sam2_config: ") + key + " entries must be in " + std::to_string(lo) + ".." +
+                  std::to_string(limit));
 }
 
 }  // namespace
@@ -39,18 +49,18 @@ Sam2Config Sam2Config::fromJson(const std::string& text) {
   if (!j.is_object()) throw Error("sam2_config is not a JSON object");
   Sam2Config c;
   c.name = j.value("name", std::string("sam2"));
-  c.embedDim = positive(j, "embed_dim");
-  c.numHeads = positive(j, "num_heads");
-  c.dModel = positive(j, "d_model");
+  c.embedDim = positive(j, "embed_dim", 1024);
+  c.numHeads = positive(j, "num_heads", 64);
+  c.dModel = positive(j, "d_model", 2048);
   c.stages = ints(j, "stages", 4);
   c.globalAttBlocks = ints(j, "global_att_blocks", 0);
   c.windowSpec = ints(j, "window_spec", 4);
   c.backgroundSize = ints(j, "window_pos_embed_bkg_spatial_size", 2);
   c.backboneChannels = ints(j, "backbone_channel_list", 4);
-  for (int64_t s : c.stages)
-    if (s <= 0) throw Error("sam2_config: stages must be positive");
-  for (int64_t w : c.windowSpec)
-    if (w <= 0) throw Error("sam2_config: window_spec must be positive");
+  within(c.stages, "stages", 1, 256);
+  within(c.windowSpec, "window_spec", 1, c.tokenSide());
+  within(c.backgroundSize, "window_pos_embed_bkg_spatial_size", 1, c.tokenSide());
+  within(c.globalAttBlocks, "global_att_blocks", 0, 4 * 256);
   if (c.embedDim % c.numHeads) throw Error("sam2_config: embed_dim is not a multiple of num_heads");
   for (size_t i = 0; i < 4; ++i)
     if (c.backboneChannels[i] != c.embedDim << (3 - i))

@@ -318,6 +318,26 @@ TEST_F(Sam2ImageEncoderTest, ConfigRefusesWhatTheConverterRefuses) {
   std::string badChannels = ok;
   badChannels.replace(badChannels.find("[64, 32, 16, 8]"), 15, "[64, 32, 16, 9]");
   EXPECT_THROW(Sam2Config::fromJson(badChannels), Error);
+  // Sizes no variant has, which would overflow the widths' doublings or make schedules of
+  // billions of blocks: refused in one line (the fuzzer's invariants, tests/fuzz).
+  auto with = [&](const std::string& from, const std::string& to) {
+    std::string t = ok;
+    const size_t at = t.find(from);
+    EXPECT_NE(at, std::string::npos) << from;
+    return t.replace(at, from.size(), to);
+  };
+  for (const auto& [from, to] : std::vector<std::pair<std::string, std::string>>{
+           {"\"stages\": [1, 1, 2, 2]", "\"stages\": [1, 1, 2000000000, 2]"},
+           {"\"embed_dim\": 8", "\"embed_dim\": 4611686018427387904"},
+           {"\"window_spec\": [8, 4, 6, 3]", "\"window_spec\": [8, 4, 6, 300]"}}) {
+    try {
+      Sam2Config::fromJson(with(from, to));
+      ADD_FAILURE() << to << " accepted";
+    } catch (const Error& e) {
+      EXPECT_EQ(std::string(e.what()).find('\n'), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("sam2_config: "), std::string::npos) << e.what();
+    }
+  }
 }
 
 }  // namespace

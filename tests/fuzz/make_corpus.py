@@ -3,7 +3,8 @@
 
     tests/fuzz/corpus/spar_reader/*.spar   small packed models (converter's safetensors writer,
                                             real tiny / full configs, every dtype, empty and
-                                            scalar tensors, a non-finite weight, a model card)
+                                            scalar tensors, a non-finite weight, a model card,
+                                            a SAM2.1 variant's metadata and tensors)
     tests/fuzz/corpus/checkpoint/*.pt      small torch.save checkpoints (bare state_dict, the
                                             training wrapper, parameters, views sharing a
                                             storage, a deflated zip, a TorchScript archive)
@@ -35,9 +36,9 @@ from spar_convert.safetensors_file import write_safetensors  # noqa: E402
 OUT = Path(__file__).resolve().parent / "corpus"
 
 
-def packed(path, config, tensors, components=None, card=None):
+def packed(path, config, tensors, components=None, card=None, extra=None):
     meta = {"format": FORMAT, "format_version": FORMAT_VERSION,
-            "config": json.dumps(config, sort_keys=True, separators=(",", ":"))}
+            "config": json.dumps(config, sort_keys=True, separators=(",", ":")), **(extra or {})}
     if components is not None:
         meta["components"] = json.dumps(components, sort_keys=True, separators=(",", ":"))
     if card is not None:
@@ -67,6 +68,14 @@ def spar_seeds(out):
     packed(out / "model_card.spar", photometric, {"a": np.zeros(2, dtype=np.float32)},
            card={"kind": "demonstration", "about": "made for the fuzzer",
                  "measured": {"what": "K=3", "psnr_db": 18.14, "baseline": "copying", "baseline_psnr_db": 20.02}})
+    # A SAM2.1 variant's metadata (spar-convert --sam2) and a few of its tensors under sam2.
+    sam2 = {"name": "fuzz", "embed_dim": 8, "num_heads": 1, "stages": [1, 1, 2, 1], "global_att_blocks": [3],
+            "window_spec": [8, 4, 6, 3], "window_pos_embed_bkg_spatial_size": [7, 7], "d_model": 64,
+            "backbone_channel_list": [64, 32, 16, 8]}
+    packed(out / "sam2.spar", photometric,
+           {"sam2.image_encoder.trunk.pos_embed": np.ones((1, 8, 7, 7), dtype=np.float32),
+            "sam2.no_mem_embed": np.zeros((1, 1, 64), dtype=np.float16)},
+           extra={"sam2_config": json.dumps(sam2, sort_keys=True, separators=(",", ":"))})
     packed(out / "nonfinite.spar", tiny,
            {"inf": np.array([1, np.inf], dtype=np.float32), "nan": np.array([np.nan], dtype=np.float16)})
 

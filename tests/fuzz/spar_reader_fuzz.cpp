@@ -1,5 +1,6 @@
 // Fuzz target of the `.spar` reader: PackedModel's header checks (through fromBytes, the same
-// code open() runs on a mapping), SparConfig::fromJson on the config it accepts, then every
+// code open() runs on a mapping), SparConfig::fromJson on the config it accepts,
+// Sam2Config::fromJson on a SAM2.1 variant's metadata (spar-convert --sam2), then every
 // tensor it lists (info, every data byte, checkFinite, floats). A refusal is a spar::Error and
 // is the expected outcome of most inputs; anything else (another exception, a crash, a
 // sanitizer report, a broken invariant below) is a finding.
@@ -15,6 +16,7 @@
 
 #include "engine/error.h"
 #include "model/packed_model.h"
+#include "model/sam2_config.h"
 #include "model/spar_config.h"
 
 namespace {
@@ -39,6 +41,16 @@ void checkConfig(const spar::SparConfig& c) {
           "finite dino scalars");
   for (int i = 0; i < 3; ++i)
     require(std::isfinite(c.dino.mean[i]) && std::isfinite(c.dino.std[i]) && c.dino.std[i] > 0, "dino mean / std");
+}
+
+void checkSam2(const spar::Sam2Config& c) {
+  // The refinement sizes its kernels and buffers from the block schedule.
+  const std::vector<spar::Sam2BlockSpec> blocks = c.blocks();
+  require(!blocks.empty() && c.stageEnds().size() == 4, "four stages of blocks");
+  for (const spar::Sam2BlockSpec& b : blocks)
+    require(b.dim > 0 && b.dimOut > 0 && b.heads > 0 && b.window >= 0 && b.dimOut % b.heads == 0 &&
+                b.window <= c.tokenSide(),
+            "SAM2 block widths, heads and windows");
 }
 
 void touchTensors(const spar::PackedModel& m) {
@@ -81,6 +93,12 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   try {
     checkConfig(spar::SparConfig::fromJson(model->config(), model->path()));
   } catch (const spar::Error&) {
+  }
+  if (const auto sam2 = model->metadata().find("sam2_config"); sam2 != model->metadata().end()) {
+    try {
+      checkSam2(spar::Sam2Config::fromJson(sam2->second));
+    } catch (const spar::Error&) {
+    }
   }
   touchTensors(*model);
   return 0;
