@@ -685,6 +685,39 @@ TEST(spar_render, RefineWritesRefinedMasksOnlyWhenAsked) {
   EXPECT_NE(readPng8(plain / "view_00.png"), readPng8(gated / "view_00.png"));
 }
 
+// End to end against the reference (spar-reference render --mask-source refined with the same
+// SAM2.1 checkpoint, float32): SAM2's refined masks of both inputs, then the views their hard
+// masks gate. Bar (issue 34): at most 0.1 % of the mask pixels differ (measured: none); the
+// views as every engine-reference comparison here (8-bit difference at most 1).
+TEST(spar_render, RefinedGatingMatchesTheReference) {
+  const fs::path ours = scratch() / "refined_ours", ref = scratch() / "refined_ref";
+  fs::remove_all(ours);
+  fs::remove_all(ref);
+  const std::vector<std::string> views = {"--images", frame(0), frame(2), "--targets", frame(1), "--mask-source",
+                                          "refined"};
+  const RunResult a = spar(cat({"--model", goldenPath("tiny_sam2.spar")}, cat(views, {"--out", ours.string()})));
+  ASSERT_EQ(a.code, 0) << a.err;
+  const RunResult b = reference(cat(views, {"--sam2", goldenPath("tiny_sam2_weights.pt"), "--sam2-config",
+                                            goldenPath("tiny_sam2_config.json"), "--threads", "1", "--out",
+                                            ref.string()}),
+                                goldenPath("masked/masked.pt"));
+  ASSERT_EQ(b.code, 0) << b.err;
+  EXPECT_EQ(readJson(ref / "report.json")["refine"]["mask_source"], "refined");
+  for (const char* f : {"refined_00.png", "refined_01.png"}) {
+    const PngStats st = comparePng(ours / f, ref / f);
+    EXPECT_LE(st.shareDiffering, 1e-3) << f;
+    const auto mask = readPng8(ref / f);
+    const size_t dynamic = size_t(std::count(mask.begin(), mask.end(), uint8_t(255)));
+    EXPECT_GT(dynamic, 0u) << f;  // mixed masks: SAM2 refined, not skipped
+    EXPECT_LT(dynamic, mask.size()) << f;
+    std::printf("  %s: %.2e of the pixels differ, %.1f%% dynamic\n", f, st.shareDiffering,
+                100.0 * double(dynamic) / double(mask.size()));
+  }
+  const PngStats v = comparePng(ours / "view_00.png", ref / "view_00.png");
+  EXPECT_LE(v.maxDiff, 1);
+  EXPECT_LE(v.shareDiffering, 5e-3);
+}
+
 // --scores: per-label score maps at H/2 x W/2 (the official logits) whose x2 bilinear upsampling's
 // argmax is the label map at H x W (pixel counts of labels_XX.json), but for near-ties.
 TEST(spar_render, ScoresAreTheLabelMapsScores) {

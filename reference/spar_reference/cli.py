@@ -163,8 +163,9 @@ def attach_stage_hooks(timer: StageTimer, model) -> List[str]:
 
 
 # ============================================================================ checkpoint
-def load_checkpoint(path: str) -> Dict[str, Any]:
-    """The model state_dict of a checkpoint file ({"model": ...} or a bare state_dict)."""
+def load_checkpoint(path: str, what: str = "SPAR") -> Dict[str, Any]:
+    """The model state_dict of a checkpoint file ({"model": ...} or a bare state_dict); a SPAR
+    checkpoint (what="SPAR") must hold scene_code."""
     import torch
     if not os.path.isfile(path):
         raise CliError(f"checkpoint not found: {path}")
@@ -180,8 +181,8 @@ def load_checkpoint(path: str) -> Dict[str, Any]:
     except Exception as e:
         raise CliError(f"cannot read checkpoint {path}: {_one_line(e)}")
     if not isinstance(sd, dict) or not sd or not all(isinstance(v, torch.Tensor) for v in sd.values()):
-        raise CliError(f"not a SPAR checkpoint (no state_dict of tensors): {path}")
-    if "scene_code" not in sd:
+        raise CliError(f"not a {what} checkpoint (no state_dict of tensors): {path}")
+    if what == "SPAR" and "scene_code" not in sd:
         raise CliError(f"not a SPAR checkpoint (no scene_code tensor): {path}")
     return sd
 
@@ -454,7 +455,53 @@ class Run:
                 and not args.cameras:
             raise CliError("--labels / --features need views to render (target views, --path "
                            "or --cameras)")
+        self.mask_source = getattr(args, "mask_source", "raw")
+        self.refine = bool(getattr(args, "refine", False)) or self.mask_source == "refined"
+        if self.refine and self.assume_static:
+            raise CliError("--refine / --mask-source refined need CV-DRP's masks: not with --assume-static")
+        if self.refine and not args.sam2:
+            raise CliError("--refine / --mask-source refined need --sam2 SAM2.pt")
+        if args.sam2 and not os.path.isfile(args.sam2):
+            raise CliError(f"SAM2 checkpoint not found: {args.sam2}")
         self.out_path = check_out_dir(args.out)
+
+    def load_sam2(self):
+        """The SAM2.1 weights of the refinement path and their variant (spar_convert's rules)."""
+        from spar_convert.sam2_plan import Sam2PlanError, resolve
+        from .sam2 import as_dtype
+        sd = load_checkpoint(self.args.sam2, "SAM2.1")
+        try:
+            cfg, _ = resolve({k: tuple(v.shape) for k, v in sd.items()}, self.args.sam2, self.args.sam2_config)
+            return as_dtype(sd, cfg, self.dtype), cfg
+        except (Sam2PlanError, KeyError, ValueError) as e:
+            raise CliError(f"{self.args.sam2}: {_one_line(e)}")
+
+    def refine_masks(self, out) -> Dict[str, Any]:
+        """SAM2.1's refinement of CV-DRP's masks (inputs, then targets): refined_input /
+        refined_target [1, V, 1, H, W] 0/1, and per refined view the IoU predictions and the
+        chosen mask's 256x256 logits (refine_iou [N, 3], refine_logits [N, 256, 256]; skipped
+        views have none)."""
+        import torch
+        from .sam2 import refine_masks
+        sd, cfg = self.sam2
+        images = torch.from_numpy(self.images).to(self.dtype)
+        result, ious, logits = {}, [], []
+        with self.timer("sam2_refine"):
+            for which, idx in (("input", self.inputs), ("target", self.targets)):
+                motion = out.get("cv_drp_" + which)
+                if not motion or not idx:
+                    continue
+                views = refine_masks(sd, cfg, images[list(idx)], motion["prob"][0, :, 0].to(self.dtype), self.dtype)
+                result["refined_" + which] = torch.stack([r["refined"] for r in views])[None, :, None]
+                for r in views:
+                    if not r["skipped"]:
+                        ious.append(r["iou"])
+                        logits.append(r["logits"])
+                result["refine_skipped_" + which] = torch.tensor([r["skipped"] for r in views])
+        if ious:
+            result["refine_iou"] = torch.stack(ious)
+            result["refine_logits"] = torch.stack(logits)
+        return result
 
     # ---------------------------------------------------------------- compute
     def compute(self, state_dict: Optional[Dict[str, Any]] = None) -> None:
@@ -475,6 +522,9 @@ class Run:
             self.text_encoder = None
             if self.labels:
                 self.text_encoder = build_text_encoder(cfg, clip_sd, self.float64)
+        if self.refine:  # before any work: a SAM2 file that does not fit is refused first
+            with timer("load_sam2"):
+                self.sam2 = self.load_sam2()
         h, w = cfg.image_height, cfg.image_width
         with timer("prepare_images"):
             npdt = np.float64 if self.float64 else np.float32
@@ -500,6 +550,13 @@ class Run:
             with torch.no_grad():
                 out = model(x, self.inputs, self.targets, render=False,
                             record_layers=self.goldens, assume_static=self.assume_static)
+                if self.refine:
+                    refined = self.refine_masks(out)
+                    if self.mask_source == "refined":
+                        # the official mask_source 'refined': the hard masks gate, average-pooled
+                        out = model(x, self.inputs, self.targets, render=False, record_layers=self.goldens,
+                                    dynamic_mask=refined["refined_input"])
+                    out.update(refined)
                 if args.path is not None:
                     from .cameras import interpolate_path
                     c2w = out["c2w"][0].double().numpy()
@@ -594,6 +651,7 @@ class Run:
                       "rendered": int(self.out["rgb"].shape[1]) if "rgb" in self.out else 0},
             "render": self.render_mode,
             "assume_static": self.assume_static,
+            "refine": {"mask_source": self.mask_source} if self.refine else None,
             "total_seconds": total,
             "stages": [{"name": k, "seconds": v} for k, v in self.timer.times.items()],
         }
@@ -612,6 +670,10 @@ class Run:
             for j in range(prob.shape[0]):
                 save_grey(os.path.join(d, f"motion_{j:02d}.png"), prob[j])
                 save_mask(os.path.join(d, f"mask_{j:02d}.png"), binary[j])
+            if "refined_input" in out:
+                refined = out["refined_input"][0, :, 0].numpy() > 0.5
+                for j in range(refined.shape[0]):
+                    save_mask(os.path.join(d, f"refined_{j:02d}.png"), refined[j])
             with open(os.path.join(d, "cameras.json"), "w", encoding="utf-8") as f:
                 json.dump(self.cameras_json(), f, indent=1)
             if self.labels:
@@ -800,6 +862,16 @@ def _add_run_args(p: argparse.ArgumentParser, render: bool) -> None:
     p.add_argument("--assume-static", action="store_true",
                    help="declare the scene static: skip DINOv3 and CV-DRP, gate no token, "
                         "write no motion maps")
+    p.add_argument("--sam2", metavar="SAM2.pt",
+                   help="a SAM2.1 checkpoint (official layout) for --refine / --mask-source refined")
+    p.add_argument("--sam2-config", metavar="NAME|YAML|JSON",
+                   help="its variant (default: from the file name, else its tensor shapes)")
+    p.add_argument("--refine", action="store_true",
+                   help="refine every view's motion mask with SAM2.1 (inputs and targets, as the "
+                        "official _sam2_refine_masks): refined_XX.png beside mask_XX.png")
+    p.add_argument("--mask-source", choices=("raw", "refined"), default="raw",
+                   help="the masks that gate the input tokens: CV-DRP's (raw) or the refined hard "
+                        "masks (implies --refine)")
     p.add_argument("--float64", action="store_true", help="run the model in float64")
     _add_threads_arg(p)
     p.add_argument("--out", required=True, metavar="DIR",

@@ -359,6 +359,14 @@ def error_args(work, tmp_path, case):
         "wrong_config": ["--checkpoint", work["ckpt"], "--config", "full", "--images", f[0], f[1]],
         "labels_no_bpe": ["--checkpoint", work["ckpt"], "--images", f[0], f[1], "--labels", "a",
                           "--bpe", tmp_path / "nope.txt.gz"],
+        # SAM2.1 refinement: no SAM2 file; a missing one; not with a static scene; a SPAR
+        # checkpoint in its place (no variant matches its tensors)
+        "refine_no_sam2": ["--checkpoint", work["ckpt"], "--images", f[0], f[1], "--refine"],
+        "refine_missing_sam2": ["--checkpoint", work["ckpt"], "--images", f[0], f[1], "--mask-source", "refined",
+                                "--sam2", tmp_path / "nope.pt"],
+        "refine_static": ["--checkpoint", work["ckpt"], "--images", f[0], f[1], "--refine", "--assume-static",
+                          "--sam2", work["ckpt"]],
+        "refine_not_sam2": ["--checkpoint", work["ckpt"], "--images", f[0], f[1], "--refine", "--sam2", work["ckpt"]],
     }[case]]
 
 
@@ -382,7 +390,8 @@ def test_errors_executable(work, tmp_path):
 
 
 @pytest.mark.parametrize("case", ["missing_image", "one_input", "no_checkpoint", "bad_image",
-                                  "not_a_checkpoint", "bad_inputs", "labels_no_bpe"])
+                                  "not_a_checkpoint", "bad_inputs", "labels_no_bpe", "refine_no_sam2",
+                                  "refine_missing_sam2", "refine_static", "refine_not_sam2"])
 def test_errors_in_process(work, tmp_path, case, capsys):
     out = tmp_path / "out"
     for cmd in ("render", "goldens"):
