@@ -1,10 +1,12 @@
 // spar-modes: every precision and shortcut the engine offers, on one model and one set of
 // inputs, side by side: wall and GPU time per stage and in total, weight bytes, device memory,
 // and error against the PyTorch fp32 reference on the same inputs (engineering.md "Report
-// error against run time").
+// error against run time"). A model packed with SAM2.1 adds the refine modes (the refined
+// masks against the reference's refinement; with -refined they gate the tokens).
 //
 //   spar-modes [--model M.spar --checkpoint X.pt [--config C] --frames f0 f1 .. --inputs 0,2]
-//              [--modes fp32,fp16,fp32-static,fp16-static] [--repeat N] [--out DIR] [--device D]
+//              [--modes fp32,fp16,fp32-static,fp16-static,fp32-refine,...] [--sam2 SAM2.pt [--sam2-config C]]
+//              [--repeat N] [--out DIR] [--device D]
 //
 // Without --model: the tiny photometric model of the test fixture (build/tests/spar_goldens,
 // made by `ctest -R make_spar_goldens`), frames 0..4 with inputs 0,2,4. Writes DIR/modes.md
@@ -36,7 +38,7 @@ using namespace spar;
 using namespace spar::modes;
 
 struct Args {
-  std::string model, checkpoint, config, inputs, modes, out = "spar-modes-out", device;
+  std::string model, checkpoint, config, inputs, modes, out = "spar-modes-out", device, sam2, sam2Config;
   std::vector<std::string> frames;
   int repeat = 3;
 };
@@ -93,14 +95,19 @@ int run(Args a) {
   if (a.checkpoint.empty() || a.frames.empty() || a.inputs.empty())
     throw UsageError("--model needs --checkpoint (the reference's), --frames and --inputs");
   if (a.repeat < 1) throw UsageError("--repeat must be at least 1");
+  const PackedModel model = PackedModel::open(a.model);
+  const bool sam2 = model.metadata().count("sam2_config") > 0;
   std::vector<Mode> modes;
   try {
-    modes = selectModes(a.modes);
+    modes = selectModes(a.modes, sam2);
   } catch (const Error& e) {
     throw UsageError(e.what());
   }
-
-  const PackedModel model = PackedModel::open(a.model);
+  const bool anyRefine = std::any_of(modes.begin(), modes.end(), [](const Mode& m) { return m.refine; });
+  const bool anyRefinedGating = std::any_of(modes.begin(), modes.end(), [](const Mode& m) { return m.refinedGating; });
+  if (anyRefine && a.sam2.empty())
+    throw UsageError("the refine modes need --sam2 (the SAM2.1 checkpoint the model was packed with, for the "
+                     "reference; or leave them out with --modes)");
   const SparConfig config = SparConfig::fromJson(model.config(), model.path());
   const int64_t h = config.imageHeight, w = config.imageWidth;
   SparRequest request;
@@ -118,11 +125,18 @@ int run(Args a) {
 
   const fs::path out = fs::absolute(a.out);
   fs::create_directories(out);
-  const ReferenceInputs refIn{SPAR_PYTHON, SPAR_SOURCE_DIR, a.checkpoint, a.config, a.frames, request.plan.inputs};
-  const Reference ref = loadReference(refIn, false, (out / "reference").string());
+  const ReferenceInputs refIn{SPAR_PYTHON, SPAR_SOURCE_DIR, a.checkpoint,        a.config,
+                              a.frames,    request.plan.inputs, a.sam2, a.sam2Config};
+  const Reference ref = loadReference(refIn, ReferenceRun::Whole, (out / "reference").string());
   const bool anyStatic = std::any_of(modes.begin(), modes.end(), [](const Mode& m) { return m.assumeStatic; });
   const Reference refStatic =
-      anyStatic ? loadReference(refIn, true, (out / "reference_static").string()) : Reference{};
+      anyStatic ? loadReference(refIn, ReferenceRun::Static, (out / "reference_static").string()) : Reference{};
+  // The refined masks: from the refined-gating run when there is one (it refines the same way),
+  // else from a --refine run.
+  const Reference refRefine =
+      anyRefinedGating ? loadReference(refIn, ReferenceRun::RefinedGating, (out / "reference_refined").string())
+      : anyRefine      ? loadReference(refIn, ReferenceRun::Refine, (out / "reference_refine").string())
+                       : Reference{};
 
   EngineOptions engineOptions;
   engineOptions.device = a.device;
@@ -137,7 +151,8 @@ int run(Args a) {
     r.vsReference = rgbError(r.run.rgb, ref.rgb);
     r.maskAgreement = maskAgreement(r.run.motion, ref.mask, config.maskThreshold);
     r.motionMaxAbs = motionMaxAbs(r.run.motion, ref.motion);
-    r.vsSameMode = rgbError(r.run.rgb, m.assumeStatic ? refStatic.rgb : ref.rgb);
+    if (m.refine) r.refinedAgreement = maskAgreement(r.run.refined, refRefine.refined, 0.5);
+    r.vsSameMode = rgbError(r.run.rgb, m.assumeStatic ? refStatic.rgb : m.refinedGating ? refRefine.rgb : ref.rgb);
     results.push_back(std::move(r));
   }
 
@@ -155,6 +170,8 @@ int run(Args a) {
   setup.referenceStatic = refStatic.dir;
   setup.referenceMs = ref.modelMs;
   setup.referenceStaticMs = refStatic.modelMs;
+  setup.referenceRefine = refRefine.dir;
+  setup.referenceRefineMs = refRefine.modelMs;
 
   const std::string markdown = reportMarkdown(setup, results);
   std::vector<PlotPoint> points;
@@ -187,7 +204,11 @@ int main(int argc, char** argv) {
   app.add_option("--config", a.config, "spar-reference --config (tiny|full|PATH; default: inferred)");
   app.add_option("--frames", a.frames, "all frames in capture order");
   app.add_option("--inputs", a.inputs, "positions of the input frames, e.g. 0,2 (the rest are targets)");
-  app.add_option("--modes", a.modes, "comma-separated subset of fp32,fp16,fp32-static,fp16-static (default: all)");
+  app.add_option("--modes", a.modes,
+                 "comma-separated subset of fp32,fp16,fp32-static,fp16-static,fp32-refine,fp16-refine,fp32-refined,"
+                 "fp16-refined (default: all; the refine modes when the model has SAM2.1)");
+  app.add_option("--sam2", a.sam2, "the SAM2.1 checkpoint the model was packed with (the reference's, refine modes)");
+  app.add_option("--sam2-config", a.sam2Config, "its variant for the reference (NAME|YAML|JSON; default: inferred)");
   app.add_option("--repeat", a.repeat, "measured runs per mode after the first (median reported; default 3)");
   app.add_option("--out", a.out, "directory for modes.md, modes.json, modes.svg and the reference's goldens");
   app.add_option("--device", a.device, "Vulkan device index or part of its name (default: SPAR_DEVICE, else the "

@@ -111,8 +111,50 @@ TEST(SparModes, ReportOnTinyModel) {
   EXPECT_EQ(nlohmann::json::parse(readText(scratch() / "report" / "modes.json")).at("modes").size(), 1u);
 }
 
+// The refine modes on the tiny model packed with SAM2.1 (fixture spar_goldens): SAM2's stage
+// timed, its refined masks against the reference's refinement, and with the refined masks
+// gating, the rendering against the reference's --mask-source refined run.
+TEST(SparModes, RefineModesOnTheTinyModelWithSam2) {
+  std::string frames;
+  for (int i = 0; i < 5; ++i) frames += " '" + goldenPath("frame_" + std::to_string(i) + ".png") + "'";
+  const fs::path out = scratch() / "refine";
+  const Result r = run("--model '" + goldenPath("tiny_sam2.spar") + "' --checkpoint '" + goldenPath("masked/masked.pt") +
+                       "' --config '" + goldenPath("tiny_photometric.json") + "' --frames" + frames +
+                       " --inputs 0,2,4 --sam2 '" + goldenPath("tiny_sam2_weights.pt") + "' --sam2-config '" +
+                       goldenPath("tiny_sam2_config.json") + "' --modes fp32,fp32-refine,fp32-refined --repeat 1 --out '" +
+                       out.string() + "'");
+  ASSERT_EQ(r.code, 0) << r.err;
+  const nlohmann::json j = nlohmann::json::parse(readText(out / "modes.json"));
+  std::map<std::string, nlohmann::json> modes;
+  for (const auto& m : j.at("modes")) modes[m.at("mode").get<std::string>()] = m;
+  ASSERT_EQ(modes.size(), 3u);
+  const auto stageNames = [&](const char* mode) {
+    std::set<std::string> names;
+    for (const auto& st : modes.at(mode).at("stages")) names.insert(st.at("name").get<std::string>());
+    return names;
+  };
+  EXPECT_EQ(stageNames("fp32").count("sam2_refine"), 0u);
+  EXPECT_TRUE(modes.at("fp32").at("vs_reference").at("refined_mask_agreement").is_null());
+  for (const char* name : {"fp32-refine", "fp32-refined"}) {
+    SCOPED_TRACE(name);
+    const nlohmann::json& m = modes.at(name);
+    EXPECT_EQ(stageNames(name).count("sam2_refine"), 1u);
+    EXPECT_GT(m.at("weight_bytes").get<uint64_t>(), modes.at("fp32").at("weight_bytes").get<uint64_t>());
+    ASSERT_TRUE(finiteNumber(m.at("vs_reference").at("refined_mask_agreement")));
+    EXPECT_GE(m.at("vs_reference").at("refined_mask_agreement").get<double>(), 0.999);  // measured: 100%
+    EXPECT_GE(m.at("vs_same_mode_reference").at("rgb_psnr_db").get<double>(), 120.0);   // measured: 147 dB
+  }
+  // CV-DRP's masks still gate with -refine: the rendering is fp32's; the refined masks gating
+  // render other views (the whole model's reference is then off by what the masks change).
+  EXPECT_EQ(modes.at("fp32-refine").at("vs_reference").at("rgb_psnr_db"),
+            modes.at("fp32").at("vs_reference").at("rgb_psnr_db"));
+  EXPECT_LT(modes.at("fp32-refined").at("vs_reference").at("rgb_psnr_db").get<double>(), 120.0);
+  EXPECT_NE(r.out.find("| fp32-refined |"), std::string::npos);
+}
+
 TEST(SparModes, BadCommandLine) {
-  for (const char* args : {"--modes fp8", "--repeat 0", "--frames a.png"}) {
+  // the fixture's model has no SAM2.1: its refine modes are refused (and not among the defaults)
+  for (const char* args : {"--modes fp8", "--repeat 0", "--frames a.png", "--modes fp32-refine"}) {
     SCOPED_TRACE(args);
     const Result r = run(args);
     EXPECT_EQ(r.code, 2);

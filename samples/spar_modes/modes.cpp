@@ -24,6 +24,7 @@ double runOnce(SparPipeline& pipe, const SparRequest& request, ModeRun& out) {
   const auto t0 = Clock::now();
   const SparEncoded& e = pipe.encode(request);
   out.motion = e.motionInput;
+  out.refined = e.refinedInput;
   out.rgb = pipe.renderTargets();
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
@@ -36,17 +37,31 @@ const std::vector<Mode>& allModes() {
       {"fp16", DType::F16, false},
       {"fp32-static", DType::F32, true},
       {"fp16-static", DType::F16, true},
+      // SAM2.1 refinement: the masks refined, CV-DRP's still gating (-refine), or the refined
+      // ones gating (-refined, the official mask_source: refined)
+      {"fp32-refine", DType::F32, false, true, false},
+      {"fp16-refine", DType::F16, false, true, false},
+      {"fp32-refined", DType::F32, false, true, true},
+      {"fp16-refined", DType::F16, false, true, true},
   };
   return modes;
 }
 
-std::vector<Mode> selectModes(const std::string& list) {
-  if (list.empty()) return allModes();
+std::vector<Mode> selectModes(const std::string& list, bool sam2) {
   std::vector<Mode> out;
+  if (list.empty()) {
+    for (const Mode& m : allModes())
+      if (sam2 || !m.refine) out.push_back(m);
+    return out;
+  }
+  std::string names;
+  for (const Mode& m : allModes()) names += (names.empty() ? "" : ", ") + m.name;
   std::stringstream ss(list);
   for (std::string name; std::getline(ss, name, ',');) {
     auto it = std::find_if(allModes().begin(), allModes().end(), [&](const Mode& m) { return m.name == name; });
-    if (it == allModes().end()) throw Error("unknown mode '" + name + "' (modes: fp32, fp16, fp32-static, fp16-static)");
+    if (it == allModes().end()) throw Error("unknown mode '" + name + "' (modes: " + names + ")");
+    if (it->refine && !sam2)
+      throw Error("mode " + name + " needs a model packed with SAM2.1 (spar-convert --sam2)");
     out.push_back(*it);
   }
   if (out.empty()) throw Error("no mode selected");
@@ -59,6 +74,8 @@ ModeRun runMode(const EngineOptions& engineOptions, const PackedModel& model, co
   SparPipeline pipe(engine, model, {.profile = true, .keepIntermediates = false, .weightType = mode.weightType});
   SparRequest req = request;
   req.assumeStatic = mode.assumeStatic;
+  req.refine = mode.refine;
+  req.maskSource = mode.refinedGating ? MaskSource::Refined : MaskSource::Raw;
   req.targetMotion = false;
 
   ModeRun out;

@@ -11,15 +11,18 @@
 namespace spar::modes {
 
 struct Mode {
-  std::string name;                // "fp32", "fp16", "fp32-static", "fp16-static"
+  std::string name;                // "fp32", "fp16", "fp32-static", ..., "fp16-refined"
   DType weightType = DType::F32;   // SparPipelineOptions::weightType
   bool assumeStatic = false;       // SparRequest::assumeStatic (no DINOv3, no CV-DRP)
+  bool refine = false;             // SparRequest::refine: SAM2.1 refines the inputs' masks
+  bool refinedGating = false;      // MaskSource::Refined: its hard masks gate the tokens
 };
 
-// Every mode, in report order.
+// Every mode, in report order (the refine modes need a model packed with SAM2.1).
 const std::vector<Mode>& allModes();
-// The modes named in a comma-separated list ("" = all); throws spar::Error for unknown names.
-std::vector<Mode> selectModes(const std::string& list);
+// The modes named in a comma-separated list ("" = all, the refine modes only when `sam2`);
+// throws spar::Error for unknown names, and for a refine mode without `sam2`.
+std::vector<Mode> selectModes(const std::string& list, bool sam2);
 
 struct StageStat {
   std::string name;
@@ -38,6 +41,7 @@ struct ModeRun {
   uint64_t devicePeakBytes = 0;  // peak device memory in use (weights, activations, scratch)
   std::vector<float> rgb;        // [T, 3, H, W] of the last run
   std::vector<float> motion;     // [K, H, W] P(dynamic) of the inputs (empty when static)
+  std::vector<float> refined;    // [K, H, W] SAM2.1's refined masks, 0 or 1 (refine modes)
 };
 
 // Runs `mode` on a fresh engine (so its device memory and compiled kernels are its own): one

@@ -20,18 +20,34 @@ std::string quote(const std::string& s) {
   return q + "'";
 }
 
+const char* runName(ReferenceRun run) {
+  switch (run) {
+    case ReferenceRun::Whole: return "whole";
+    case ReferenceRun::Static: return "assume-static";
+    case ReferenceRun::Refine: return "refine";
+    case ReferenceRun::RefinedGating: return "refined-gating";
+  }
+  return "?";
+}
+
+nlohmann::json fileStamp(const std::string& path) {
+  if (path.empty()) return nullptr;
+  const fs::path p = fs::absolute(path);
+  return {p.string(), fs::file_size(p), fs::last_write_time(p).time_since_epoch().count()};
+}
+
 // What the goldens were made from: reused only when all of it is unchanged.
-nlohmann::json stamp(const ReferenceInputs& in, bool assumeStatic) {
+nlohmann::json stamp(const ReferenceInputs& in, ReferenceRun run) {
   nlohmann::json files = nlohmann::json::array();
   for (const std::string& f : in.frames) files.push_back(fs::absolute(f).string());
-  const fs::path ck = fs::absolute(in.checkpoint);
-  return {{"checkpoint", ck.string()},
-          {"checkpoint_bytes", fs::file_size(ck)},
-          {"checkpoint_mtime", fs::last_write_time(ck).time_since_epoch().count()},
+  const bool refine = run == ReferenceRun::Refine || run == ReferenceRun::RefinedGating;
+  return {{"checkpoint", fileStamp(in.checkpoint)},
           {"config", in.config},
           {"frames", files},
           {"inputs", in.inputs},
-          {"assume_static", assumeStatic},
+          {"run", runName(run)},
+          {"sam2", refine ? fileStamp(in.sam2) : nullptr},
+          {"sam2_config", refine ? in.sam2Config : ""},
           {"precision", "fp32"}};
 }
 
@@ -41,23 +57,30 @@ std::string joinInputs(const std::vector<int64_t>& v) {
   return s;
 }
 
-void makeGoldens(const ReferenceInputs& in, bool assumeStatic, const fs::path& dir) {
+void makeGoldens(const ReferenceInputs& in, ReferenceRun run, const fs::path& dir) {
   std::string cmd = quote(in.python) + " " + quote(in.sourceDir + "/reference/spar-reference") + " goldens --checkpoint " +
                     quote(in.checkpoint);
   if (!in.config.empty()) cmd += " --config " + quote(in.config);
   cmd += " --frames";
   for (const std::string& f : in.frames) cmd += " " + quote(f);
   cmd += " --inputs " + joinInputs(in.inputs);
-  if (assumeStatic) cmd += " --assume-static";
+  if (run == ReferenceRun::Static) cmd += " --assume-static";
+  if (run == ReferenceRun::Refine || run == ReferenceRun::RefinedGating) {
+    if (in.sam2.empty()) throw Error("the refine modes need the SAM2.1 checkpoint for the reference: give --sam2");
+    cmd += " --sam2 " + quote(in.sam2);
+    if (!in.sam2Config.empty()) cmd += " --sam2-config " + quote(in.sam2Config);
+    cmd += run == ReferenceRun::Refine ? " --refine" : " --mask-source refined";
+  }
   cmd += " --out " + quote(dir.string());
   if (std::system(cmd.c_str()) != 0) throw Error("the PyTorch reference failed: " + cmd);
 }
 
 }  // namespace
 
-Reference loadReference(const ReferenceInputs& in, bool assumeStatic, const std::string& dirName) {
+Reference loadReference(const ReferenceInputs& in, ReferenceRun run, const std::string& dirName) {
   const fs::path dir = fs::absolute(dirName), stampFile = dir.string() + ".source.json";
-  const nlohmann::json want = stamp(in, assumeStatic);
+  const nlohmann::json want = stamp(in, run);
+  const bool assumeStatic = run == ReferenceRun::Static;
   Reference r;
   r.dir = dir.string();
   if (fs::exists(dir / "manifest.json") && fs::exists(stampFile)) {
@@ -70,7 +93,7 @@ Reference loadReference(const ReferenceInputs& in, bool assumeStatic, const std:
     fs::remove_all(dir);
     fs::remove(stampFile);
     fs::create_directories(dir.parent_path());
-    makeGoldens(in, assumeStatic, dir);
+    makeGoldens(in, run, dir);
     std::ofstream(stampFile) << want.dump(1) << "\n";
   }
   // rgb [1, T, 3, H, W]; cv_drp_input.prob / .binary [1, K, 1, H, W]
@@ -79,12 +102,14 @@ Reference loadReference(const ReferenceInputs& in, bool assumeStatic, const std:
     r.motion = readNpy((dir / "cv_drp_input.prob.npy").string()).toFloats();
     r.mask = readNpy((dir / "cv_drp_input.binary.npy").string()).toFloats();
   }
+  if (run == ReferenceRun::Refine || run == ReferenceRun::RefinedGating)  // [1, K, 1, H, W]
+    r.refined = readNpy((dir / "refined_input.npy").string()).toFloats();
   std::ifstream rep(dir / "report.json");
   if (!rep) throw Error(r.dir + "/report.json: cannot open");
   const nlohmann::json report = nlohmann::json::parse(rep);
   for (const auto& s : report.at("stages")) {
     const std::string name = s.at("name");
-    if (name != "load_checkpoint" && name != "prepare_images" && name != "write_outputs")
+    if (name != "load_checkpoint" && name != "load_sam2" && name != "prepare_images" && name != "write_outputs")
       r.modelMs += 1000.0 * s.at("seconds").get<double>();
   }
   return r;

@@ -15,7 +15,12 @@ struct ReferenceInputs {
   std::string config;       // --config of spar-reference ("" = inferred from the checkpoint)
   std::vector<std::string> frames;
   std::vector<int64_t> inputs;
+  std::string sam2, sam2Config;  // the SAM2.1 checkpoint and its variant (refine runs)
 };
+
+// Which run of the reference: the whole model, --assume-static, --refine (CV-DRP's masks still
+// gate), --mask-source refined.
+enum class ReferenceRun { Whole, Static, Refine, RefinedGating };
 
 struct Reference {
   std::string dir;
@@ -23,10 +28,11 @@ struct Reference {
   std::vector<float> rgb;     // [T, 3, H, W]
   std::vector<float> motion;  // [K, H, W] P(dynamic) of the inputs (empty with assume-static)
   std::vector<float> mask;    // [K, H, W] its binary mask, 0 or 1 (empty with assume-static)
+  std::vector<float> refined; // [K, H, W] SAM2.1's refined masks, 0 or 1 (refine runs)
   double modelMs = 0;         // the reference's own time of the model's stages (no file I/O)
 };
 
 // Goldens in `dir` (made unless `dir` holds goldens of the same inputs); throws spar::Error.
-Reference loadReference(const ReferenceInputs& inputs, bool assumeStatic, const std::string& dir);
+Reference loadReference(const ReferenceInputs& inputs, ReferenceRun run, const std::string& dir);
 
 }  // namespace spar::modes

@@ -3,9 +3,12 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 
 namespace spar::modes {
 namespace {
+
+namespace fs = std::filesystem;
 
 // JSON has no infinity (identical outputs): null, as for "not applicable".
 nlohmann::ordered_json number(double v) { return std::isfinite(v) ? nlohmann::ordered_json(v) : nullptr; }
@@ -45,6 +48,8 @@ nlohmann::ordered_json reportJson(const ReportSetup& setup, const std::vector<Mo
         {"mode", r.run.mode.name},
         {"weights", r.run.mode.weightType == DType::F16 ? "f16" : "f32"},
         {"assume_static", r.run.mode.assumeStatic},
+        {"refine", r.run.mode.refine},
+        {"refined_gating", r.run.mode.refinedGating},
         {"repeats", r.run.repeats},
         {"wall_ms", r.run.wallMs},
         {"gpu_ms", r.run.gpuMs},
@@ -56,7 +61,8 @@ nlohmann::ordered_json reportJson(const ReportSetup& setup, const std::vector<Mo
          {{"rgb_psnr_db", number(r.vsReference.psnrDb)},
           {"rgb_max_abs", r.vsReference.maxAbs},
           {"mask_agreement", number(r.maskAgreement)},
-          {"motion_max_abs", number(r.motionMaxAbs)}}},
+          {"motion_max_abs", number(r.motionMaxAbs)},
+          {"refined_mask_agreement", number(r.refinedAgreement)}}},
         {"vs_same_mode_reference",
          {{"rgb_psnr_db", number(r.vsSameMode.psnrDb)}, {"rgb_max_abs", r.vsSameMode.maxAbs}}},
     });
@@ -75,8 +81,10 @@ nlohmann::ordered_json reportJson(const ReportSetup& setup, const std::vector<Mo
        {{"precision", "fp32"},
         {"goldens", setup.reference},
         {"goldens_assume_static", setup.referenceStatic},
+        {"goldens_refine", setup.referenceRefine},
         {"model_ms", setup.referenceMs},
-        {"model_ms_assume_static", setup.referenceStaticMs}}},
+        {"model_ms_assume_static", setup.referenceStaticMs},
+        {"model_ms_refine", setup.referenceRefineMs}}},
       {"modes", modes},
   };
 }
@@ -90,13 +98,14 @@ std::string reportMarkdown(const ReportSetup& setup, const std::vector<ModeResul
        std::to_string(results.empty() ? 0 : results[0].run.repeats) +
        " runs of encode + render after a first run (weight upload, shader compilation).\n\n";
   s += "| mode | wall ms | GPU ms | first run ms | weights MB | device peak MB | RGB PSNR dB | RGB max abs | mask "
-       "agreement % | PSNR vs same-mode ref dB |\n";
-  s += "|---|---|---|---|---|---|---|---|---|---|\n";
+       "agreement % | refined mask agreement % | PSNR vs same-mode ref dB |\n";
+  s += "|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const ModeResult& r : results) {
     s += "| " + r.run.mode.name + " | " + fmt("%.1f", r.run.wallMs) + " | " + fmt("%.1f", r.run.gpuMs) + " | " +
          fmt("%.0f", r.run.firstRunMs) + " | " + mb(r.run.weightBytes) + " | " + mb(r.run.devicePeakBytes) + " | " +
          psnr(r.vsReference.psnrDb) + " | " + fmt("%.2e", r.vsReference.maxAbs) + " | " +
          (r.maskAgreement ? fmt("%.3f", 100.0 * *r.maskAgreement) : std::string("n/a (no CV-DRP)")) + " | " +
+         (r.refinedAgreement ? fmt("%.3f", 100.0 * *r.refinedAgreement) : std::string("-")) + " | " +
          psnr(r.vsSameMode.psnrDb) + " |\n";
   }
   s += "\nPer stage, wall / GPU ms (median):\n\n| stage |";
@@ -115,8 +124,11 @@ std::string reportMarkdown(const ReportSetup& setup, const std::vector<ModeResul
     s += "\n";
   }
   s += "\nPyTorch fp32 reference (CPU, its model stages; goldens run, which also records every layer): " +
-       fmt("%.0f", setup.referenceMs) + " ms, with --assume-static " + fmt("%.0f", setup.referenceStaticMs) +
-       " ms. Packed file: " + mb(setup.modelFileBytes) + " MB, matrices stored " + setup.fileWeights + ".\n";
+       fmt("%.0f", setup.referenceMs) + " ms, with --assume-static " + fmt("%.0f", setup.referenceStaticMs) + " ms" +
+       (setup.referenceRefine.empty() ? std::string()
+                                      : ", with SAM2.1's refinement (" + fs::path(setup.referenceRefine).filename().string() +
+                                            ") " + fmt("%.0f", setup.referenceRefineMs) + " ms") +
+       ". Packed file: " + mb(setup.modelFileBytes) + " MB, matrices stored " + setup.fileWeights + ".\n";
   return s;
 }
 

@@ -18,8 +18,11 @@ struct ModeResult {
   RgbError vsReference;
   std::optional<double> maskAgreement;  // input motion masks (nullopt with assume-static)
   std::optional<double> motionMaxAbs;
-  // Against the reference run in the same mode (--assume-static for the static modes): the
-  // engine's own error, without what the shortcut itself changes.
+  // SAM2.1's refined input masks against the reference's refinement (refine modes)
+  std::optional<double> refinedAgreement;
+  // Against the reference run in the same mode (--assume-static for the static modes,
+  // --mask-source refined for the refined-gating ones): the engine's own error, without what
+  // the shortcut itself changes.
   RgbError vsSameMode;
 };
 
@@ -30,8 +33,8 @@ struct ReportSetup {
   std::vector<std::string> frames;
   std::vector<int64_t> inputs, targets;
   int64_t height = 0, width = 0;
-  std::string reference, referenceStatic;  // goldens directories
-  double referenceMs = 0, referenceStaticMs = 0;
+  std::string reference, referenceStatic, referenceRefine;  // goldens directories ("" if not run)
+  double referenceMs = 0, referenceStaticMs = 0, referenceRefineMs = 0;
 };
 
 nlohmann::ordered_json reportJson(const ReportSetup& setup, const std::vector<ModeResult>& results);

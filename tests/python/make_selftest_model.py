@@ -6,7 +6,7 @@ installed as share/spar/selftest/): a tiny SPAR with every stage of the full mod
 tokens, pose estimator and heads, Plücker rays, DINOv3, CV-DRP, gating, LSeg, semantic tokens,
 scene encoder, renderer with its semantic head, CLIP's text tower with the full vocabulary at
 width 16, label maps) at 64x64 pixels and D 32, perturbed so every bias and statistic matters,
-packed with a tiny SAM2.1 (SAM2_CONFIG: padded windows, q pooling, a global block; the
+packed with a tiny SAM2.1 (sam2_config(): padded windows, q pooling, a global block; the
 refinement of every view's motion mask at SAM2's fixed 1024x1024), with every weight rounded
 to a value fp16 holds exactly. Packed with --fp16 (2.6 MB instead of 5.2), the file then
 holds the very model the float64 reference ran: a device with fp16 storage reads the weights as
@@ -60,13 +60,13 @@ STAGES = ["img_tokens", "cam_tokens", "c2w", "fxfycxcy", "ray_tokens", "dino",
           "gated_tokens", "lseg_features", "semantic_tokens", "scene_tokens", "decoder_out", "rgb",
           "semantic_out_tokens", "semantic_features", "text_embeddings", "label_logits", "label_maps",
           "refined_input", "refined_target", "refine_iou", "refine_logits"]
-# The SAM2.1 variant: make_sam2_path_golden.py's schedule (q pooling, windows of 6 padded on
-# 64x64, of 3 padded on 32x32) with its global block moved from the 64x64 map to the 32x32 one,
-# whose 1024 tokens cost the float64 reference 2.9 s a view instead of 7 (the 4096-token global
-# attention has its test in test_sam2_path).
-SAM2_CONFIG = dict(name="selftest", embed_dim=8, num_heads=1, stages=[1, 1, 1, 2], global_att_blocks=[4],
-                   window_spec=[8, 4, 6, 3], window_pos_embed_bkg_spatial_size=[7, 7], d_model=64,
-                   backbone_channel_list=[64, 32, 16, 8])
+# The SAM2.1 variant: make_sam2_path_golden.py's QUICK_CONFIG (q pooling, windows of 6 padded
+# on 64x64 and of 3 on 32x32, a global block over the 32x32 map's 1024 tokens), named here.
+def sam2_config():
+    from make_sam2_path_golden import QUICK_CONFIG
+    return Sam2Config(**dict(QUICK_CONFIG.to_dict(), name="selftest")).validate()
+
+
 # CV-DRP's P(dynamic) is the prompt's threshold at 0.5: a device must put every pixel on the
 # reference's side of it, so no pixel may lie closer to 0.5 than this (the engine's P is within
 # 1e-7 of the float64 reference's on lavapipe).
@@ -174,7 +174,7 @@ def main(argv):
         sd["model"][expansion] = (sd["model"][expansion] -
                                   torch.from_numpy(feats.mean(axis=(0, 1, 3, 4))).float()).half().float()
         torch.save(sd, ck)
-        sam2_cfg = Sam2Config(**SAM2_CONFIG).validate()
+        sam2_cfg = sam2_config()
         sam2_sd = sam2.make_checkpoint(sam2_cfg, seed=23)
         sam2_sd["model"] = {k: t.half().float() if t.is_floating_point() else t for k, t in sam2_sd["model"].items()}
         torch.save(sam2_sd, os.path.join(work, "selftest_sam2.pt"))

@@ -27,7 +27,8 @@ writes OUT_DIR/
     dino/                     make_dino_golden.py: DINOv3 on constant and non-square images
     cv_drp/                   make_cv_drp_golden.py: pairs.json and identical/
     masked/                   make_mask_model.py: masked.pt / masked.spar (mixed motion masks)
-    tiny_sam2.spar            masked.pt packed with a tiny SAM2.1 (make_sam2_path_golden.py's)
+    tiny_sam2.spar            masked.pt packed with a tiny SAM2.1 (make_sam2_path_golden.py's QUICK_CONFIG;
+                              tiny_sam2_weights.pt, tiny_sam2_config.json: its checkpoint and variant)
 --semantic writes the tiny semantic model, its goldens (semantic/, semantic_path/), and
     label_render/             spar-reference render --labels of the semantic case
     lseg/                     make_lseg_golden.py: LSeg on constant and non-square images
@@ -50,14 +51,15 @@ from spar_convert.model_config import full, tiny  # noqa: E402
 
 
 def tiny_sam2(ck, cfg_path, out):
-    """tiny_sam2.spar: checkpoint ck (make_mask_model.py's) with make_sam2_path_golden.py's SAM2.1 variant."""
+    """tiny_sam2.spar: checkpoint ck (make_mask_model.py's) with make_sam2_path_golden.py's quick SAM2.1
+    variant (random weights; the checkpoint and its config beside it, for the reference)."""
     import torch
-    from make_sam2_path_golden import CONFIG
+    from make_sam2_path_golden import QUICK_CONFIG
     from spar_reference import sam2
     sam2_ck, sam2_cfg = os.path.join(out, "tiny_sam2_weights.pt"), os.path.join(out, "tiny_sam2_config.json")
-    torch.save(sam2.make_checkpoint(CONFIG, seed=21), sam2_ck)
+    torch.save(sam2.make_checkpoint(QUICK_CONFIG, seed=21), sam2_ck)
     with open(sam2_cfg, "w") as f:
-        json.dump(CONFIG.to_dict(), f)
+        json.dump(QUICK_CONFIG.to_dict(), f)
     convert("-q", ck, "--config", cfg_path, "--sam2", sam2_ck, "--sam2-config", sam2_cfg,
             "-o", os.path.join(out, "tiny_sam2.spar"))
 
