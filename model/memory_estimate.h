@@ -28,6 +28,8 @@ struct MemoryQuery {
   bool assumeStatic = false;
   bool semantic = false;    // semantic features rendered (models with the semantic branch)
   bool labels = false;      // CLIP's text encoder loaded (prompts)
+  bool refine = false;      // SAM2.1's refinement (a model packed with it): its weights and maps
+  bool targetMotion = false;  // the targets' masks too (refined with them)
   DType matrixType = DType::F32;
 };
 

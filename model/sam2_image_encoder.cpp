@@ -29,7 +29,8 @@ Tensor Sam2ImageEncoder::weight(const std::string& name) const {
   return t;
 }
 
-Sam2ImageFeatures Sam2ImageEncoder::encode(Recorder& rec, const Tensor& images, int64_t view) const {
+Sam2ImageFeatures Sam2ImageEncoder::encode(Recorder& rec, const Tensor& images, int64_t view,
+                                           const std::function<void(Recorder&)>& flush) const {
   const int64_t S = Sam2Config::kImageSize, side = config_.tokenSide(), C0 = config_.embedDim, d = config_.dModel;
   const Tensor input = engine_.tensor({1, 3, S, S});
   sam2Preprocess(rec, images, view, input.reshape({3, S, S}));
@@ -54,6 +55,7 @@ Sam2ImageFeatures Sam2ImageEncoder::encode(Recorder& rec, const Tensor& images, 
     sam2HieraBlock(rec, b, weights_, prefix_ + "image_encoder.trunk.blocks." + std::to_string(i) + ".", x, y);
     x = y;
     if (std::find(ends.begin(), ends.end(), int64_t(i)) != ends.end()) f.stages.push_back(y);
+    if (flush) flush(rec);
   }
   if (f.stages.size() != 4) throw Error("SAM2 image encoder: the trunk gave " + std::to_string(f.stages.size()) + " stages");
 

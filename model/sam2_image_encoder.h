@@ -12,6 +12,7 @@
 // [256 * 256, d / 8] = conv_s0(L0), featS1 [128 * 128, d / 4] = conv_s1(L1). Weights by
 // official key under `prefix` ("sam2." in a packed file).
 #pragma once
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -32,7 +33,12 @@ class Sam2ImageEncoder {
   // Looks up the weights and computes the position table (input-independent) once.
   Sam2ImageEncoder(Engine& engine, const Sam2Config& config, WeightLookup weights, std::string prefix = "sam2.");
 
-  Sam2ImageFeatures encode(Recorder& rec, const Tensor& images, int64_t view) const;
+  // With `flush`: called after each Hiera block (the refiner's submission: run, timings), so
+  // a block's intermediates are freed before the next one's are allocated; the device then
+  // holds one block's maps at a time instead of all of them (hiera_l, 2 views: a 10 GB peak
+  // before). Without: everything is recorded into `rec` for one submission.
+  Sam2ImageFeatures encode(Recorder& rec, const Tensor& images, int64_t view,
+                           const std::function<void(Recorder&)>& flush = {}) const;
   const Tensor& positionTable() const { return positionTable_; }
 
  private:

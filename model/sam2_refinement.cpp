@@ -57,7 +57,7 @@ Sam2Refined Sam2Refiner::refine(const Tensor& images, const Tensor& probs,
     if (r.skipped) continue;
     Recorder rec(engine_, profile);
     rec.setStage("sam2_refine");
-    const Sam2ImageFeatures f = encoder_.encode(rec, images, v);
+    const Sam2ImageFeatures f = encoder_.encode(rec, images, v, submit);  // one block's maps at a time
     const Sam2MaskResult m = decoder_.decode(rec, f, probs, v);
     Tensor full = m.chosenLogits.reshape({1, 1, side, side});
     if (H != side || W != side) {

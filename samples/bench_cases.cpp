@@ -38,13 +38,14 @@ struct NmseAccumulator {
   double value() const { return den > 0 ? num / den : num; }
 };
 
-void addGemm(std::vector<BenchCase>& cases, Engine& engine, int64_t M, int64_t K, int64_t N, DType storage) {
+void addGemm(std::vector<BenchCase>& cases, Engine& engine, int64_t M, int64_t K, int64_t N, DType storage,
+             const std::string& prefix = "") {
   auto x = std::make_shared<std::vector<float>>(randomValues(M * K, 1));
   auto w = std::make_shared<std::vector<float>>(randomValues(N * K, 2, 0.05f));
   Tensor tx = engine.fromFloats({M, K}, *x, storage), tw = engine.fromFloats({N, K}, *w, storage);
   Tensor ty = engine.tensor({M, N}, storage);
   BenchCase c;
-  c.name = storage == DType::F16 ? "gemm_f16" : "gemm_f32";
+  c.name = prefix + (storage == DType::F16 ? "gemm_f16" : "gemm_f32");
   c.shape = std::to_string(M) + "x" + std::to_string(K) + "x" + std::to_string(N);
   c.flops = 2.0 * M * N * K;
   c.record = [=](Recorder& rec) { linear(rec, tx, tw, Tensor(), ty); };
@@ -62,15 +63,18 @@ void addGemm(std::vector<BenchCase>& cases, Engine& engine, int64_t M, int64_t K
   cases.push_back(std::move(c));
 }
 
-void addAttention(std::vector<BenchCase>& cases, Engine& engine, int64_t N, int heads, int dh, DType storage) {
+// Self-attention of B independent sequences of N tokens (B > 1: windows, as SAM2's Hiera has).
+void addAttention(std::vector<BenchCase>& cases, Engine& engine, int64_t N, int heads, int dh, DType storage,
+                  int64_t B = 1, const std::string& prefix = "") {
   const int64_t D = int64_t(heads) * dh;
-  auto qkv = std::make_shared<std::vector<float>>(randomValues(N * 3 * D, 3, 1.5f));
-  Tensor t = engine.fromFloats({N, 3 * D}, *qkv, storage);
-  Tensor o = engine.tensor({N, D}, storage);
+  auto qkv = std::make_shared<std::vector<float>>(randomValues(B * N * 3 * D, 3, 1.5f));
+  Tensor t = engine.fromFloats({B, N, 3 * D}, *qkv, storage);
+  Tensor o = engine.tensor({B, N, D}, storage);
   BenchCase c;
-  c.name = storage == DType::F16 ? "attention_f16" : "attention_f32";
-  c.shape = std::to_string(heads) + "x" + std::to_string(dh) + " heads, " + std::to_string(N) + " tokens";
-  c.flops = 4.0 * double(N) * N * dh * heads;
+  c.name = prefix + (storage == DType::F16 ? "attention_f16" : "attention_f32");
+  c.shape = std::to_string(heads) + "x" + std::to_string(dh) + " heads, " +
+            (B > 1 ? std::to_string(B) + " windows of " : std::string()) + std::to_string(N) + " tokens";
+  c.flops = 4.0 * double(B) * N * N * dh * heads;
   c.record = [=](Recorder& rec) { attention(rec, {t, 0}, {t, D}, {t, 2 * D}, {o, 0}, heads, dh); };
   c.nmse = [=, &engine]() {
     auto out = engine.download(o);
@@ -78,19 +82,21 @@ void addAttention(std::vector<BenchCase>& cases, Engine& engine, int64_t N, int 
     NmseAccumulator acc;
     std::vector<double> s(N);
     const double scale = 1.0 / std::sqrt(double(dh));
-    for (int64_t i : sampleRows(N))
+    for (int64_t i : sampleRows(B * N))
       for (int h = 0; h < heads; ++h) {
+        const int64_t first = (i / N) * N;  // the keys of row i's own sequence
         double mx = -INFINITY, sum = 0;
         for (int64_t j = 0; j < N; ++j) {
           double d = 0;
-          for (int c2 = 0; c2 < dh; ++c2) d += double(a[i * 3 * D + h * dh + c2]) * a[j * 3 * D + D + h * dh + c2];
+          for (int c2 = 0; c2 < dh; ++c2)
+            d += double(a[i * 3 * D + h * dh + c2]) * a[(first + j) * 3 * D + D + h * dh + c2];
           s[j] = d * scale;
           mx = std::max(mx, s[j]);
         }
         for (int64_t j = 0; j < N; ++j) sum += (s[j] = std::exp(s[j] - mx));
         for (int c2 = 0; c2 < dh; ++c2) {
           double v = 0;
-          for (int64_t j = 0; j < N; ++j) v += s[j] * a[j * 3 * D + 2 * D + h * dh + c2];
+          for (int64_t j = 0; j < N; ++j) v += s[j] * a[(first + j) * 3 * D + 2 * D + h * dh + c2];
           acc.add(out[i * D + h * dh + c2], v / sum);
         }
       }
@@ -269,6 +275,18 @@ void addDecoderCases(std::vector<BenchCase>& cases, Engine& engine) {
   addDecoderConv(cases, engine, "drp_head_conv1x1", N, 16, 1, 2 * s, 2 * s, 1);
 }
 
+// SAM2.1 hiera_l's largest shapes per view (docs/sam2.md: 1.83 TFLOP, the image encoder 99.8 %
+// of it; `--only sam2_` runs them): stage 1's qkv GEMM (65536 tokens of 144) and its attention
+// in 1024 windows of 8x8, stage 3's MLP GEMM (4096 tokens of 576 -> 2304), its attention in 16
+// windows of 16x16, and its global blocks over all 4096 tokens (8 heads of 72).
+void addSam2Cases(std::vector<BenchCase>& cases, Engine& engine, DType s) {
+  addGemm(cases, engine, 65536, 144, 432, s, "sam2_l_s1_qkv_");
+  addGemm(cases, engine, 4096, 576, 2304, s, "sam2_l_s3_mlp_");
+  addAttention(cases, engine, 64, 2, 72, s, 1024, "sam2_l_s1_window_");
+  addAttention(cases, engine, 256, 8, 72, s, 16, "sam2_l_s3_window_");
+  addAttention(cases, engine, 4096, 8, 72, s, 1, "sam2_l_global_");
+}
+
 }  // namespace
 
 std::vector<BenchCase> makeCases(Engine& engine, const std::string& only, bool large) {
@@ -291,6 +309,7 @@ std::vector<BenchCase> makeCases(Engine& engine, const std::string& only, bool l
   }
   addConv3x3(cases, engine, 64, 128, 128);
   addDecoderCases(cases, engine);
+  for (DType s : storages) addSam2Cases(cases, engine, s);
   if (!only.empty())
     std::erase_if(cases, [&](const BenchCase& c) { return c.name.find(only) == std::string::npos; });
   return cases;

@@ -124,6 +124,8 @@ TEST(spar_jobs, BadJobsFileIsOneLineNamingTheLineAndWritesNothing) {
       {"{\"out\": \"z\", \"colour\": 1}", "jobs.jsonl:2: unknown key \"colour\""},
       {"{\"out\": \"z\", \"images\": \"a.png\"}", "jobs.jsonl:2: \"images\" must be a list"},
       {"{\"out\": \"z\", \"path\": \"ten\"}", "jobs.jsonl:2: \"path\" must be a number"},
+      {"{\"out\": \"z\", \"refine\": \"yes\"}", "jobs.jsonl:2: \"refine\" must be true or false"},
+      {"{\"out\": \"z\", \"mask_source\": \"soft\"}", "jobs.jsonl:2: \"mask_source\" must be \"raw\" or \"refined\""},
       {job("a", "scene_1000001"), "jobs.jsonl:2: \"out\""},  // the same out twice
   };
   for (const auto& [line, expected] : cases) {
@@ -143,17 +145,20 @@ TEST(spar_jobs, BadJobsFileIsOneLineNamingTheLineAndWritesNothing) {
 }
 
 TEST(spar_jobs, AFailingJobDoesNotStopTheOthers) {
+  // line 4: refinement asked of a model without SAM2.1
   const fs::path file = jobsFile("failing", {job("a", "scene_1000000"),
                                              "{\"images\": [\"missing.png\", \"missing2.png\"], \"out\": \"m\"}",
-                                             job("c", "scene_1000002")});
+                                             job("c", "scene_1000002"), job("r", "scene_1000001", "\"refine\": true")});
   const fs::path dir = file.parent_path();
   const CommandResult r = spar({"render", "--model", kModel, "--jobs", file.string()});
   EXPECT_EQ(r.code, 1) << r.err;
   EXPECT_TRUE(fs::exists(dir / "a" / "view_00.png"));
   EXPECT_FALSE(fs::exists(dir / "m"));
   EXPECT_TRUE(fs::exists(dir / "c" / "view_00.png"));
+  EXPECT_FALSE(fs::exists(dir / "r"));
   EXPECT_NE(r.err.find("spar: error: job at line 2: image not found"), std::string::npos) << r.err;
-  EXPECT_NE(r.err.find("spar: error: 1 of 3 jobs failed (lines 2)"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("spar: error: job at line 4: this model has no SAM2.1 weights"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("spar: error: 2 of 4 jobs failed (lines 2, 4)"), std::string::npos) << r.err;
 }
 
 TEST(spar_jobs, EvalShardsTakeEveryNthScene) {

@@ -629,6 +629,16 @@ TEST(spar_render, SemanticHeadOnlyWhenAsked) {
   ASSERT_EQ(spar(cat(base, {"--labels", "sofa,floor", "--out", asked.string()})).code, 0);
   const ojson a = readJson(plain / "report.json"), b = readJson(asked / "report.json");
   EXPECT_LT(a["weights_bytes_loaded"].get<double>(), b["weights_bytes_loaded"].get<double>());
+  // The memory estimate counts SAM2's weights and maps only when it runs, and stays a lower
+  // bound of the measured peak (model/memory_estimate.h), not a loose one.
+  const double plainEstimate = a["device_memory"]["estimated_min_bytes"].get<double>(),
+               estimate = b["device_memory"]["estimated_min_bytes"].get<double>(),
+               peak = b["device_memory"]["peak_bytes"].get<double>();
+  EXPECT_LT(plainEstimate, estimate);
+  EXPECT_LE(estimate, peak);
+  EXPECT_GE(estimate, 0.4 * peak);
+  std::printf("  with --refine: estimated at least %.1f MiB, peak %.1f MiB (without: %.1f MiB)\n", estimate / (1 << 20),
+              peak / (1 << 20), plainEstimate / (1 << 20));
   for (const auto& st : a["stages"]) {
     EXPECT_NE(st["name"], "text_encoder");
     EXPECT_NE(st["name"], "labels");
@@ -655,6 +665,16 @@ TEST(spar_render, RefineWritesRefinedMasksOnlyWhenAsked) {
   for (const auto& st : a["stages"]) EXPECT_NE(st["name"], "sam2_refine");
   for (const auto& n : entries(plain)) EXPECT_NE(n.rfind("refined_", 0), 0u) << n;
   EXPECT_LT(a["weights_bytes_loaded"].get<double>(), b["weights_bytes_loaded"].get<double>());
+  // The memory estimate counts SAM2's weights and maps only when it runs, and stays a lower
+  // bound of the measured peak (model/memory_estimate.h), not a loose one.
+  const double plainEstimate = a["device_memory"]["estimated_min_bytes"].get<double>(),
+               estimate = b["device_memory"]["estimated_min_bytes"].get<double>(),
+               peak = b["device_memory"]["peak_bytes"].get<double>();
+  EXPECT_LT(plainEstimate, estimate);
+  EXPECT_LE(estimate, peak);
+  EXPECT_GE(estimate, 0.4 * peak);
+  std::printf("  with --refine: estimated at least %.1f MiB, peak %.1f MiB (without: %.1f MiB)\n", estimate / (1 << 20),
+              peak / (1 << 20), plainEstimate / (1 << 20));
   bool stage = false;
   for (const auto& st : b["stages"]) stage = stage || st["name"] == "sam2_refine";
   EXPECT_TRUE(stage);
@@ -675,6 +695,19 @@ TEST(spar_render, RefineWritesRefinedMasksOnlyWhenAsked) {
     EXPECT_EQ(mask, readPng8(gated / name)) << name;
   }
   EXPECT_EQ(readPng8(plain / "view_00.png"), readPng8(refined / "view_00.png"));
+  // As jobs of one process (spar render --jobs: "refine" / "mask_source" per job): the same files.
+  const fs::path jobsDir = scratch() / "refine_jobs";
+  fs::remove_all(jobsDir);
+  fs::create_directories(jobsDir);
+  {
+    std::ofstream jobs(jobsDir / "jobs.jsonl");
+    const std::string views = "\"images\": [\"" + frame(0) + "\", \"" + frame(2) + "\"], \"targets\": [\"" + frame(1) + "\"]";
+    jobs << "{" << views << ", \"out\": \"plain\"}\n{" << views << ", \"refine\": true, \"out\": \"refined\"}\n";
+  }
+  ASSERT_EQ(spar({"--model", goldenPath("tiny_sam2.spar"), "--jobs", (jobsDir / "jobs.jsonl").string()}).code, 0);
+  EXPECT_FALSE(fs::exists(jobsDir / "plain" / "refined_00.png"));
+  for (const char* f : {"refined_00.png", "refined_01.png", "view_00.png"})
+    EXPECT_EQ(readPng8(jobsDir / "refined" / f), readPng8(refined / f)) << f;
   // The page shows each refined mask beside CV-DRP's, with what SAM2.1 decided.
   std::ifstream pageFile(refined / "index.html");
   const std::string page((std::istreambuf_iterator<char>(pageFile)), std::istreambuf_iterator<char>());

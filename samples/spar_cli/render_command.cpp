@@ -255,6 +255,7 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
     mq.assumeStatic = a.assumeStatic;
     mq.semantic = a.labels.has_value() || a.features;
     mq.labels = a.labels.has_value();
+    mq.refine = a.refine || a.maskSource == "refined";
     mq.matrixType = po.weightType;
     const MemoryNeed need = estimateMemory(*v.model, cfg, mq);
     const uint64_t budget = engine.memory().budget();

@@ -53,14 +53,16 @@ std::string commaList(const json& j, const char* key, bool integers, const std::
 
 RenderArgs jobArgs(const json& j, const RenderArgs& common, const fs::path& base, const std::string& where) {
   if (!j.is_object()) throw UsageError(where + ": a job is a JSON object");
-  static const char* known[] = {"out", "images", "targets", "frames", "inputs", "path", "cameras", "labels",
-                                "video", "video_frames", "video_at"};
+  static const char* known[] = {"out",   "images", "targets",      "frames",   "inputs", "path",       "cameras",
+                                "labels", "video", "video_frames", "video_at", "refine", "mask_source"};
   for (const auto& [key, value] : j.items()) {
     bool ok = false;
-    for (const char* k : known) ok = ok || key == k;
-    if (!ok)
-      throw UsageError(where + ": unknown key \"" + key +
-                       "\" (known: out, images, targets, frames, inputs, path, cameras, labels, video, video_frames, video_at)");
+    std::string names;
+    for (const char* k : known) {
+      ok = ok || key == k;
+      names += (names.empty() ? "" : ", ") + std::string(k);
+    }
+    if (!ok) throw UsageError(where + ": unknown key \"" + key + "\" (known: " + names + ")");
   }
   RenderArgs a = common;
   a.views = {};
@@ -96,6 +98,16 @@ RenderArgs jobArgs(const json& j, const RenderArgs& common, const fs::path& base
     a.path.reset();
   }
   if (j.contains("labels")) a.labels = text(j, "labels", where);
+  // SAM2.1 refinement per job, as --refine / --mask-source (a model packed with SAM2.1)
+  if (j.contains("refine")) {
+    if (!j["refine"].is_boolean()) throw UsageError(where + ": \"refine\" must be true or false");
+    a.refine = j["refine"].get<bool>();
+  }
+  if (j.contains("mask_source")) {
+    a.maskSource = text(j, "mask_source", where);
+    if (a.maskSource != "raw" && a.maskSource != "refined")
+      throw UsageError(where + ": \"mask_source\" must be \"raw\" or \"refined\"");
+  }
   return a;
 }
 
