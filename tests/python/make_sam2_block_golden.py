@@ -25,7 +25,18 @@ CASES = {
     "q_pool_padded": (10, 10, 8, 16, 2, 6, True),
     "global": (6, 5, 8, 8, 2, 0, False),
     "global_q_pool": (8, 6, 4, 8, 2, 0, True),
+    # the official hiera_t / hiera_s windows on their maps: 14 on 64x64 (padded to 70, the
+    # last row and column of windows 8 of 14 tokens real), 7 on 32x32 (padded to 35)
+    "window_14_on_64": (64, 64, 8, 8, 2, 14, False),
+    "window_7_on_32": (32, 32, 8, 8, 2, 7, False),
+    # stiff: a global block whose attention logits reach about 1e3 (q and k scaled), and one
+    # whose input rows have mean 1e4 (its LayerNorm, eps 1e-6, as LayerNorm2d's)
+    "global_logits_1e3": (8, 8, 8, 8, 2, 0, False),
+    "rows_of_mean_1e4": (6, 7, 8, 8, 2, 3, False),
 }
+# q and k of the qkv projection scaled by this (logits by its square: ~1e3)
+LOGIT_SCALE = {"global_logits_1e3": 20.0}
+INPUT_OFFSET = {"rows_of_mean_1e4": 1e4}
 
 
 def weights(dim, dim_out, g):
@@ -53,7 +64,10 @@ def main(argv=None) -> None:
         os.makedirs(d, exist_ok=True)
         g = torch.Generator().manual_seed(100 + i)
         wt = weights(dim, dim_out, g)
-        x = torch.randn(1, h, w, dim, generator=g)
+        if name in LOGIT_SCALE:
+            wt["attn.qkv.weight"][:2 * dim_out] *= LOGIT_SCALE[name]
+            wt["attn.qkv.bias"][:2 * dim_out] *= LOGIT_SCALE[name]
+        x = torch.randn(1, h, w, dim, generator=g) + INPUT_OFFSET.get(name, 0.0)
         sd = {"b." + k: v.to(torch.float64) for k, v in wt.items()}
         blk = dict(dim=dim, dim_out=dim_out, heads=heads, window=window, q_pool=int(q_pool))
         with torch.no_grad():
