@@ -22,7 +22,7 @@ import json, sys
 doc = json.load(open(sys.argv[1]))
 assert doc["passed"], "installed spar selftest failed"
 assert doc["model"]["dir"] == sys.argv[2], doc["model"]["dir"]
-assert len(doc["model"]["checks"]) == 21 and all(c["passed"] for c in doc["model"]["checks"])
+assert len(doc["model"]["checks"]) == 25 and all(c["passed"] for c in doc["model"]["checks"])
 print("installed spar selftest: passed, model from", doc["model"]["dir"])
 PY
 if ls "$work/prefix/include/spar" | grep -qv '\.h$'; then echo "non-header in include/spar"; exit 1; fi
