@@ -142,6 +142,10 @@ void SparPipeline::addStageTimes(const Recorder& rec, double wallMs) {
 }
 
 
+std::string refinementProblem(const PackedModel& model) {
+  return model.metadata().count("sam2_config") ? "" : "this model has no SAM2.1 weights (spar-convert --sam2)";
+}
+
 std::string imageSizeProblem(const SparConfig& config, int64_t height, int64_t width) {
   const std::string size = std::to_string(height) + "x" + std::to_string(width) + " (HxW)";
   if (height <= 0 || width <= 0 || height % config.patchSize || width % config.patchSize)
@@ -172,8 +176,8 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
     throw Error("precomputed LSeg features: expected " + std::to_string(c.useLseg ? featureValues : 0) + " values, got " +
                 std::to_string(request.lsegFeatures.size()));
   const bool refine = request.refine || request.maskSource == MaskSource::Refined;
-  if (refine && !model_.metadata().count("sam2_config"))
-    throw Error("this model has no SAM2.1 weights (spar-convert --sam2): no mask refinement");
+  if (const std::string problem = refine ? refinementProblem(model_) : ""; !problem.empty())
+    throw Error(problem + ": no mask refinement");
   if (request.maskSource == MaskSource::Refined && request.assumeStatic)
     throw Error("refined masks gate nothing in a scene declared static (not --assume-static)");
   if (!request.refinePrompts.empty()) {

@@ -49,6 +49,10 @@ using SparEncoded = Encoded;
 // default; the model was not trained at other sizes, so its results there may be worse.
 std::string imageSizeProblem(const SparConfig& config, int64_t height, int64_t width);
 
+// "" when the model can refine motion masks (packed with spar-convert --sam2), else why not
+// (one line, no prefix): what a request with refine, and the CLI's --refine, are refused with.
+std::string refinementProblem(const PackedModel& model);
+
 
 struct SparPipelineOptions {
   bool profile = true;            // per-dispatch timestamps -> stageTimes()

@@ -96,7 +96,7 @@ int run(Args a) {
     throw UsageError("--model needs --checkpoint (the reference's), --frames and --inputs");
   if (a.repeat < 1) throw UsageError("--repeat must be at least 1");
   const PackedModel model = PackedModel::open(a.model);
-  const bool sam2 = model.metadata().count("sam2_config") > 0;
+  const bool sam2 = refinementProblem(model).empty();
   std::vector<Mode> modes;
   try {
     modes = selectModes(a.modes, sam2);

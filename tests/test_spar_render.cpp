@@ -629,16 +629,6 @@ TEST(spar_render, SemanticHeadOnlyWhenAsked) {
   ASSERT_EQ(spar(cat(base, {"--labels", "sofa,floor", "--out", asked.string()})).code, 0);
   const ojson a = readJson(plain / "report.json"), b = readJson(asked / "report.json");
   EXPECT_LT(a["weights_bytes_loaded"].get<double>(), b["weights_bytes_loaded"].get<double>());
-  // The memory estimate counts SAM2's weights and maps only when it runs, and stays a lower
-  // bound of the measured peak (model/memory_estimate.h), not a loose one.
-  const double plainEstimate = a["device_memory"]["estimated_min_bytes"].get<double>(),
-               estimate = b["device_memory"]["estimated_min_bytes"].get<double>(),
-               peak = b["device_memory"]["peak_bytes"].get<double>();
-  EXPECT_LT(plainEstimate, estimate);
-  EXPECT_LE(estimate, peak);
-  EXPECT_GE(estimate, 0.4 * peak);
-  std::printf("  with --refine: estimated at least %.1f MiB, peak %.1f MiB (without: %.1f MiB)\n", estimate / (1 << 20),
-              peak / (1 << 20), plainEstimate / (1 << 20));
   for (const auto& st : a["stages"]) {
     EXPECT_NE(st["name"], "text_encoder");
     EXPECT_NE(st["name"], "labels");
@@ -648,9 +638,8 @@ TEST(spar_render, SemanticHeadOnlyWhenAsked) {
 
 // --refine: SAM2.1-refined masks beside the raw ones (refined_XX.png, 0 / 255), and in
 // report.json what SAM2 decided per input view and its stage; without it no SAM2 stage, weight
-// or file. --mask-source refined gates with them, which changes the views. (The tiny model finds
-// nothing dynamic in these frames, so SAM2 skips both views here; tests/test_sam2_path.cpp
-// refines real prompts through the same request.)
+// or file. --mask-source refined gates with them, which changes the views. (The model's masks
+// are mixed on these frames, fixture spar_goldens' make_mask_model.py, so SAM2 refines both.)
 TEST(spar_render, RefineWritesRefinedMasksOnlyWhenAsked) {
   const fs::path plain = scratch() / "refine_plain", refined = scratch() / "refine_asked",
                  gated = scratch() / "refine_gated";

@@ -151,9 +151,8 @@ void runEval(const EvalArgs& a) {
 
   const PackedModel model = PackedModel::open(a.model);
   const SparConfig cfg = SparConfig::fromJson(model.config(), model.path());
-  if (refine && !model.metadata().count("sam2_config"))
-    throw Error("this model has no SAM2.1 weights (spar-convert --sam2): --refine / --mask-source refined are not "
-                "available");
+  if (const std::string problem = refine ? refinementProblem(model) : ""; !problem.empty())
+    throw Error(problem + ": --refine / --mask-source refined are not available");
   // --size: a size this model cannot run at is a command line without meaning for it (exit 2).
   if (a.height) {
     if (const std::string problem = imageSizeProblem(cfg, a.height, a.width); !problem.empty())

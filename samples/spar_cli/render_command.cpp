@@ -120,9 +120,9 @@ Validated validate(const RenderArgs& a, RenderContext* shared) {
   }
   v.height = int(a.height ? a.height : v.config.imageHeight);
   v.width = int(a.width ? a.width : v.config.imageWidth);
-  if ((a.refine || a.maskSource == "refined") && !v.model->metadata().count("sam2_config"))
-    throw Error("this model has no SAM2.1 weights (spar-convert --sam2): --refine / --mask-source refined are not "
-                "available");
+  if (const std::string problem = a.refine || a.maskSource == "refined" ? refinementProblem(*v.model) : "";
+      !problem.empty())
+    throw Error(problem + ": --refine / --mask-source refined are not available");
   if (a.labels || a.features) {
     if (!v.config.semanticDecoding())
       throw Error("this model has no semantic branch (use_lseg / semantic loss weight): --labels / --features are "
