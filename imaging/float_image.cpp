@@ -1,10 +1,9 @@
 #include "imaging/float_image.h"
 
-#include <OpenImageIO/imageio.h>
-
 #include <vector>
 
 #include "engine/error.h"
+#include "imaging/image_files.h"
 #include "imaging/stderr_capture.h"
 
 namespace spar {
@@ -17,14 +16,13 @@ void writeExr(const std::string& path, const float* values, int channels, int he
   std::vector<float> interleaved(plane * size_t(channels));  // EXR scanlines hold pixels, not planes
   for (int c = 0; c < channels; ++c)
     for (size_t i = 0; i < plane; ++i) interleaved[i * size_t(channels) + size_t(c)] = values[size_t(c) * plane + i];
+  const ImageFiles& files = imageFiles();  // loaded before stderr is captured: its errors are one line
   StderrCapture captured;
-  auto out = OIIO::ImageOutput::create(path);
-  if (!out) throw Error("cannot write " + path + ": " + OIIO::geterror() + " " + captured.take());
-  OIIO::ImageSpec spec(width, height, channels, half ? OIIO::TypeDesc::HALF : OIIO::TypeDesc::FLOAT);
-  spec.channelnames = channels == 3 ? std::vector<std::string>{"R", "G", "B"} : std::vector<std::string>{"Y"};
-  spec.attribute("compression", "zip");
-  if (!out->open(path, spec) || !out->write_image(OIIO::TypeDesc::FLOAT, interleaved.data()) || !out->close())
-    throw Error("cannot write " + path + ": " + out->geterror() + " " + captured.take());
+  std::string error;
+  const std::vector<std::string> names = channels == 3 ? std::vector<std::string>{"R", "G", "B"} : std::vector<std::string>{"Y"};
+  if (!files.write(path, "", width, height, channels, half ? PixelType::Half : PixelType::Float, true, interleaved.data(),
+                   names, "zip", &error))
+    throw Error("cannot write " + path + ": " + error + " " + captured.take());
 }
 
 }  // namespace spar

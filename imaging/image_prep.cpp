@@ -1,6 +1,5 @@
 #include "imaging/image_prep.h"
 
-#include <OpenImageIO/imageio.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -9,6 +8,7 @@
 #include <system_error>
 
 #include "engine/error.h"
+#include "imaging/image_files.h"
 #include "imaging/stderr_capture.h"
 
 namespace spar {
@@ -101,18 +101,17 @@ RgbImage loadImageRGB(const std::string& path) {
 
   // libpng and other codecs print their own complaints on stderr: they become part of the
   // one-line error (or are dropped when the read succeeds).
+  const ImageFiles& files = imageFiles();  // loaded before stderr is captured: its errors are one line
   StderrCapture captured;
   auto fail = [&](const std::string& what) -> Error {
     std::string printed = captured.take();
     return Error("cannot read image " + path + ": " + what + (printed.empty() ? "" : " (" + printed + ")"));
   };
-  OIIO::ImageSpec config;
-  config.attribute("oiio:UnassociatedAlpha", 1);  // PNG/TIFF alpha as stored (PIL drops it as is)
-  auto in = OIIO::ImageInput::open(path, &config);
-  if (!in) throw fail(oneLine(OIIO::geterror()));
-  const OIIO::ImageSpec& spec = in->spec();
-  const int w = spec.width, h = spec.height, nch = spec.nchannels;
-  if (w < 1 || h < 1 || spec.depth > 1) throw Error("empty image: " + path);
+  std::string error;
+  const std::unique_ptr<ImageFileReader> in = files.open(path, &error);
+  if (!in) throw fail(oneLine(error));
+  const int w = in->width, h = in->height, nch = in->channels;
+  if (w < 1 || h < 1 || in->depth > 1) throw Error("empty image: " + path);
   if (nch < 1) throw fail("no channels");
   // From the header, before any pixel is decoded: a header may claim any size.
   if (w > kMaxImageSide || h > kMaxImageSide || int64_t(w) * h > kMaxImagePixels || nch > 64)
@@ -127,20 +126,18 @@ RgbImage loadImageRGB(const std::string& path) {
   out.width = w;
   out.height = h;
   out.pixels.resize(n * 3);
-  const bool sixteen = spec.format == OIIO::TypeDesc::UINT16 || spec.format == OIIO::TypeDesc::INT16;
-  if (sixteen) {
+  if (in->sixteenBit) {
     std::vector<uint16_t> buf(n * nch);
-    if (!in->read_image(0, 0, 0, nch, OIIO::TypeDesc::UINT16, buf.data())) throw fail(oneLine(in->geterror()));
+    if (!in->read(buf.data(), &error)) throw fail(oneLine(error));
     for (size_t i = 0; i < n; ++i)
       for (int c = 0; c < 3; ++c) out.pixels[i * 3 + c] = static_cast<uint8_t>(buf[i * nch + src[c]] >> 8);
   } else {
     std::vector<uint8_t> buf(n * nch);
-    if (!in->read_image(0, 0, 0, nch, OIIO::TypeDesc::UINT8, buf.data())) throw fail(oneLine(in->geterror()));
+    if (!in->read(buf.data(), &error)) throw fail(oneLine(error));
     for (size_t i = 0; i < n; ++i)
       for (int c = 0; c < 3; ++c) out.pixels[i * 3 + c] = buf[i * nch + src[c]];
   }
-  const int orientation = spec.get_int_attribute("Orientation", 1);
-  in->close();
+  const int orientation = in->orientation;
   return applyOrientation(std::move(out), orientation);
 }
 
@@ -283,19 +280,11 @@ namespace {
 void writePngBytes(const std::string& path, const uint8_t* data, int channels, int height, int width) {
   const fs::path target(path);
   const fs::path tmp = target.parent_path() / (target.filename().string() + ".tmp" + std::to_string(::getpid()) + ".png");
-  {
-    auto out = OIIO::ImageOutput::create("png");
-    if (!out) throw Error("cannot write PNG " + path + ": " + oneLine(OIIO::geterror()));
-    const OIIO::ImageSpec spec(width, height, channels, OIIO::TypeDesc::UINT8);
-    if (!out->open(tmp.string(), spec)) throw Error("cannot write PNG " + path + ": " + oneLine(out->geterror()));
-    const bool ok = out->write_image(OIIO::TypeDesc::UINT8, data);
-    const bool closed = out->close();
-    if (!ok || !closed) {
-      const std::string msg = oneLine(out->geterror());
-      std::error_code ec;
-      fs::remove(tmp, ec);
-      throw Error("cannot write PNG " + path + ": " + msg);
-    }
+  std::string error;
+  if (!imageFiles().write(tmp.string(), "png", width, height, channels, PixelType::UInt8, false, data, {}, "", &error)) {
+    std::error_code ec;
+    fs::remove(tmp, ec);
+    throw Error("cannot write PNG " + path + ": " + oneLine(error));
   }
   std::error_code ec;
   fs::rename(tmp, target, ec);

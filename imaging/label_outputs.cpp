@@ -7,10 +7,9 @@
 #include <filesystem>
 #include <fstream>
 
-#include <OpenImageIO/imagebuf.h>
-#include <OpenImageIO/imagebufalgo.h>
 
 #include "engine/error.h"
+#include "imaging/image_files.h"
 #include "model/label_maps.h"
 
 namespace spar {
@@ -69,12 +68,11 @@ void drawLegendNames(RgbImage& img, const std::vector<std::string>& names, int o
   // reference draws them with PIL's built-in bitmap font, whose glyph data is not ours to copy,
   // so only the text pixels differ from its PNG. Without the font the legend has swatches only.
   if (legendFont().empty() || names.empty()) return;
-  OIIO::ImageSpec spec(img.width, img.height, 3, OIIO::TypeDesc::UINT8);
-  OIIO::ImageBuf buf(spec, img.pixels.data());
-  const float white[3] = {1.0f, 1.0f, 1.0f};
+  const ImageFiles& files = imageFiles();
+  std::string ignored;  // a name not drawn leaves its swatch: the legend stays readable
   for (size_t k = 0; k < names.size(); ++k) {
     const int baseline = outH + 2 + kLegendRow * static_cast<int>(k) + kLegendRow - 4;
-    OIIO::ImageBufAlgo::render_text(buf, 16, baseline, names[k], 11, legendFont(), white);
+    files.drawText(img.pixels.data(), img.width, img.height, 16, baseline, names[k], 11, legendFont(), &ignored);
   }
 }
 

@@ -90,6 +90,24 @@ TEST(spar_hostile, BrokenImagesAreOneLine) {
   }
 }
 
+// OpenImageIO is loaded with the image-file module on first use (imaging/image_files.h): spar
+// does not link it, and a module that cannot be found is one line naming where it was looked for.
+TEST(spar_hostile, ImageModuleIsLoadedOnUseAndItsAbsenceIsOneLine) {
+  const CommandResult elf = runCommand({"readelf", "-d", SPAR_CLI}, scratch());
+  ASSERT_EQ(elf.code, 0) << elf.err;
+  EXPECT_NE(elf.out.find("libvulkan"), std::string::npos) << elf.out;
+  EXPECT_EQ(elf.out.find("OpenImageIO"), std::string::npos) << elf.out;
+  const fs::path out = scratch() / "no_module", missing = scratch() / "nowhere" / "spar_image_files.so";
+  fs::remove_all(out);
+  const CommandResult r = runValidated({SPAR_CLI, "render", "--model", goldenPath("tiny.spar"), "--frames",
+                                        goldenPath("frame_0.png"), goldenPath("frame_1.png"), goldenPath("frame_2.png"),
+                                        "--inputs", "0,2",
+                                        "--out", out.string()},
+                                       scratch(), "SPAR_IMAGE_FILES_MODULE=" + missing.string());
+  expectOneErrorLine(r, "cannot read or write image files: spar_image_files.so not found (looked at " + missing.string());
+  EXPECT_FALSE(fs::exists(out));
+}
+
 TEST(spar_hostile, UnwritableOutputIsRefusedBeforeWork) {
   const std::vector<std::string> frames = {goldenPath("frame_0.png"), goldenPath("frame_1.png"),
                                            goldenPath("frame_2.png")};

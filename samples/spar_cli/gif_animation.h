@@ -1,11 +1,10 @@
 // path.gif: the animation through OpenImageIO's GIF writer (one subimage per frame, appended as
 // each frame arrives), so no external tool is needed. GIF's 256-colour palette quantizes.
 #pragma once
-#include <OpenImageIO/imageio.h>
-
 #include <memory>
 #include <string>
 
+#include "imaging/image_files.h"
 #include "samples/spar_cli/animation.h"
 
 namespace spar::cli {
@@ -22,8 +21,8 @@ class GifAnimation : public Animation {
  private:
   std::string path_, note_;
   int fps_ = 0;
-  std::unique_ptr<OIIO::ImageOutput> out_;
-  OIIO::ImageSpec spec_;
+  std::unique_ptr<AnimationFileWriter> out_;
+  int width_ = 0, height_ = 0;
 };
 
 }  // namespace spar::cli
