@@ -9,6 +9,7 @@
 
 #include "engine/error.h"
 #include "imaging/image_files.h"
+#include "imaging/png_files.h"
 #include "imaging/stderr_capture.h"
 
 namespace spar {
@@ -101,14 +102,22 @@ RgbImage loadImageRGB(const std::string& path) {
 
   // libpng and other codecs print their own complaints on stderr: they become part of the
   // one-line error (or are dropped when the read succeeds).
-  const ImageFiles& files = imageFiles();  // loaded before stderr is captured: its errors are one line
   StderrCapture captured;
   auto fail = [&](const std::string& what) -> Error {
     std::string printed = captured.take();
     return Error("cannot read image " + path + ": " + what + (printed.empty() ? "" : " (" + printed + ")"));
   };
+  // PNG through libpng (png_files.h); other formats, and PNGs with EXIF data, through OpenImageIO.
   std::string error;
-  const std::unique_ptr<ImageFileReader> in = files.open(path, &error);
+  bool notPng = false;
+  std::unique_ptr<ImageFileReader> in = openPng(path, &notPng, &error);
+  if (notPng) {
+    try {
+      in = imageFiles().open(path, &error);
+    } catch (const Error& e) {  // the module is missing: say which file needed it
+      throw fail(e.what());
+    }
+  }
   if (!in) throw fail(oneLine(error));
   const int w = in->width, h = in->height, nch = in->channels;
   if (w < 1 || h < 1 || in->depth > 1) throw Error("empty image: " + path);
@@ -281,7 +290,7 @@ void writePngBytes(const std::string& path, const uint8_t* data, int channels, i
   const fs::path target(path);
   const fs::path tmp = target.parent_path() / (target.filename().string() + ".tmp" + std::to_string(::getpid()) + ".png");
   std::string error;
-  if (!imageFiles().write(tmp.string(), "png", width, height, channels, PixelType::UInt8, false, data, {}, "", &error)) {
+  if (!writePng8(tmp.string(), data, channels, height, width, &error)) {
     std::error_code ec;
     fs::remove(tmp, ec);
     throw Error("cannot write PNG " + path + ": " + oneLine(error));

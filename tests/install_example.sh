@@ -50,11 +50,13 @@ echo "$needed"
 echo "$needed" | grep -q 'libspar\.so'
 if echo "$needed" | grep -qi 'vulkan\|OpenImageIO\|icu\|libz'; then echo "the example links a private dependency"; exit 1; fi
 scene="$src/samples/data/scenes/scene_1000002"
-# It reads and writes images through the installed image-file module (lib/spar/, loaded on first
-# use by the libspar beside it: imaging/image_files.h), not the build tree's.
+# One photo as JPEG: formats other than PNG are read through the installed image-file module
+# (lib/spar/, loaded on first use by the libspar beside it: imaging/image_files.h), not the
+# build tree's.
+/usr/bin/python3 -c "from PIL import Image; Image.open('$scene/rgb_00.png').save('$work/rgb_00.jpg', quality=95)"
 SPAR_VALIDATION=1 LD_DEBUG=files LD_DEBUG_OUTPUT="$work/ld" "$work/build/render_one_view" \
   "$work/prefix/share/spar/spar_rooms.spar" "$work/view.png" \
-  "$scene/rgb_00.png" "$scene/rgb_04.png" "$scene/rgb_07.png" 2> "$work/stderr.txt"
+  "$work/rgb_00.jpg" "$scene/rgb_04.png" "$scene/rgb_07.png" 2> "$work/stderr.txt"
 cat "$work/stderr.txt"
 grep -h "file=.*spar_image_files.so" "$work"/ld.* | head -1
 grep -q "file=$work/prefix/lib/spar/spar_image_files.so" "$work"/ld.* || { echo "not the installed image-file module"; exit 1; }

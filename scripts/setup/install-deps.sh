@@ -5,7 +5,7 @@ set -euo pipefail
 packages=(
   build-essential cmake pkg-config
   libvulkan-dev vulkan-tools mesa-vulkan-drivers vulkan-validationlayers glslang-tools
-  libglm-dev libopenimageio-dev openimageio-tools
+  libglm-dev libopenimageio-dev openimageio-tools libpng-dev
   libgtest-dev nlohmann-json3-dev libcli11-dev libfmt-dev zlib1g-dev libicu-dev fonts-dejavu-core
   pybind11-dev python3-dev
   chromium  # tests open the render page (index.html) in a real browser, headless

@@ -59,8 +59,19 @@ def main(argv=None) -> None:
         "black_50x70.png": Image.fromarray(np.zeros((70, 50, 3), np.uint8), "RGB"),
         "white_77x33.png": Image.fromarray(np.full((33, 77, 3), 255, np.uint8), "RGB"),
     }
+    # The PNG kinds libpng's transforms expand (imaging/png_files.cpp): a palette, a palette with a
+    # transparent entry (tRNS), 1-bit, grey with alpha; and a PNG with an EXIF orientation
+    # (eXIf chunk), which OpenImageIO reads.
+    images["palette_45x31.png"] = Image.fromarray(content(45, 31, 3, 11), "RGB").quantize(colors=37)
+    images["palette_trns_29x23.png"] = Image.fromarray(content(29, 23, 3, 12), "RGB").quantize(colors=9)
+    images["bits1_40x28.png"] = Image.fromarray(content(40, 28, 1, 13)[:, :, 0] > 127).convert("1")
+    images["la_33x47.png"] = Image.fromarray(content(33, 47, 2, 14), "LA")
     for name, im in images.items():
-        im.save(os.path.join(out, name), format="PNG")
+        im.save(os.path.join(out, name), format="PNG", **({"transparency": 0} if "trns" in name else {}))
+    exif = Image.Exif()
+    exif[0x0112] = 6
+    Image.fromarray(content(27, 41, 3, 15), "RGB").save(os.path.join(out, "exif_o6_27x41.png"), format="PNG",
+                                                        exif=exif.tobytes())
     Image.fromarray(content(123, 95, 3, 8), "RGB").save(os.path.join(out, "photo_123x95.jpg"), format="JPEG", quality=90)
     # The same photo with each EXIF orientation (2-8): shown turned or mirrored, prepared so.
     for o in range(2, 9):
@@ -94,6 +105,11 @@ def main(argv=None) -> None:
         *[("jpeg_o%d_64x48" % o, "photo_123x95_o%d.jpg" % o, 64, 48) for o in range(2, 9)],
         ("black_50x70_64", "black_50x70.png", 64, 64),
         ("white_77x33_40", "white_77x33.png", 40, 40),
+        ("palette_45x31_40", "palette_45x31.png", 40, 40),
+        ("palette_trns_29x23_24", "palette_trns_29x23.png", 24, 24),
+        ("bits1_40x28_24", "bits1_40x28.png", 24, 24),
+        ("la_33x47_32", "la_33x47.png", 32, 32),
+        ("png_exif_o6_24x32", "exif_o6_27x41.png", 24, 32),
     ]
     with open(os.path.join(out, "cases.txt"), "w") as f:
         for case, image, h, w in cases:
