@@ -1,7 +1,8 @@
 // Finds and loads spar_image_files.so (imaging/image_files.h) the first time an image file is
 // touched. Where it looks, in order: $SPAR_IMAGE_FILES_MODULE; beside the binary or library that
-// holds this code, and in its spar/ folder (an installed libspar.so's lib/spar/); the installed
-// layout from a bin/ folder (../LIBDIR/spar/); the build tree's module; the installed one.
+// holds this code; spar/ and LIBDIR/spar/ in its folder and the two above it (an installed
+// prefix's lib/spar/ from bin/spar, lib/libspar.so or the Python module); the build tree's
+// module; the configured install's.
 #include <dlfcn.h>
 
 #include <cstdlib>
@@ -27,10 +28,15 @@ std::vector<fs::path> candidates() {
     std::error_code ec;
     const fs::path self = fs::canonical(info.dli_fname, ec);
     if (!ec) {
-      const fs::path dir = self.parent_path();
+      // The binary's or library's folder and up to two above it (bin/, lib/, and the Python
+      // module's lib/python3/dist-packages/ of an installed prefix), each as LIBDIR's folder
+      // (its spar/) and as the prefix (its LIBDIR/spar/).
+      fs::path dir = self.parent_path();
       paths.push_back(dir / kModuleName);
-      paths.push_back(dir / "spar" / kModuleName);
-      paths.push_back(dir.parent_path() / SPAR_INSTALL_LIBDIR / "spar" / kModuleName);
+      for (int up = 0; up < 3 && !dir.empty(); ++up, dir = dir.parent_path()) {
+        paths.push_back(dir / "spar" / kModuleName);
+        paths.push_back(dir / SPAR_INSTALL_LIBDIR / "spar" / kModuleName);
+      }
     }
   }
   paths.push_back(SPAR_IMAGE_FILES_BUILD_MODULE);

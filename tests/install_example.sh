@@ -33,11 +33,16 @@ cmake -S "$src/examples/render_one_view" -B "$work/build" -DCMAKE_BUILD_TYPE=Rel
       -DCMAKE_PREFIX_PATH="$work/prefix" > "$work/configure.log"
 cmake --build "$work/build" > "$work/build.log"
 # `import spar` from the prefix with the README's one line (PYTHONPATH), from another directory.
-(cd "$work" && PYTHONPATH="$work/prefix/lib/python3/dist-packages" /usr/bin/python3 -c "
+# A JPEG through the prefix's image-file module (lib/spar/, two folders above the Python module).
+/usr/bin/python3 -c "from PIL import Image; Image.open('$src/samples/data/scenes/scene_1000002/rgb_00.png').save('$work/rgb_00.jpg', quality=95)"
+(cd "$work" && PYTHONPATH="$work/prefix/lib/python3/dist-packages" LD_DEBUG=files LD_DEBUG_OUTPUT="$work/ldpy" \
+  /usr/bin/python3 -c "
 import spar
 m = spar.Model.open('$work/prefix/share/spar/spar_rooms.spar')
 assert m.image_size == (128, 128) and spar.__file__.startswith('$work/prefix/'), spar.__file__
+assert spar.load_image('$work/rgb_00.jpg', 128, 128).shape == (3, 128, 128)
 print('import spar from', spar.__file__)")
+grep -q "file=$work/prefix/lib/spar/spar_image_files.so" "$work"/ldpy.* || { echo "python: not the installed image-file module"; exit 1; }
 # The same example built as the README's pkg-config line does, from the pkg-config file alone
 # (its prefix relative to its own place, not the build's configured one).
 flags=$(PKG_CONFIG_PATH="$work/prefix/lib/pkgconfig" pkg-config --cflags --libs spar)
@@ -50,10 +55,9 @@ echo "$needed"
 echo "$needed" | grep -q 'libspar\.so'
 if echo "$needed" | grep -qi 'vulkan\|OpenImageIO\|icu\|libz'; then echo "the example links a private dependency"; exit 1; fi
 scene="$src/samples/data/scenes/scene_1000002"
-# One photo as JPEG: formats other than PNG are read through the installed image-file module
-# (lib/spar/, loaded on first use by the libspar beside it: imaging/image_files.h), not the
-# build tree's.
-/usr/bin/python3 -c "from PIL import Image; Image.open('$scene/rgb_00.png').save('$work/rgb_00.jpg', quality=95)"
+# One photo as JPEG (made above): formats other than PNG are read through the installed
+# image-file module (lib/spar/, loaded on first use by the libspar beside it:
+# imaging/image_files.h), not the build tree's.
 SPAR_VALIDATION=1 LD_DEBUG=files LD_DEBUG_OUTPUT="$work/ld" "$work/build/render_one_view" \
   "$work/prefix/share/spar/spar_rooms.spar" "$work/view.png" \
   "$work/rgb_00.jpg" "$scene/rgb_04.png" "$scene/rgb_07.png" 2> "$work/stderr.txt"
