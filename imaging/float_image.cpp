@@ -20,8 +20,7 @@ void writeExr(const std::string& path, const float* values, int channels, int he
   StderrCapture captured;
   std::string error;
   const std::vector<std::string> names = channels == 3 ? std::vector<std::string>{"R", "G", "B"} : std::vector<std::string>{"Y"};
-  if (!files.write(path, "", width, height, channels, half ? PixelType::Half : PixelType::Float, true, interleaved.data(),
-                   names, "zip", &error))
+  if (!files.writeFloats(path, width, height, channels, half, interleaved.data(), names, "zip", &error))
     throw Error("cannot write " + path + ": " + error + " " + captured.take());
 }
 

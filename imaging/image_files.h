@@ -31,19 +31,16 @@ class AnimationFileWriter {
   virtual bool close(std::string* error) = 0;
 };
 
-enum class PixelType { UInt8, Half, Float };
-
 class ImageFiles {
  public:
   virtual ~ImageFiles() = default;
   // PNG/TIFF alpha as stored (unassociated): nullptr and *error when the file cannot be opened.
   virtual std::unique_ptr<ImageFileReader> open(const std::string& path, std::string* error) const = 0;
-  // Writes width x height x channels interleaved values (uint8, or float stored as `stored`)
-  // to path in `format` ("png", ...; "" for the one path's extension names); channel names and a
-  // compression attribute when not empty.
-  virtual bool write(const std::string& path, const std::string& format, int width, int height, int channels,
-                     PixelType stored, bool floatValues, const void* values, const std::vector<std::string>& channelNames,
-                     const std::string& compression, std::string* error) const = 0;
+  // Writes width x height x channels interleaved floats to path, in the format its extension
+  // names, stored as half or float, with these channel names and compression attribute.
+  virtual bool writeFloats(const std::string& path, int width, int height, int channels, bool half,
+                           const float* values, const std::vector<std::string>& channelNames,
+                           const std::string& compression, std::string* error) const = 0;
   // Draws text in white on an RGB uint8 image, its baseline starting at (x, y), with a font file.
   virtual bool drawText(uint8_t* rgb, int width, int height, int x, int y, const std::string& text, int fontSize,
                         const std::string& fontFile, std::string* error) const = 0;

@@ -75,19 +75,16 @@ class OiioImageFiles : public ImageFiles {
     return std::make_unique<OiioReader>(std::move(in));
   }
 
-  bool write(const std::string& path, const std::string& format, int width, int height, int channels,
-             PixelType stored, bool floatValues, const void* values, const std::vector<std::string>& channelNames,
-             const std::string& compression, std::string* error) const override {
-    auto out = OIIO::ImageOutput::create(format.empty() ? path : format);
+  bool writeFloats(const std::string& path, int width, int height, int channels, bool half, const float* values,
+                   const std::vector<std::string>& channelNames, const std::string& compression,
+                   std::string* error) const override {
+    auto out = OIIO::ImageOutput::create(path);
     if (!out) return failed(error, OIIO::geterror());
-    const OIIO::TypeDesc type = stored == PixelType::UInt8 ? OIIO::TypeDesc::UINT8
-                                : stored == PixelType::Half ? OIIO::TypeDesc::HALF
-                                                            : OIIO::TypeDesc::FLOAT;
-    OIIO::ImageSpec spec(width, height, channels, type);
-    if (!channelNames.empty()) spec.channelnames = channelNames;
-    if (!compression.empty()) spec.attribute("compression", compression);
+    OIIO::ImageSpec spec(width, height, channels, half ? OIIO::TypeDesc::HALF : OIIO::TypeDesc::FLOAT);
+    spec.channelnames = channelNames;
+    spec.attribute("compression", compression);
     if (!out->open(path, spec)) return failed(error, out->geterror());
-    const bool written = out->write_image(floatValues ? OIIO::TypeDesc::FLOAT : OIIO::TypeDesc::UINT8, values);
+    const bool written = out->write_image(OIIO::TypeDesc::FLOAT, values);
     const bool closed = out->close();
     return (written && closed) || failed(error, out->geterror());
   }
