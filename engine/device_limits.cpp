@@ -188,7 +188,11 @@ DeviceLimits DeviceLimits::fromJsonFile(const std::string& path) {
   if (!j.is_object()) throw Error("device limits: " + path + " must hold a JSON object");
   DeviceLimits l;
   l.name = path;
-  for (const auto& [key, value] : j.items()) {
+  for (const auto& item : j.items()) {
+    // named references, not a structured binding: lambdas capture them (clang before 16 cannot
+    // capture a binding)
+    const std::string& key = item.key();
+    const nlohmann::json& value = item.value();
     auto field = [&](const char* n) { return key == n; };
     auto count = [&](auto& slot) {
       using T = typename std::remove_reference_t<decltype(slot)>::value_type;

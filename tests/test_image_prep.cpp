@@ -107,7 +107,7 @@ TEST(ImagePrep, ConstantImagesGiveExactlyZeroAndOne) {
       img.pixels.assign(size_t(w) * h * 3, value);
       const auto x = prepareImage(img, H, W);
       ASSERT_EQ(x.size(), size_t(3) * H * W);
-      EXPECT_TRUE(std::all_of(x.begin(), x.end(), [&](float v) { return v == expected; }))
+      EXPECT_TRUE(std::all_of(x.begin(), x.end(), [want = expected](float v) { return v == want; }))
           << int(value) << " " << w << "x" << h << " -> " << H << "x" << W;
     }
   // And the PIL-made files.

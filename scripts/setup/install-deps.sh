@@ -12,6 +12,7 @@ packages=(
   opencv-doc  # real footage for the tests: vtest.avi (people walking), graf1/graf3.png (one wall, two views)
   ffmpeg
   python3 python3-numpy python3-torch python3-yaml python3-pytest python3-pil libopenblas0-pthread
+  clang-14 libclang-rt-14-dev ninja-build  # the sanitized build (.ci/test-sanitized.sh) and the fuzzer
 )
 missing=()
 for p in "${packages[@]}"; do
