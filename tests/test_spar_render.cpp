@@ -23,6 +23,7 @@
 #include <optional>
 #include <set>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -55,14 +56,6 @@ RunResult spar(std::vector<std::string> args) {
   return runValidated(args, scratch());
 }
 
-// The reference's `render` (or `goldens`) with a checkpoint and the fixture's config.
-RunResult reference(std::vector<std::string> args, const std::string& checkpoint, const char* command = "render",
-                    const std::string& config = goldenPath("tiny_photometric.json")) {
-  args.insert(args.begin(), {SPAR_PYTHON, std::string(SPAR_SOURCE_DIR) + "/reference/spar-reference", command,
-                             "--checkpoint", checkpoint, "--config", config});
-  return run(args);
-}
-
 std::string frame(int i) { return goldenPath("frame_" + std::to_string(i) + ".png"); }
 std::vector<std::string> frames() {
   std::vector<std::string> f;
@@ -72,6 +65,78 @@ std::vector<std::string> frames() {
 std::vector<std::string> cat(std::vector<std::string> a, const std::vector<std::string>& b) {
   a.insert(a.end(), b.begin(), b.end());
   return a;
+}
+
+// The reference's runs this file compares with, by name: the view options both tools get, the
+// reference's own options, and its checkpoint and config. All of them are run by one
+// `spar-reference batch` at the first use (one start of PyTorch instead of eleven, about 1.5 s
+// each); each writes scratch()/ref_<name>.
+struct ReferenceRun {
+  std::vector<std::string> views, referenceOnly;
+  std::string checkpoint = goldenPath("tiny.pt"), config = goldenPath("tiny_photometric.json");
+  const char* command = "render";
+};
+
+fs::path referenceOut(const std::string& name) { return scratch() / ("ref_" + name); }
+
+// In the order they run: static_cams reads static_cams_src's output.
+const std::vector<std::pair<std::string, ReferenceRun>>& referenceRuns() {
+  static const std::vector<std::pair<std::string, ReferenceRun>> runs = [] {
+    const std::vector<std::string> interleaved = cat(cat({"--frames"}, frames()), {"--inputs", "0,2,4"});
+    const std::vector<std::string> threeInputs = {"--images", frame(0), frame(2), frame(4)};
+    const std::string masked = goldenPath("masked/masked.pt");
+    std::vector<std::pair<std::string, ReferenceRun>> r;
+    r.push_back({"static_frames", {cat(interleaved, {"--assume-static"}), {}}});
+    r.push_back({"static_path", {cat(threeInputs, {"--path", "3", "--assume-static"}), {}}});
+    r.push_back({"static_cams_src", {cat(threeInputs, {"--targets", frame(1), "--assume-static"}), {}}});
+    // the reference's own cameras.json of the run above, read back as a transforms.json
+    r.push_back({"static_cams", {cat(threeInputs, {"--cameras", (referenceOut("static_cams_src") / "cameras.json").string(),
+                                                   "--assume-static"}), {}}});
+    r.push_back({"static_inputs_only", {{"--images", frame(0), frame(1), frame(3), "--assume-static"}, {}}});
+    r.push_back({"frames", {interleaved, {}}});
+    r.push_back({"path", {cat(threeInputs, {"--path", "3"}), {}}});
+    r.push_back({"masked", {interleaved, {}, masked}});
+    r.push_back({"masked_goldens", {interleaved, {}, masked, goldenPath("tiny_photometric.json"), "goldens"}});
+    r.push_back({"labels", {cat(interleaved, {"--labels", "sofa, window,person,floor", "--features"}), {},
+                            semanticGoldenPath("tiny_semantic.pt"), semanticGoldenPath("tiny_semantic.json")}});
+    r.push_back({"refined", {{"--images", frame(0), frame(2), "--targets", frame(1), "--mask-source", "refined"},
+                             {"--sam2", goldenPath("tiny_sam2_weights.pt"), "--sam2-config",
+                              goldenPath("tiny_sam2_config.json"), "--threads", "1"},
+                             masked}});
+    return r;
+  }();
+  return runs;
+}
+
+// The batch's result (run once per process): exit code 0 and every ref_<name> written, or the
+// reference's error lines.
+const RunResult& referenceBatch() {
+  static const RunResult result = [] {
+    ojson argvs = ojson::array();
+    for (const auto& [name, r] : referenceRuns()) {
+      fs::remove_all(referenceOut(name));
+      argvs.push_back(cat(cat({r.command, "--checkpoint", r.checkpoint, "--config", r.config}, r.views),
+                          cat(r.referenceOnly, {"--out", referenceOut(name).string()})));
+    }
+    const fs::path file = scratch() / "reference_runs.json";
+    std::ofstream(file) << argvs.dump(1);
+    return run({SPAR_PYTHON, std::string(SPAR_SOURCE_DIR) + "/reference/spar-reference", "batch", file.string()});
+  }();
+  return result;
+}
+
+// The reference's output of run `name` (its view options: referenceRuns().at(name).views), or
+// nullopt with the batch's errors recorded as a failure.
+std::optional<fs::path> reference(const std::string& name) {
+  const RunResult& r = referenceBatch();
+  EXPECT_EQ(r.code, 0) << r.err;
+  if (r.code != 0) return std::nullopt;
+  return referenceOut(name);
+}
+const std::vector<std::string>& views(const std::string& name) {
+  for (const auto& [n, r] : referenceRuns())
+    if (n == name) return r.views;
+  throw std::logic_error("no reference run named " + name);
 }
 
 std::set<std::string> entries(const fs::path& dir) {
@@ -295,19 +360,15 @@ struct Outputs {
   fs::path ours, ref;
 };
 
-std::optional<Outputs> runBoth(const std::string& name, const std::vector<std::string>& viewArgs,
-                               const std::string& model = tinyModelPath(),
-                               const std::string& checkpoint = goldenPath("tiny.pt"),
-                               const std::string& config = goldenPath("tiny_photometric.json")) {
-  Outputs o{scratch() / ("ours_" + name), scratch() / ("ref_" + name)};
+// `spar render` of the model with reference run `name`'s view options, beside that run's output.
+std::optional<Outputs> runBoth(const std::string& name, const std::string& model = tinyModelPath()) {
+  const std::optional<fs::path> ref = reference(name);
+  Outputs o{scratch() / ("ours_" + name), ref.value_or(fs::path())};
   fs::remove_all(o.ours);
-  fs::remove_all(o.ref);
   // --animation gif: the reference writes path.gif (path.mp4 is tests/test_spar_render_outputs.cpp's)
-  const RunResult ours = spar(cat({"--model", model, "--animation", "gif"}, cat(viewArgs, {"--out", o.ours.string()})));
+  const RunResult ours = spar(cat({"--model", model, "--animation", "gif"}, cat(views(name), {"--out", o.ours.string()})));
   EXPECT_EQ(ours.code, 0) << ours.err;
-  const RunResult ref = reference(cat(viewArgs, {"--out", o.ref.string()}), checkpoint, "render", config);
-  EXPECT_EQ(ref.code, 0) << ref.err;
-  if (ours.code != 0 || ref.code != 0) return std::nullopt;
+  if (ours.code != 0 || !ref) return std::nullopt;
   return o;
 }
 
@@ -422,14 +483,13 @@ void compareOutputs(const std::string& name, const Outputs& o, bool assumeStatic
 }
 
 TEST(spar_render, InterleavedFramesStaticMatchesReference) {
-  const auto args = cat(cat({"--frames"}, frames()), {"--inputs", "0,2,4", "--assume-static"});
-  const auto o = runBoth("static_frames", args);
+  const auto o = runBoth("static_frames");
   ASSERT_TRUE(o);
   compareOutputs("static_frames", *o, true, {}, 2, "targets");
 }
 
 TEST(spar_render, PathStaticMatchesReference) {
-  const auto o = runBoth("static_path", {"--images", frame(0), frame(2), frame(4), "--path", "3", "--assume-static"});
+  const auto o = runBoth("static_path");
   ASSERT_TRUE(o);
   compareOutputs("static_path", *o, true, {}, 3, "path");
 }
@@ -437,12 +497,8 @@ TEST(spar_render, PathStaticMatchesReference) {
 // Rendering explicit cameras: the reference's own cameras.json of a run, read back as a
 // nerfstudio transforms.json.
 TEST(spar_render, CamerasFileStaticMatchesReference) {
-  const auto first = runBoth("static_cams_src", {"--images", frame(0), frame(2), frame(4), "--targets", frame(1),
-                                                 "--assume-static"});
-  ASSERT_TRUE(first);
-  const std::string transforms = (first->ref / "cameras.json").string();
-  const auto o = runBoth("static_cams", {"--images", frame(0), frame(2), frame(4), "--cameras", transforms,
-                                         "--assume-static"});
+  ASSERT_TRUE(runBoth("static_cams_src"));
+  const auto o = runBoth("static_cams");  // --cameras: static_cams_src's cameras.json
   ASSERT_TRUE(o);
   compareOutputs("static_cams", *o, true, {}, 4, "cameras");
 }
@@ -511,19 +567,19 @@ TEST(spar_render, ColmapCamerasRenderLikeTransforms) {
 
 // Inputs only and nothing to render: cameras.json (and motion maps) only, no decoder run.
 TEST(spar_render, InputsOnlyRendersNothing) {
-  const auto o = runBoth("static_inputs_only", {"--images", frame(0), frame(1), frame(3), "--assume-static"});
+  const auto o = runBoth("static_inputs_only");
   ASSERT_TRUE(o);
   compareOutputs("static_inputs_only", *o, true, {}, 0, "targets");
 }
 
 TEST(spar_render, InterleavedFramesMatchesReference) {
-  const auto o = runBoth("frames", cat(cat({"--frames"}, frames()), {"--inputs", "0,2,4"}));
+  const auto o = runBoth("frames");
   ASSERT_TRUE(o);
   compareOutputs("frames", *o, false, fixtureProb("interleaved"), 2, "targets");
 }
 
 TEST(spar_render, PathMatchesReference) {
-  const auto o = runBoth("path", {"--images", frame(0), frame(2), frame(4), "--path", "3"});
+  const auto o = runBoth("path");
   ASSERT_TRUE(o);
   compareOutputs("path", *o, false, fixtureProb("path"), 3, "path");
   // path.gif: one frame per rendered view; GIF's 256-colour palette quantizes, so a frame is
@@ -554,27 +610,19 @@ TEST(spar_render, PathMatchesReference) {
 // fixture) spreads it around 0.5, so the masks hold both values and the threshold is compared
 // for real.
 TEST(spar_render, MixedMasksMatchReference) {
-  const fs::path dir = goldenPath("masked");
-  const std::string pt = (dir / "masked.pt").string(), packed = (dir / "masked.spar").string();
-  const auto views = cat(cat({"--frames"}, frames()), {"--inputs", "0,2,4"});
-  const auto o = runBoth("masked", views, packed, pt);
+  const auto o = runBoth("masked", goldenPath("masked/masked.spar"));
   ASSERT_TRUE(o);
   // the reference's float32 P(dynamic) of this run, from its goldens command
-  const fs::path g = scratch() / "masked_goldens";
-  fs::remove_all(g);
-  const RunResult r = reference(cat(views, {"--out", g.string()}), pt, "goldens");
-  ASSERT_EQ(r.code, 0) << r.err;
-  compareOutputs("masked", *o, false, readNpy((g / "cv_drp_input.prob.npy").string()).toDoubles(), 2, "targets");
+  const std::optional<fs::path> g = reference("masked_goldens");
+  ASSERT_TRUE(g);
+  compareOutputs("masked", *o, false, readNpy((*g / "cv_drp_input.prob.npy").string()).toDoubles(), 2, "targets");
 }
 
 // A model with the semantic branch, with --labels and --features: the same files as the
 // reference; views within 1/255; label maps (JSON pixel counts, PNG colours) identical except at
 // near-ties of the top-2 prompts; the features themselves within an NMSE of 1e-10 (fp32 both).
 TEST(spar_render, LabelsAndFeaturesMatchReference) {
-  const std::vector<std::string> labels = {"--labels", "sofa, window,person,floor", "--features"};
-  const auto o = runBoth("labels", cat(cat(cat({"--frames"}, frames()), {"--inputs", "0,2,4"}), labels),
-                         semanticGoldenPath("tiny_semantic.spar"), semanticGoldenPath("tiny_semantic.pt"),
-                         semanticGoldenPath("tiny_semantic.json"));
+  const auto o = runBoth("labels", semanticGoldenPath("tiny_semantic.spar"));
   ASSERT_TRUE(o);
   auto names = entries(o->ours);
   EXPECT_EQ(names.erase("colmap"), 1u);  // ours also writes the cameras as a COLMAP model
@@ -712,18 +760,13 @@ TEST(spar_render, RefineWritesRefinedMasksOnlyWhenAsked) {
 // masks gate. Bar (issue 34): at most 0.1 % of the mask pixels differ (measured: none); the
 // views as every engine-reference comparison here (8-bit difference at most 1).
 TEST(spar_render, RefinedGatingMatchesTheReference) {
-  const fs::path ours = scratch() / "refined_ours", ref = scratch() / "refined_ref";
+  const fs::path ours = scratch() / "refined_ours";
   fs::remove_all(ours);
-  fs::remove_all(ref);
-  const std::vector<std::string> views = {"--images", frame(0), frame(2), "--targets", frame(1), "--mask-source",
-                                          "refined"};
-  const RunResult a = spar(cat({"--model", goldenPath("tiny_sam2.spar")}, cat(views, {"--out", ours.string()})));
+  const RunResult a = spar(cat({"--model", goldenPath("tiny_sam2.spar")}, cat(views("refined"), {"--out", ours.string()})));
   ASSERT_EQ(a.code, 0) << a.err;
-  const RunResult b = reference(cat(views, {"--sam2", goldenPath("tiny_sam2_weights.pt"), "--sam2-config",
-                                            goldenPath("tiny_sam2_config.json"), "--threads", "1", "--out",
-                                            ref.string()}),
-                                goldenPath("masked/masked.pt"));
-  ASSERT_EQ(b.code, 0) << b.err;
+  const std::optional<fs::path> refDir = reference("refined");  // with the same SAM2.1 checkpoint
+  ASSERT_TRUE(refDir);
+  const fs::path& ref = *refDir;
   EXPECT_EQ(readJson(ref / "report.json")["refine"]["mask_source"], "refined");
   for (const char* f : {"refined_00.png", "refined_01.png"}) {
     const PngStats st = comparePng(ours / f, ref / f);

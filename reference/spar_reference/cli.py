@@ -5,6 +5,7 @@ Subcommands:
   make-checkpoint  a checkpoint as the official training saves it (spar.make_checkpoint)
   render           the reference's own run: rendered views, motion masks, cameras, labels
   goldens          prepared inputs and every stage's output as .npy files with a manifest
+  batch            the command lines of a JSON file, one after another in one process
 
 Views are ONE ordered sequence: ``--images A B --targets C D`` is the sequence A B C D with
 inputs A B; ``--frames f0 f1 f2 f3 f4 --inputs 0,3,4`` has inputs 0, 3, 4 and targets 1, 2.
@@ -19,6 +20,7 @@ Image preparation: ``images.py``; camera conventions: ``cameras.py``; golden fil
         [--cameras transforms.json | --path N] [--labels "a,b"] [--features] [--bpe PATH]
         [--float64] [--threads N] --out DIR
   spar-reference goldens  (same view / camera / label options, no --features) --out DIR
+  spar-reference batch RUNS.json   (a JSON list of argument lists: [["render", ...], ...])
 
 render writes view_XX.png (rendered views: the targets, or the --path / --cameras cameras),
 motion_XX.png / mask_XX.png (input views: P(dynamic) as 8-bit grey, mask P > 0.5 as 0/255,
@@ -878,6 +880,35 @@ def _add_run_args(p: argparse.ArgumentParser, render: bool) -> None:
                    help="output directory (must not exist; written as DIR.tmp-XXXX, renamed)")
 
 
+def cmd_batch(args) -> int:
+    """Runs the command lines of a JSON file (a list of argument lists, each one of this
+    program's commands but batch) one after another in this process, every one even if an
+    earlier one failed: one start of PyTorch for all of them (the engine's end-to-end tests
+    compare with a dozen runs, where each process of its own spent about 1.5 s importing torch).
+    A run's errors are its own one-line messages; the batch fails if any run did."""
+    try:
+        with open(args.file, encoding="utf-8") as f:
+            runs = json.load(f)
+    except (OSError, ValueError) as e:
+        raise CliError(f"cannot read {args.file}: {e}")
+    if not isinstance(runs, list) or not all(
+            isinstance(r, list) and r and all(isinstance(a, str) for a in r) for r in runs):
+        raise CliError(f"{args.file}: must hold a JSON list of argument lists")
+    failed = []
+    for i, argv in enumerate(runs):
+        if argv[0] == "batch":
+            raise CliError(f"{args.file}: run {i} is a batch")
+        try:
+            code = main(argv)
+        except SystemExit as e:  # a usage error: its one line is written already
+            code = e.code if isinstance(e.code, int) else 2
+        if code != 0:
+            failed.append(f"run {i} ({argv[0]}, exit {code})")
+    if failed:
+        raise CliError(f"{len(failed)} of {len(runs)} runs failed: " + ", ".join(failed))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = _Parser(prog=PROG, description="PyTorch reference of SPAR: checkpoints, runs, goldens.")
     sub = ap.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
@@ -927,6 +958,13 @@ def build_parser() -> argparse.ArgumentParser:
                        "int32) plus manifest.json.")
     _add_run_args(p, render=False)
     p.set_defaults(func=cmd_goldens)
+
+    p = sub.add_parser("batch", help="run the command lines of a JSON file in one process",
+                       description="Run every command line of FILE (a JSON list of argument "
+                       "lists, e.g. [[\"render\", \"--checkpoint\", ...], [\"goldens\", ...]]) in "
+                       "order, in this process: PyTorch is imported once. Exit 1 if any run failed.")
+    p.add_argument("file", metavar="FILE")
+    p.set_defaults(func=cmd_batch, threads=1)
     return ap
 
 

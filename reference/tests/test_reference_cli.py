@@ -410,11 +410,34 @@ def test_error_wrong_config(work, tmp_path, capsys):
 
 def test_help_of_each_subcommand(capsys):
     # (the program name is spar_reference.cli.PROG, not argv[0]: the same in a subprocess)
-    for cmd in ("make-checkpoint", "render", "goldens"):
+    for cmd in ("make-checkpoint", "render", "goldens", "batch"):
         with pytest.raises(SystemExit) as e:
             main([cmd, "--help"])
         assert e.value.code == 0
         assert "usage: spar-reference " + cmd in capsys.readouterr().out
+
+
+def test_batch_runs_every_command_line_in_one_process(work, tmp_path, capsys):
+    """batch: each run as it runs alone, a failing one (here a usage error) does not stop the
+    next, and the batch's exit code and last line say which failed."""
+    f = work["frames"]
+    a, b, bad = tmp_path / "a", tmp_path / "b", tmp_path / "bad"
+    views = ["--checkpoint", work["ckpt"], "--images", f[0], f[1], "--targets", f[2], "--threads", "1"]
+    runs = [["render"] + views + ["--out", str(a)],
+            ["render"] + views + ["--bogus", "--out", str(bad)],
+            ["goldens"] + views + ["--out", str(b)]]
+    batch = tmp_path / "runs.json"
+    batch.write_text(json.dumps(runs))
+    assert main(["batch", str(batch)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == "spar-reference: error: 1 of 3 runs failed: run 1 (render, exit 2)", err
+    assert (a / "view_00.png").is_file() and (b / "manifest.json").is_file() and not bad.exists()
+    check_common(a, 2, 1)
+    for text, why in (("[1, 2", "cannot read"), ("{}", "must hold a JSON list"), ('[["batch", "x"]]', "is a batch")):
+        batch.write_text(text)
+        assert main(["batch", str(batch)]) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and why in err[0], err
 
 
 def test_config_inference(work, tmp_path):
