@@ -125,18 +125,20 @@ const RunResult& referenceBatch() {
   return result;
 }
 
-// The reference's output of run `name` (its view options: referenceRuns().at(name).views), or
-// nullopt with the batch's errors recorded as a failure.
-std::optional<fs::path> reference(const std::string& name) {
-  const RunResult& r = referenceBatch();
-  EXPECT_EQ(r.code, 0) << r.err;
-  if (r.code != 0) return std::nullopt;
-  return referenceOut(name);
-}
 const std::vector<std::string>& views(const std::string& name) {
   for (const auto& [n, r] : referenceRuns())
     if (n == name) return r.views;
   throw std::logic_error("no reference run named " + name);
+}
+
+// The reference's output of run `name` (its view options: views(name)), or nullopt with the
+// batch's errors recorded as a failure.
+std::optional<fs::path> reference(const std::string& name) {
+  views(name);  // a name the table does not have is this file's mistake, not a missing output
+  const RunResult& r = referenceBatch();
+  EXPECT_EQ(r.code, 0) << r.err;
+  if (r.code != 0) return std::nullopt;
+  return referenceOut(name);
 }
 
 std::set<std::string> entries(const fs::path& dir) {

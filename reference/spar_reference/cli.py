@@ -899,7 +899,7 @@ def cmd_batch(args) -> int:
         if argv[0] == "batch":
             raise CliError(f"{args.file}: run {i} is a batch")
         try:
-            code = main(argv)
+            code = main(argv, interrupt_raises=True)  # Ctrl-C ends the batch, not only this run
         except SystemExit as e:  # a usage error: its one line is written already
             code = e.code if isinstance(e.code, int) else 2
         if code != 0:
@@ -968,9 +968,12 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
-def main(argv: Optional[Sequence[str]] = None, state_dict: Optional[Dict[str, Any]] = None) -> int:
+def main(argv: Optional[Sequence[str]] = None, state_dict: Optional[Dict[str, Any]] = None, *,
+         interrupt_raises: bool = False) -> int:
     """The command line. ``state_dict`` (render and goldens, in-process callers): the tensors of
-    --checkpoint, which the caller holds already (tests/python/make_spar_goldens.py --full)."""
+    --checkpoint, which the caller holds already (tests/python/make_spar_goldens.py --full).
+    ``interrupt_raises``: a KeyboardInterrupt goes on to the caller (batch) instead of ending
+    this run alone."""
     args = build_parser().parse_args(argv)
     try:
         import torch
@@ -982,6 +985,8 @@ def main(argv: Optional[Sequence[str]] = None, state_dict: Optional[Dict[str, An
         sys.stderr.write(f"{PROG}: error: {_one_line(e)}\n")
         return 1
     except KeyboardInterrupt:
+        if interrupt_raises:
+            raise
         sys.stderr.write(f"{PROG}: error: interrupted\n")
         return 1
     except Exception as e:  # unexpected: still one line, no traceback

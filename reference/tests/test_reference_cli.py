@@ -440,6 +440,23 @@ def test_batch_runs_every_command_line_in_one_process(work, tmp_path, capsys):
         assert len(err) == 1 and why in err[0], err
 
 
+def test_batch_ends_at_an_interrupt(work, tmp_path, capsys, monkeypatch):
+    """Ctrl-C during a run ends the whole batch (one line), not only that run."""
+    from spar_reference import cli
+
+    def interrupted(args, state_dict=None):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(cli, "cmd_render", interrupted)
+    f = work["frames"]
+    runs = [["render", "--checkpoint", work["ckpt"], "--images", f[0], f[1], "--out", str(tmp_path / f"r{i}")]
+            for i in range(2)]
+    batch = tmp_path / "runs.json"
+    batch.write_text(json.dumps(runs))
+    assert main(["batch", str(batch)]) == 1
+    assert capsys.readouterr().err.strip().splitlines() == ["spar-reference: error: interrupted"]
+    assert not (tmp_path / "r1").exists()
+
+
 def test_config_inference(work, tmp_path):
     """Preset checkpoints give the preset (image size included); others the converter's
     inference from the tensors."""
