@@ -127,16 +127,17 @@ int run(Args a) {
   fs::create_directories(out);
   const ReferenceInputs refIn{SPAR_PYTHON, SPAR_SOURCE_DIR, a.checkpoint,        a.config,
                               a.frames,    request.plan.inputs, a.sam2, a.sam2Config};
-  const Reference ref = loadReference(refIn, ReferenceRun::Whole, (out / "reference").string());
   const bool anyStatic = std::any_of(modes.begin(), modes.end(), [](const Mode& m) { return m.assumeStatic; });
-  const Reference refStatic =
-      anyStatic ? loadReference(refIn, ReferenceRun::Static, (out / "reference_static").string()) : Reference{};
+  std::vector<std::pair<ReferenceRun, std::string>> runs = {{ReferenceRun::Whole, (out / "reference").string()}};
+  if (anyStatic) runs.emplace_back(ReferenceRun::Static, (out / "reference_static").string());
   // The refined masks: from the refined-gating run when there is one (it refines the same way),
   // else from a --refine run.
-  const Reference refRefine =
-      anyRefinedGating ? loadReference(refIn, ReferenceRun::RefinedGating, (out / "reference_refined").string())
-      : anyRefine      ? loadReference(refIn, ReferenceRun::Refine, (out / "reference_refine").string())
-                       : Reference{};
+  if (anyRefinedGating) runs.emplace_back(ReferenceRun::RefinedGating, (out / "reference_refined").string());
+  else if (anyRefine) runs.emplace_back(ReferenceRun::Refine, (out / "reference_refine").string());
+  const std::vector<Reference> refs = loadReferences(refIn, runs);
+  const Reference& ref = refs[0];
+  const Reference refStatic = anyStatic ? refs[1] : Reference{};
+  const Reference refRefine = anyRefine ? refs.back() : Reference{};
 
   EngineOptions engineOptions;
   engineOptions.device = a.device;

@@ -13,6 +13,7 @@
 
 Key names and shapes follow the official state_dicts; see each module's docstring.
 """
+import contextlib
 import math
 from typing import Any, Dict, Optional
 
@@ -74,6 +75,33 @@ def _uniform(g: torch.Generator, t: torch.Tensor, lo: float, hi: float) -> None:
 def _fill(t: torch.Tensor, value: float) -> None:
     with torch.no_grad():
         t.fill_(value)
+
+
+_INIT_FUNCTIONS = ("uniform_", "normal_", "trunc_normal_", "constant_", "ones_", "zeros_", "eye_",
+                   "dirac_", "xavier_uniform_", "xavier_normal_", "kaiming_uniform_", "kaiming_normal_",
+                   "orthogonal_", "sparse_")
+
+
+@contextlib.contextmanager
+def no_initial_values(dtype: Optional[torch.dtype] = None):
+    """Modules built inside skip torch.nn.init's initial values (their parameters keep the
+    uninitialized storage torch.empty gives), parameters made in ``dtype`` when given: for a
+    model whose every tensor is then overwritten (load_state_dict(strict=True), randomize_).
+    A full-size model spends ~5 s drawing initial values nobody reads and ~6 s converting
+    them to float64; untouched storage costs nothing until it is written once."""
+    import torch.nn.init as init
+    saved = {name: getattr(init, name) for name in _INIT_FUNCTIONS}
+    saved_dtype = torch.get_default_dtype()
+    try:
+        for name in _INIT_FUNCTIONS:
+            setattr(init, name, lambda tensor, *args, **kwargs: tensor)
+        if dtype is not None:
+            torch.set_default_dtype(dtype)
+        yield
+    finally:
+        for name, fn in saved.items():
+            setattr(init, name, fn)
+        torch.set_default_dtype(saved_dtype)
 
 
 def randomize_(module: nn.Module, seed: int = 0, perturb: bool = False) -> nn.Module:

@@ -266,9 +266,11 @@ def build_model(cfg, sd: Dict[str, Any], float64: bool):
                 f"{list(want[k]) if want[k] else 'absent'}")
         raise CliError(f"checkpoint does not match the model config ({what})")
     try:
-        # backbones built on the meta device (no random init: every tensor comes from the
-        # checkpoint, checked below), then given uninitialized CPU storage of the dtype they
-        # run at: loading the checkpoint is then their one pass (converting as it copies)
+        # No initial values anywhere (every tensor comes from the checkpoint, checked below):
+        # backbones built on the meta device, then given uninitialized CPU storage of the dtype
+        # they run at; SPAR's own modules built in that dtype without torch.nn.init. Loading
+        # the checkpoint is then the one pass over the weights (converting as it copies).
+        from .backbones import no_initial_values
         from .dino_v3 import DinoV3
         dtype = torch.float64 if float64 else torch.float32
         dino = DinoV3(cfg.dino, device="meta").to(dtype).to_empty(device="cpu")
@@ -276,7 +278,9 @@ def build_model(cfg, sd: Dict[str, Any], float64: bool):
         if cfg.use_lseg:
             from .lseg import LSegEncoder
             lseg = LSegEncoder(cfg.lseg, device="meta").to(dtype).to_empty(device="cpu")
-        model = SPAR(cfg, dino=dino, lseg=lseg).to(dtype)
+        with no_initial_values(dtype):
+            model = SPAR(cfg, dino=dino, lseg=lseg)
+        model = model.to(dtype)
     except Exception as e:
         raise CliError(f"cannot build the model for this config: {_one_line(e)}")
     own = model.state_dict()

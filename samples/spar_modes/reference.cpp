@@ -57,48 +57,52 @@ std::string joinInputs(const std::vector<int64_t>& v) {
   return s;
 }
 
-void makeGoldens(const ReferenceInputs& in, ReferenceRun run, const fs::path& dir) {
-  std::string cmd = quote(in.python) + " " + quote(in.sourceDir + "/reference/spar-reference") + " goldens --checkpoint " +
-                    quote(in.checkpoint);
-  if (!in.config.empty()) cmd += " --config " + quote(in.config);
-  cmd += " --frames";
-  for (const std::string& f : in.frames) cmd += " " + quote(f);
-  cmd += " --inputs " + joinInputs(in.inputs);
-  if (run == ReferenceRun::Static) cmd += " --assume-static";
+// spar-reference's arguments for one run (after the program name).
+std::vector<std::string> goldensArgv(const ReferenceInputs& in, ReferenceRun run, const fs::path& dir) {
+  std::vector<std::string> a = {"goldens", "--checkpoint", in.checkpoint};
+  if (!in.config.empty()) a.insert(a.end(), {"--config", in.config});
+  a.push_back("--frames");
+  a.insert(a.end(), in.frames.begin(), in.frames.end());
+  a.insert(a.end(), {"--inputs", joinInputs(in.inputs)});
+  if (run == ReferenceRun::Static) a.push_back("--assume-static");
   if (run == ReferenceRun::Refine || run == ReferenceRun::RefinedGating) {
     if (in.sam2.empty()) throw Error("the refine modes need the SAM2.1 checkpoint for the reference: give --sam2");
-    cmd += " --sam2 " + quote(in.sam2);
-    if (!in.sam2Config.empty()) cmd += " --sam2-config " + quote(in.sam2Config);
-    cmd += run == ReferenceRun::Refine ? " --refine" : " --mask-source refined";
+    a.insert(a.end(), {"--sam2", in.sam2});
+    if (!in.sam2Config.empty()) a.insert(a.end(), {"--sam2-config", in.sam2Config});
+    if (run == ReferenceRun::Refine) a.push_back("--refine");
+    else a.insert(a.end(), {"--mask-source", "refined"});
   }
-  cmd += " --out " + quote(dir.string());
-  if (std::system(cmd.c_str()) != 0) throw Error("the PyTorch reference failed: " + cmd);
+  a.insert(a.end(), {"--out", dir.string()});
+  return a;
 }
 
-}  // namespace
+// The runs' goldens, made by one spar-reference process (`batch` for more than one run: torch
+// is imported once, about 1.5 s a run saved).
+void makeGoldens(const ReferenceInputs& in, const std::vector<std::pair<ReferenceRun, fs::path>>& runs,
+                 const fs::path& scratch) {
+  std::string cmd = quote(in.python) + " " + quote(in.sourceDir + "/reference/spar-reference");
+  fs::path batchFile;
+  if (runs.size() == 1) {
+    for (const std::string& a : goldensArgv(in, runs[0].first, runs[0].second)) cmd += " " + quote(a);
+  } else {
+    nlohmann::json batch = nlohmann::json::array();
+    for (const auto& [run, dir] : runs) batch.push_back(goldensArgv(in, run, dir));
+    batchFile = scratch / "reference_batch.json";
+    std::ofstream(batchFile) << batch.dump(1) << "\n";
+    cmd += " batch " + quote(batchFile.string());
+  }
+  const int code = std::system(cmd.c_str());
+  if (!batchFile.empty()) fs::remove(batchFile);
+  if (code != 0) throw Error("the PyTorch reference failed: " + cmd);
+}
 
-Reference loadReference(const ReferenceInputs& in, ReferenceRun run, const std::string& dirName) {
-  const fs::path dir = fs::absolute(dirName), stampFile = dir.string() + ".source.json";
-  const nlohmann::json want = stamp(in, run);
-  const bool assumeStatic = run == ReferenceRun::Static;
+Reference readReference(ReferenceRun run, const fs::path& dir, bool reused) {
   Reference r;
   r.dir = dir.string();
-  if (fs::exists(dir / "manifest.json") && fs::exists(stampFile)) {
-    std::ifstream f(stampFile);
-    r.reused = nlohmann::json::parse(f, nullptr, false) == want;
-  }
-  std::fprintf(stderr, "spar-modes: PyTorch reference: %s %s\n", r.reused ? "reusing" : "running spar-reference goldens ->",
-               r.dir.c_str());
-  if (!r.reused) {
-    fs::remove_all(dir);
-    fs::remove(stampFile);
-    fs::create_directories(dir.parent_path());
-    makeGoldens(in, run, dir);
-    std::ofstream(stampFile) << want.dump(1) << "\n";
-  }
+  r.reused = reused;
   // rgb [1, T, 3, H, W]; cv_drp_input.prob / .binary [1, K, 1, H, W]
   r.rgb = readNpy((dir / "rgb.npy").string()).toFloats();
-  if (!assumeStatic) {
+  if (run != ReferenceRun::Static) {
     r.motion = readNpy((dir / "cv_drp_input.prob.npy").string()).toFloats();
     r.mask = readNpy((dir / "cv_drp_input.binary.npy").string()).toFloats();
   }
@@ -113,6 +117,40 @@ Reference loadReference(const ReferenceInputs& in, ReferenceRun run, const std::
       r.modelMs += 1000.0 * s.at("seconds").get<double>();
   }
   return r;
+}
+
+}  // namespace
+
+std::vector<Reference> loadReferences(const ReferenceInputs& in,
+                                      const std::vector<std::pair<ReferenceRun, std::string>>& runs) {
+  std::vector<std::pair<ReferenceRun, fs::path>> stale;
+  std::vector<bool> reused;
+  fs::path scratch;
+  for (const auto& [run, dirName] : runs) {
+    const fs::path dir = fs::absolute(dirName), stampFile = dir.string() + ".source.json";
+    bool same = false;
+    if (fs::exists(dir / "manifest.json") && fs::exists(stampFile)) {
+      std::ifstream f(stampFile);
+      same = nlohmann::json::parse(f, nullptr, false) == stamp(in, run);
+    }
+    reused.push_back(same);
+    std::fprintf(stderr, "spar-modes: PyTorch reference: %s %s\n", same ? "reusing" : "running spar-reference goldens ->",
+                 dir.c_str());
+    if (same) continue;
+    fs::remove_all(dir);
+    fs::remove(stampFile);
+    fs::create_directories(dir.parent_path());
+    scratch = dir.parent_path();
+    stale.emplace_back(run, dir);
+  }
+  if (!stale.empty()) {
+    makeGoldens(in, stale, scratch);
+    for (const auto& [run, dir] : stale) std::ofstream(dir.string() + ".source.json") << stamp(in, run).dump(1) << "\n";
+  }
+  std::vector<Reference> out;
+  for (size_t i = 0; i < runs.size(); ++i)
+    out.push_back(readReference(runs[i].first, fs::absolute(runs[i].second), reused[i]));
+  return out;
 }
 
 }  // namespace spar::modes

@@ -4,6 +4,7 @@
 #pragma once
 #include <cstdint>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace spar::modes {
@@ -32,7 +33,9 @@ struct Reference {
   double modelMs = 0;         // the reference's own time of the model's stages (no file I/O)
 };
 
-// Goldens in `dir` (made unless `dir` holds goldens of the same inputs); throws spar::Error.
-Reference loadReference(const ReferenceInputs& inputs, ReferenceRun run, const std::string& dir);
+// Each run's goldens in its directory (made unless it holds goldens of the same inputs; the
+// runs to make in one process); in the order of `runs`. Throws spar::Error.
+std::vector<Reference> loadReferences(const ReferenceInputs& inputs,
+                                      const std::vector<std::pair<ReferenceRun, std::string>>& runs);
 
 }  // namespace spar::modes
