@@ -91,7 +91,7 @@ Engine::~Engine() {
 }
 
 Tensor Engine::tensor(const Shape& shape, DType dtype) {
-  VkDeviceSize bytes = static_cast<VkDeviceSize>(shapeNumel(shape)) * dtypeSize(dtype);
+  VkDeviceSize bytes = tensorBytes(shape, dtype);
   // Rounded up to 16 bytes so every tensor can be read through 4-component texel views, plus
   // kTexelViewSlack bytes a texel view may reach past the tensor, and never a power of two:
   // a CPU driver keys compiled variants on both (engine/recorder.cpp, stableTexelRange), so

@@ -14,6 +14,7 @@ constexpr uint32_t kQueriesPerPool = 1024;
 constexpr uint32_t kSetsPerPool = 512;
 
 VkFormat texelFormat(DType dtype, int components) {
+  if (isQuantized(dtype)) return VK_FORMAT_R32_UINT;  // the words of codes and scales (shaders/quant.glsl)
   if (dtype == DType::F32) return components == 4 ? VK_FORMAT_R32G32B32A32_SFLOAT : VK_FORMAT_R32_SFLOAT;
   if (dtype == DType::F16) return components == 4 ? VK_FORMAT_R16G16B16A16_SFLOAT : VK_FORMAT_R16_SFLOAT;
   return components == 4 ? VK_FORMAT_R32G32B32A32_SINT : VK_FORMAT_R32_SINT;
@@ -47,8 +48,8 @@ std::string texelStateOf(VkDeviceSize bufferSize, VkDeviceSize range) {
 }
 
 std::string texelTypeName(DType dtype, int components) {
-  return std::string(dtype == DType::F32 ? "f32" : dtype == DType::F16 ? "f16" : "i32") + "x" +
-         std::to_string(components);
+  return std::string(dtype == DType::F32 ? "f32" : dtype == DType::F16 ? "f16" : isQuantized(dtype) ? "u32" : "i32") +
+         "x" + std::to_string(components);
 }
 
 std::string hexOf(const std::vector<uint8_t>& bytes) {
@@ -175,8 +176,8 @@ void Recorder::dispatch(const Kernel& kernel, const std::vector<Arg>& args, cons
     // pipeline decodes what it is given).
     Arg a = args[i];
     if (a.kind == Bind::Texel && kernel.bindings[i] == Bind::StorageInput) {
-      if (a.tensor.dtype() != DType::F32 && a.tensor.dtype() != DType::F16)
-        throw Error(name + ": input " + a.tensor.describe() + " is neither fp32 nor fp16");
+      if (a.tensor.dtype() != DType::F32 && a.tensor.dtype() != DType::F16 && !isQuantized(a.tensor.dtype()))
+        throw Error(name + ": input " + a.tensor.describe() + " is neither fp32, fp16 nor quantized");
       if (a.tensor.bytes() % (dtypeSize(a.tensor.dtype()) * a.components))
         throw Error(name + ": tensor " + a.tensor.describe() + " is not a whole number of " +
                     std::to_string(a.components) + "-element texels");

@@ -9,6 +9,8 @@ const char* dtypeName(DType t) {
     case DType::F32: return "f32";
     case DType::F16: return "f16";
     case DType::I32: return "i32";
+    case DType::Q8: return "q8";
+    case DType::Q4: return "q4";
   }
   return "?";
 }
@@ -17,6 +19,14 @@ std::string shapeString(const Shape& shape) {
   std::string s = "[";
   for (size_t i = 0; i < shape.size(); ++i) s += (i ? ", " : "") + std::to_string(shape[i]);
   return s + "]";
+}
+
+uint64_t tensorBytes(const Shape& shape, DType t) {
+  const int64_t n = shapeNumel(shape);
+  if (!isQuantized(t)) return uint64_t(n) * dtypeSize(t);
+  const int64_t k = shape.empty() ? 0 : shape.back();
+  if (shape.empty() || k % 32) throw Error(std::string(dtypeName(t)) + shapeString(shape) + ": rows must be whole blocks of 32");
+  return k ? uint64_t(n / k) * rowBytes(t, k) : 0;
 }
 
 int64_t shapeNumel(const Shape& shape) {
@@ -50,6 +60,14 @@ Tensor Tensor::reshape(Shape shape) const {
 Tensor Tensor::view(int64_t elementOffset, Shape shape) const {
   if (elementOffset < 0 || elementOffset + shapeNumel(shape) > numel())
     throw Error("view at " + std::to_string(elementOffset) + " of " + shapeString(shape) + " exceeds " + describe());
+  if (isQuantized(dtype_)) {
+    const int64_t k = shape_.back();
+    if (shape.empty() || shape.back() != k || elementOffset % k)
+      throw Error("view at " + std::to_string(elementOffset) + " of " + shapeString(shape) + " is not whole rows of " +
+                  describe());
+    return Tensor(buffer_, offset_ + static_cast<VkDeviceSize>(elementOffset / k) * rowBytes(dtype_, k), std::move(shape),
+                  dtype_);
+  }
   return Tensor(buffer_, offset_ + static_cast<VkDeviceSize>(elementOffset) * dtypeSize(dtype_), std::move(shape), dtype_);
 }
 

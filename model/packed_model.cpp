@@ -49,7 +49,7 @@ std::string range(uint64_t a, uint64_t b) { return "[" + std::to_string(a) + ", 
 bool parseFileDType(const std::string& s, FileDType& out) {
   static const std::pair<const char*, FileDType> kTypes[] = {
       {"F32", FileDType::F32}, {"F16", FileDType::F16}, {"I32", FileDType::I32},
-      {"I64", FileDType::I64}, {"U8", FileDType::U8}};
+      {"I64", FileDType::I64}, {"U8", FileDType::U8}, {"I8", FileDType::I8}};
   for (const auto& [n, t] : kTypes)
     if (s == n) {
       out = t;
@@ -67,6 +67,7 @@ const char* fileDTypeName(FileDType t) {
     case FileDType::I32: return "I32";
     case FileDType::I64: return "I64";
     case FileDType::U8: return "U8";
+    case FileDType::I8: return "I8";
   }
   return "?";
 }
@@ -77,7 +78,8 @@ size_t fileDTypeSize(FileDType t) {
     case FileDType::F16: return 2;
     case FileDType::I32: return 4;
     case FileDType::I64: return 8;
-    case FileDType::U8: return 1;
+    case FileDType::U8:
+    case FileDType::I8: return 1;
   }
   return 0;
 }
@@ -194,9 +196,13 @@ void PackedModel::parseHeader() {
   };
   if (metaValue("format") != kFormat)
     fail(path, "format " + quoted(metaValue("format")) + " is not '" + kFormat + "'");
-  if (metaValue("format_version") != kFormatVersion)
-    fail(path, "unsupported format_version " + quoted(metaValue("format_version")) + " (this reader knows '" +
-                   kFormatVersion + "')");
+  const std::string& version = metaValue("format_version");
+  if (version != kFormatVersion && version != kQuantFormatVersion)
+    fail(path, "unsupported format_version " + quoted(version) + " (this reader knows '" + kFormatVersion + "' and '" +
+                   kQuantFormatVersion + "')");
+  if ((version == kQuantFormatVersion) != (m.metadata_.count("quantized") != 0))
+    fail(path, version == kQuantFormatVersion ? "format_version '2' without __metadata__ quantized"
+                                              : "__metadata__ quantized in a format_version '1' file");
   try {
     m.config_ = nlohmann::json::parse(metaValue("config"));
   } catch (const nlohmann::json::exception& e) {
@@ -232,7 +238,7 @@ void PackedModel::parseHeader() {
     auto dt = e.find("dtype");
     if (dt == e.end() || !dt->is_string()) fail(path, t + ": no dtype string");
     if (!parseFileDType(dt->get<std::string>(), info.dtype))
-      fail(path, t + ": unsupported dtype " + quoted(dt->get<std::string>()) + " (known: F32, F16, I32, I64, U8)");
+      fail(path, t + ": unsupported dtype " + quoted(dt->get<std::string>()) + " (known: F32, F16, I32, I64, U8, I8)");
 
     auto sh = e.find("shape");
     if (sh == e.end() || !sh->is_array()) fail(path, t + ": no shape list");
@@ -285,6 +291,71 @@ void PackedModel::parseHeader() {
     }
     last = &name;
   }
+  parseQuantized();
+}
+
+void PackedModel::parseQuantized() {
+  auto it = metadata_.find("quantized");
+  if (it == metadata_.end()) return;
+  nlohmann::json q;
+  try {
+    q = nlohmann::json::parse(it->second);
+  } catch (const nlohmann::json::exception& e) {
+    fail(path_, std::string("__metadata__ quantized is not valid JSON: ") + e.what());
+  }
+  if (!q.is_object()) fail(path_, "__metadata__ quantized is not a JSON object");
+  for (auto e = q.begin(); e != q.end(); ++e) {
+    const std::string& name = e.key();
+    const std::string t = "quantized tensor " + quoted(name);
+    const nlohmann::json& r = e.value();
+    auto field = [&](const char* key) -> const nlohmann::json& {
+      if (!r.is_object() || !r.contains(key)) fail(path_, t + ": no '" + key + "' in its __metadata__ quantized record");
+      return r.at(key);
+    };
+    const nlohmann::json &bitsJ = field("bits"), &blockJ = field("block"), &shapeJ = field("shape");
+    if (!bitsJ.is_number_integer() || (bitsJ.get<int64_t>() != 8 && bitsJ.get<int64_t>() != 4))
+      fail(path_, t + ": bit width " + oneLine(bitsJ.dump()) + " (this reader knows 8 and 4)");
+    if (!blockJ.is_number_integer() || blockJ.get<int64_t>() != 32)
+      fail(path_, t + ": block of " + oneLine(blockJ.dump()) + " values (this reader knows 32)");
+    if (!shapeJ.is_array() || shapeJ.size() != 2 || !shapeJ[0].is_number_unsigned() || !shapeJ[1].is_number_unsigned() ||
+        shapeJ[0].get<uint64_t>() > (uint64_t(1) << 31) || shapeJ[1].get<uint64_t>() > (uint64_t(1) << 31))
+      fail(path_, t + ": shape " + oneLine(shapeJ.dump()) + " is not [N, K]");
+    const int bits = bitsJ.get<int>();
+    const int64_t n = shapeJ[0].get<int64_t>(), k = shapeJ[1].get<int64_t>();
+    if (k % 32) fail(path_, t + ": rows of " + std::to_string(k) + " values are not whole blocks of 32");
+    auto codes = tensors_.find(name);
+    if (codes == tensors_.end()) fail(path_, t + ": no tensor of its codes");
+    PackedTensorInfo& c = codes->second;
+    const FileDType want = bits == 8 ? FileDType::I8 : FileDType::U8;
+    const Shape codesShape = {n, bits == 8 ? k : k / 2};
+    if (c.dtype != want || c.shape != codesShape)
+      fail(path_, t + ": codes are " + fileDTypeName(c.dtype) + " " + shapeString(c.shape) + ", " + std::to_string(bits) +
+                      "-bit codes of " + shapeString({n, k}) + " are " + fileDTypeName(want) + " " + shapeString(codesShape));
+    const std::string scaleName = name + ".qscale";
+    auto scales = tensors_.find(scaleName);
+    const Shape scaleShape = {n, k / 32};
+    if (scales == tensors_.end() || scales->second.dtype != FileDType::F32 || scales->second.shape != scaleShape)
+      fail(path_, t + ": its scales " + quoted(scaleName) + " are " +
+                      (scales == tensors_.end() ? std::string("missing")
+                                                : std::string(fileDTypeName(scales->second.dtype)) + " " +
+                                                      shapeString(scales->second.shape)) +
+                      ", not F32 " + shapeString(scaleShape) + " (one per block of 32)");
+    c.shape = {n, k};
+    c.quantBits = bits;
+    c.scales = scaleName;
+  }
+}
+
+void PackedModel::checkScales(const std::string& name) const {
+  const auto& i = info(name);
+  const auto bytes = data(i.scales);
+  for (size_t b = 0; b < bytes.size() / 4; ++b) {
+    float s;
+    std::memcpy(&s, bytes.data() + 4 * b, 4);
+    if (!(s >= 0.0f && s <= std::numeric_limits<float>::max()))
+      fail(path_, "quantized tensor " + quoted(name) + ": block " + std::to_string(b) + " has the scale " +
+                      std::to_string(s) + " (a scale is finite and not negative; the file is damaged)");
+  }
 }
 
 const PackedTensorInfo& PackedModel::info(const std::string& name) const {
@@ -303,6 +374,7 @@ std::span<const uint8_t> PackedModel::data(const std::string& name) const {
 // Checked on the bits (exponent all ones), which costs a pass over the bytes and no conversion.
 void PackedModel::checkFinite(const std::string& name) const {
   const auto& i = info(name);
+  if (i.quantBits) return checkScales(name);
   const auto bytes = data(name);
   const size_t n = static_cast<size_t>(i.numel());
   auto bad = [&](size_t k, bool nan) {
@@ -330,7 +402,15 @@ std::vector<float> PackedModel::floats(const std::string& name) const {
   const auto bytes = data(name);
   const size_t n = static_cast<size_t>(i.numel());
   std::vector<float> out(n);
-  if (i.dtype == FileDType::F32) {
+  if (i.quantBits) {  // code * scale, as the kernels compute it (float32)
+    const auto scales = data(i.scales);
+    for (size_t e = 0; e < n; ++e) {
+      float s;
+      std::memcpy(&s, scales.data() + 4 * (e / 32), 4);
+      const int code = i.quantBits == 8 ? int(int8_t(bytes[e])) : int((bytes[e / 2] >> (4 * (e & 1))) & 0xF) - 8;
+      out[e] = float(code) * s;
+    }
+  } else if (i.dtype == FileDType::F32) {
     if (n) std::memcpy(out.data(), bytes.data(), n * 4);
   } else if (i.dtype == FileDType::F16) {
     for (size_t k = 0; k < n; ++k) {
@@ -346,12 +426,14 @@ std::vector<float> PackedModel::floats(const std::string& name) const {
 
 DType PackedModel::naturalDType(const std::string& name) const {
   const auto& i = info(name);
+  if (i.quantBits) return i.quantBits == 8 ? DType::Q8 : DType::Q4;
   switch (i.dtype) {
     case FileDType::F32: return DType::F32;
     case FileDType::F16: return DType::F16;
     case FileDType::I32:
     case FileDType::I64: return DType::I32;
-    case FileDType::U8: break;
+    case FileDType::U8:
+    case FileDType::I8: break;
   }
   fail(path_, "tensor " + quoted(name) + " is " + fileDTypeName(i.dtype) + " " + shapeString(i.shape) +
                   ": the engine has no such tensor type (read it with data())");
@@ -361,6 +443,25 @@ Tensor PackedModel::upload(Engine& engine, const std::string& name, DType want) 
   checkFinite(name);
   const auto& i = info(name);
   const auto bytes = data(name);
+  if (i.quantBits) {  // each row's codes, then its scales (engine/tensor.h, DType::Q8 / Q4)
+    const DType q = naturalDType(name);
+    if (want != q)
+      fail(path_, "tensor " + quoted(name) + " is a " + dtypeName(q) + " matrix " + shapeString(i.shape) +
+                      ": this stage reads it as " + dtypeName(want) + " (quantized matrices reach the GEMM only; "
+                      "convert the model with --weights fp32 or fp16)");
+    const auto scales = data(i.scales);
+    const int64_t rows = i.shape[0], k = i.shape[1];
+    const size_t codeBytes = size_t(k) * size_t(i.quantBits) / 8, scaleBytes = size_t(k) / 32 * 4;
+    std::vector<uint8_t> v(size_t(rows) * (codeBytes + scaleBytes));
+    for (int64_t r = 0; r < rows; ++r) {
+      uint8_t* dst = v.data() + size_t(r) * (codeBytes + scaleBytes);
+      std::memcpy(dst, bytes.data() + size_t(r) * codeBytes, codeBytes);
+      std::memcpy(dst + codeBytes, scales.data() + size_t(r) * scaleBytes, scaleBytes);
+    }
+    Tensor t = engine.tensor(i.shape, q);
+    if (!v.empty()) engine.write(t, v.data(), v.size());
+    return t;
+  }
   const size_t n = static_cast<size_t>(i.numel());
   const bool isFloat = i.dtype == FileDType::F32 || i.dtype == FileDType::F16;
   const bool isInt = i.dtype == FileDType::I32 || i.dtype == FileDType::I64;
@@ -372,6 +473,7 @@ Tensor PackedModel::upload(Engine& engine, const std::string& name, DType want) 
   auto put = [&](const Tensor& t, const void* src, size_t count) {
     if (count) engine.write(t, src, count);
   };
+
 
   // Converted on the host first, so a refusal (I64 out of range) allocates nothing.
   if (i.dtype == FileDType::I64) {

@@ -24,15 +24,19 @@ namespace spar {
 class Engine;
 
 // The element types a packed file may hold (safetensors names).
-enum class FileDType { F32, F16, I32, I64, U8 };
+enum class FileDType { F32, F16, I32, I64, U8, I8 };
 
-const char* fileDTypeName(FileDType t);  // "F32", "F16", "I32", "I64", "U8"
+const char* fileDTypeName(FileDType t);  // "F32", "F16", "I32", "I64", "U8", "I8"
 size_t fileDTypeSize(FileDType t);
 
 struct PackedTensorInfo {
   FileDType dtype = FileDType::F32;
+  // The tensor's shape; for a quantized matrix (quantBits 8 or 4) the matrix's [N, K], while the
+  // entry holds its codes (I8 [N, K] or U8 [N, K / 2]) and `scales` names its F32 [N, K / 32].
   Shape shape;
   uint64_t begin = 0, end = 0;  // byte range in the data area (after the header)
+  int quantBits = 0;
+  std::string scales;
 
   int64_t numel() const { return shapeNumel(shape); }
   uint64_t bytes() const { return end - begin; }
@@ -42,6 +46,8 @@ class PackedModel {
  public:
   static constexpr const char* kFormat = "spar-vulkan";
   static constexpr const char* kFormatVersion = "1";
+  // Files with quantized matrices (`__metadata__.quantized`, converter/FORMAT.md).
+  static constexpr const char* kQuantFormatVersion = "2";
 
   // Maps and validates the file; throws spar::Error("<path>: <problem>") on anything wrong.
   static PackedModel open(const std::string& path);
@@ -77,17 +83,19 @@ class PackedModel {
   // `__metadata__.model_card` parsed (model_card.h: what the model is), when the file has one.
   const std::optional<ModelCard>& modelCard() const { return card_; }
 
-  // The tensor's values as floats on the host (F32/F16 only). Like upload(), throws for a NaN or
-  // infinite value, naming the tensor and element.
+  // The tensor's values as floats on the host (F32/F16, and quantized matrices dequantized). Like
+  // upload(), throws for a NaN or infinite value (or scale), naming the tensor and element.
   std::vector<float> floats(const std::string& name) const;
   // Throws spar::Error naming the first NaN or infinite element of a F32/F16 tensor.
   void checkFinite(const std::string& name) const;
 
   // A new device tensor holding `name`, converted to `want`:
   //   F32 -> F32 / F16 (fp16 saturates at +-65504, like Engine::upload), F16 -> F16 / F32,
-  //   I32 -> I32, I64 -> I32 (every value must fit). Anything else is refused with an error.
+  //   I32 -> I32, I64 -> I32 (every value must fit), a quantized matrix -> Q8 / Q4 of its bits
+  //   (engine/tensor.h: each row's codes, then its scales). Anything else is refused with an error.
   Tensor upload(Engine& engine, const std::string& name, DType want) const;
-  // The engine dtype a tensor uploads as by default: its own (I64 -> I32); throws for U8.
+  // The engine dtype a tensor uploads as by default: its own (I64 -> I32, a quantized matrix Q8 /
+  // Q4); throws for U8 and I8 tensors that are no quantized matrix.
   DType naturalDType(const std::string& name) const;
 
   // "<path>: <what>", the prefix of every error about this file.
@@ -98,6 +106,10 @@ class PackedModel {
   void unmap();
   // Checks and indexes the header of the bytes [map_, map_ + size_) (open() and fromBytes()).
   void parseHeader();
+  // Checks `__metadata__.quantized` against the tensors it names and marks them (parseHeader).
+  void parseQuantized();
+  // Throws naming the first scale of a quantized matrix that is negative, NaN or infinite.
+  void checkScales(const std::string& name) const;
 
   std::string path_;
   const uint8_t* map_ = nullptr;  // the mapping, or owned_.data()

@@ -52,7 +52,8 @@ const Tensor& WeightSet::require(const std::string& name, const Shape& shape) {
   // Matrices follow the requested precision whatever the file stores: an F16 file's matrices
   // are widened under F32, so an fp32 run uses only the f32 kernel variants (each extra
   // variant costs seconds of shader JIT on lavapipe) and computes with the same values.
-  if (matrix) want = matrixType_;
+  // A quantized matrix stays quantized under either (the GEMM dequantizes it).
+  if (matrix && !isQuantized(want)) want = matrixType_;
   return require(name, shape, want);
 }
 

@@ -8,10 +8,16 @@
 // Each invocation owns an RM x RN register block of outputs and no shared memory is used:
 // on a CPU device the block is the cache-resident working set; on a GPU the host picks
 // smaller blocks. Both x and w have k contiguous (PyTorch's out x in weight layout).
-//! variant gemm_f32 OUT_F16=0
-//! variant gemm_f16out OUT_F16=1
+//
+// W_QUANT: w is a block-quantized matrix (q8 / q4 by W_BITS, shaders/quant.glsl), read as
+// 32-bit words and dequantized per texel; ldw is then the row stride in words.
+//! variant gemm_f32 OUT_F16=0 W_QUANT=0
+//! variant gemm_f16out OUT_F16=1 W_QUANT=0
+//! variant gemm_q_f32 OUT_F16=0 W_QUANT=1
+//! variant gemm_q_f16out OUT_F16=1 W_QUANT=1
 #extension GL_GOOGLE_include_directive : require
 #include "common.glsl"
+#include "quant.glsl"
 
 layout(local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in;
 layout(constant_id = 3) const int RM = 16;         // rows of y per invocation
@@ -20,9 +26,16 @@ layout(constant_id = 5) const int TEXEL_K = 4;     // k values per texel: 4 (RGB
 layout(constant_id = 6) const int ACT = ACT_NONE;  // fused epilogue activation
 layout(constant_id = 7) const bool HAS_BIAS = false;
 layout(constant_id = 8) const int KU = 2;          // k texels per loop iteration
+layout(constant_id = 9) const int W_BITS = 8;      // W_QUANT: 8 (q8) or 4 (q4)
 
 TEXEL_INPUT(0, X, TEXEL_K)
+#if W_QUANT
+QUANT_INPUT(1, W)
+#define W_AT(row, kk) fetchq_W(row, kk, p.K)
+#else
 TEXEL_INPUT(1, W, TEXEL_K)
+#define W_AT(row, kk) fetch_W((row) + (kk))
+#endif
 TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
 layout(binding = 3) writeonly buffer Y { OUT_T y[]; };
 
@@ -54,7 +67,7 @@ void main() {
     vec4 a[RM];                                                                \
     [[unroll]] for (int r = 0; r < RM; ++r) a[r] = fetch_X(xRow[r] + (kk)); \
     [[unroll]] for (int c = 0; c < RN; ++c) {                                  \
-      vec4 w = fetch_W(wRow[c] + (kk));                                  \
+      vec4 w = W_AT(wRow[c], kk);                                              \
       [[unroll]] for (int r = 0; r < RM; ++r) {                                \
         float s = acc[r * RN + c];                                             \
         [[unroll]] for (int j = 0; j < TEXEL_K; ++j) s = fma(a[r][j], w[j], s); \

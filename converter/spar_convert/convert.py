@@ -30,13 +30,16 @@ import numpy as np
 from .model_config import (PRESETS, SparConfig, backbone_config, matching_preset, read_config_file,
                            resolve_config, stated_image_size)
 from .model_card import ModelCardError, card_text, read_card
+from . import quantize as quant
 from . import sam2_plan
 from .safetensors_file import SafetensorsError, SafetensorsFile, TensorSpec, write_safetensors
 from .torch_checkpoint import CheckpointError, open_checkpoint, open_torchscript
 
 PROG = "spar-convert"
 FORMAT = "spar-vulkan"
-FORMAT_VERSION = "1"
+FORMAT_VERSION = "1"      # a file without quantized matrices (readable by every engine so far)
+QUANT_FORMAT_VERSION = "2"  # one with them (FORMAT.md, "Quantized matrices")
+FORMAT_VERSIONS = (FORMAT_VERSION, QUANT_FORMAT_VERSION)
 BN_EPS = 1e-5             # nn.BatchNorm2d's default eps (not stored in checkpoints)
 FP16_MAX = 65504.0
 FLOAT_DTYPES = ("float32", "float16", "bfloat16", "float64")
@@ -569,12 +572,13 @@ def _one_line(e):
 
 # ============================================================================ the plan
 class Entry:
-    __slots__ = ("name", "shape", "dtype", "make", "kind", "sources")
+    __slots__ = ("name", "shape", "dtype", "make", "kind", "sources", "quant")
 
     def __init__(self, name, shape, make, kind, sources):
         self.name, self.shape, self.make = name, tuple(shape), make
         self.kind, self.sources = kind, sources
         self.dtype = "F32"
+        self.quant = None  # "q8" / "q4": stored as codes + scales (quantize.py)
 
 
 def _to_f64(ref):
@@ -954,6 +958,51 @@ def is_matrix(name, shape):
         name.endswith("text_projection")
 
 
+# The matrices --weights q8 / q4 quantize: the linear layers of the transformer blocks (attention
+# projections and MLPs of SPAR's encoders, decoder and CV-DRP, DINOv3, LSeg's ViT, CLIP's text
+# tower), which hold most of the parameters and reach the engine only through its GEMM. Embedding
+# tables, position tables, convolution kernels, norms, biases and the small heads stay as
+# --weights fp32 / fp16 would store them (FORMAT.md, "Quantized matrices").
+QUANTIZED_MATRICES = re.compile(
+    r"^(?:(?:transformer_encoder|transformer_encoder_geom|transformer_decoder|cv_drp\.estimator\.transformer_layers)"
+    r"\.\d+\.(?:attn\.to_qkv|attn\.fc|mlp\.mlp\.\d+)\.weight"
+    r"|(?:dino\.blocks|lseg\.pretrained\.model\.blocks)\.\d+\.(?:attn\.qkv|attn\.proj|mlp\.fc1|mlp\.fc2)\.weight"
+    r"|clip\.transformer\.resblocks\.\d+\.(?:attn\.in_proj_weight|attn\.out_proj\.weight|mlp\.c_fc\.weight"
+    r"|mlp\.c_proj\.weight))$")
+
+
+def is_quantized(name, shape):
+    """Whether --weights q8 / q4 quantize this tensor: a 2-D block linear whose rows are whole
+    blocks of 32."""
+    return len(shape) == 2 and shape[1] % quant.BLOCK == 0 and bool(QUANTIZED_MATRICES.match(name))
+
+
+def _quantized_specs(entry):
+    """The two stored tensors of a quantized matrix: its codes (under its own name) and its
+    scales (<name>.qscale), computed once for both."""
+    cache = {}
+
+    def codes_and_scales():
+        if not cache:
+            a = np.asarray(entry.make(), dtype=np.float64)
+            if not np.all(np.isfinite(a)):
+                raise ConvertError("tensor %r has NaN or Inf values (%s)"
+                                   % (entry.name, "; ".join(entry.sources)))
+            cache["v"] = quant.quantize(a, entry.quant)
+        return cache["v"]
+
+    def scales():
+        v = codes_and_scales()[1]
+        cache.clear()
+        return v
+
+    n, k = entry.shape
+    codes_shape = (n, k) if entry.quant == "q8" else (n, k // 2)
+    return [TensorSpec(entry.name, "I8" if entry.quant == "q8" else "U8", codes_shape,
+                       lambda: codes_and_scales()[0]),
+            TensorSpec(entry.name + quant.SCALE_SUFFIX, "F32", (n, k // quant.BLOCK), scales)]
+
+
 def _producer(entry):
     def make():
         a = np.asarray(entry.make())
@@ -1004,9 +1053,13 @@ def build_parser():
                          "e.g. 128x128), the size spar render and spar eval default to; "
                          "default: the --config's (model.target_image), else 256x256 with a "
                          "warning (no tensor holds it)")
+    ap.add_argument("--weights", choices=("fp32", "fp16", "q8", "q4"),
+                    help="how weight matrices are stored: fp32 (default); fp16 (matrices and conv "
+                         "kernels F16); q8 / q4 (the transformer blocks' linear layers as 8- or "
+                         "4-bit codes with one float32 scale per block of 32, the rest as fp32; "
+                         "converter/FORMAT.md)")
     ap.add_argument("--fp16", action="store_true",
-                    help="store weight matrices and conv kernels as F16 (norms, biases, "
-                         "embeddings and small vectors stay F32)")
+                    help="the same as --weights fp16")
     ap.add_argument("--dino", help="DINOv3 backbone state_dict (dinov3_vitb16_pretrain_*.pth); "
                                    "default: _dino_v3.* of the checkpoint")
     ap.add_argument("--lseg", help="LSeg checkpoint (keys net.*, CLIP under net.clip_pretrained.*); "
@@ -1101,19 +1154,24 @@ def convert(args, out=None):
             sam2_cfg, sam2_from, sam2_entries = plan_sam2(inp)
             entries += sam2_entries
         converted = {}
+        quantized = {}  # name -> {"bits", "block", "shape"}: the `quantized` metadata
         for e in entries:
             if e.dtype == "U8":
                 continue
-            e.dtype = "F16" if (args.fp16 and is_matrix(e.name, e.shape)) else "F32"
+            e.dtype = "F16" if (args.weights == "fp16" and is_matrix(e.name, e.shape)) else "F32"
+            if args.weights in ("q8", "q4") and is_quantized(e.name, e.shape):
+                e.quant = args.weights
+                quantized[e.name] = {"bits": quant.BITS[e.quant], "block": quant.BLOCK, "shape": list(e.shape)}
+            stored = e.quant or e.dtype
             if e.kind == "kept":
                 comp = e.name.split(".", 1)[0] if e.name.split(".", 1)[0] in ("dino", "lseg", "clip", "sam2") else "spar"
                 src = getattr(inp, comp)
                 key = e.name[len(PREFIX[comp]):]
                 sd = src.tensors[key].dtype
-                if {"float32": "F32", "float16": "F16"}.get(sd) != e.dtype:
-                    converted[e.name] = "%s -> %s" % (sd, e.dtype)
-            elif e.dtype != "F32":
-                converted[e.name] = "float64 (folded) -> %s" % e.dtype
+                if {"float32": "F32", "float16": "F16"}.get(sd) != stored:
+                    converted[e.name] = "%s -> %s" % (sd, stored)
+            elif stored != "F32":
+                converted[e.name] = "float64 (folded) -> %s" % stored
 
         components = {"spar": True, "dino": True, "lseg": bool(cfg.use_lseg),
                       "clip": bool(inp.clip), "bpe": inp.bpe is not None}
@@ -1121,7 +1179,8 @@ def convert(args, out=None):
             components["sam2"] = True
         record = {
             "converter": PROG,
-            "fp16": bool(args.fp16),
+            "fp16": args.weights == "fp16",
+            "weights": args.weights,
             "components": components,
             "sources": {k: v for k, v in inp.source_of.items()},
             "files": [{"role": r, "path": os.path.basename(p), "bytes": n} for r, p, n in inp.files],
@@ -1137,11 +1196,13 @@ def convert(args, out=None):
         }
         metadata = {
             "format": FORMAT,
-            "format_version": FORMAT_VERSION,
+            "format_version": QUANT_FORMAT_VERSION if quantized else FORMAT_VERSION,
             "config": json.dumps(cfg.to_dict(), sort_keys=True, separators=(",", ":")),
             "components": json.dumps(components, sort_keys=True, separators=(",", ":")),
             "conversion": json.dumps(record, sort_keys=True, separators=(",", ":")),
         }
+        if quantized:
+            metadata["quantized"] = json.dumps(quantized, sort_keys=True, separators=(",", ":"))
         if card is not None:
             metadata["model_card"] = card_text(card)
         if sam2_cfg is not None:
@@ -1188,14 +1249,17 @@ def convert(args, out=None):
             say("SAM2 refinement: %s (from %s), %d tensors, %.2f M parameters"
                 % (sam2_cfg.name, sam2_from, n, params / 1e6))
 
-        specs = [TensorSpec(e.name, e.dtype, e.shape, _producer(e)) for e in entries]
+        specs = []
+        for e in entries:
+            specs += _quantized_specs(e) if e.quant else [TensorSpec(e.name, e.dtype, e.shape, _producer(e))]
         write_safetensors(args.output, specs, metadata)
         size_in = sum(n for _, _, n in inp.files)
         size_out = os.path.getsize(args.output)
         print("%s: wrote %s: %d tensors, %s in (%s), %s out%s" % (
             PROG, args.output, len(entries), _fmt_mb(size_in),
             " + ".join("%s %s" % (r, _fmt_mb(n)) for r, _, n in inp.files), _fmt_mb(size_out),
-            " (fp16 matrices)" if args.fp16 else ""), file=out)
+            {"fp16": " (fp16 matrices)", "q8": " (%d q8 matrices)" % len(quantized),
+             "q4": " (%d q4 matrices)" % len(quantized)}.get(args.weights, "")), file=out)
         # After the file is complete, so that a refusal stays the one line it is.
         for n in stderr_notes:
             print("%s: note: %s" % (PROG, n), file=sys.stderr)
@@ -1227,6 +1291,7 @@ def replace_card(args, packed, card, out):
     """A packed model in: every tensor copied byte for byte, the metadata kept, the model card
     replaced by --model-card's (the one change a packed model can take)."""
     others = [o for o, v in (("--config", args.config), ("--size", args.size), ("--fp16", args.fp16),
+                             ("--weights", args.weights_given),
                              ("--dino", args.dino), ("--lseg", args.lseg), ("--clip", args.clip),
                              ("--bpe", args.bpe)) if v]
     if others:
@@ -1235,9 +1300,9 @@ def replace_card(args, packed, card, out):
     if card is None:
         raise ConvertError("%s is a packed model already: give --model-card CARD.json to replace its "
                            "model card" % args.checkpoint)
-    if packed.metadata.get("format_version") != FORMAT_VERSION:
+    if packed.metadata.get("format_version") not in FORMAT_VERSIONS:
         raise ConvertError("%s: format version %r, this converter writes %s"
-                           % (args.checkpoint, packed.metadata.get("format_version"), FORMAT_VERSION))
+                           % (args.checkpoint, packed.metadata.get("format_version"), " or ".join(FORMAT_VERSIONS)))
     metadata = dict(packed.metadata, model_card=card_text(card))
     specs = [TensorSpec(n, packed.info(n).dtype, packed.info(n).shape, (lambda n=n: packed.get(n)))
              for n in packed.names]
@@ -1248,7 +1313,12 @@ def replace_card(args, packed, card, out):
 
 
 def main(argv=None):
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    args.weights_given = args.weights
+    if args.fp16 and args.weights not in (None, "fp16"):
+        parser.error("--fp16 is --weights fp16: it cannot go with --weights %s" % args.weights)
+    args.weights = "fp16" if args.fp16 else (args.weights or "fp32")
     try:
         return convert(args)
     except (ConvertError, CheckpointError, SafetensorsError, ModelCardError) as e:

@@ -33,7 +33,11 @@ GemmLaunch gemmLaunch(Engine& engine, DType wType, DType yType, int64_t M, int64
   const DeviceCaps& caps = engine.caps();
   const KernelPlan& plan = engine.plan();
   const bool f16Out = yType == DType::F16;
-  const KernelFamily family = wType == DType::F16 ? plan.gemmF16 : plan.gemm;
+  // Quantized weights: gemm.comp's register blocks dequantize them per texel, on every device
+  // (the tiled and cooperative-matrix kernels read f32 / f16 weights only, so far).
+  const KernelFamily family = isQuantized(wType)    ? KernelFamily::CpuBlocks
+                              : wType == DType::F16 ? plan.gemmF16
+                                                    : plan.gemm;
   if (family == KernelFamily::CoopMat) {
     const CoopMatTiles& c = plan.coop;
     // Full subgroups of the largest size the device may use (what REQUIRE_FULL_SUBGROUPS
@@ -70,11 +74,13 @@ GemmLaunch gemmLaunch(Engine& engine, DType wType, DType yType, int64_t M, int64
     while (tiles.localY > 1 && int64_t(tiles.colsPerInvocation) * tiles.localY / 2 >= N) tiles.localY /= 2;
     while (tiles.rowsPerInvocation > 4 && tiles.rowsPerInvocation / 2 >= M) tiles.rowsPerInvocation /= 2;
   }
-  const Kernel& k = engine.kernel({f16Out ? "gemm_f16out" : "gemm_f32",
+  std::vector<int32_t> constants = {tiles.localX, tiles.localY, 1, tiles.rowsPerInvocation, tiles.colsPerInvocation,
+                                    texelK, static_cast<int>(act), hasBias, tiles.kUnroll};
+  if (isQuantized(wType)) constants.push_back(wType == DType::Q8 ? 8 : 4);  // W_BITS
+  const Kernel& k = engine.kernel({std::string(isQuantized(wType) ? "gemm_q" : "gemm") + (f16Out ? "_f16out" : "_f32"),
                                    {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
                                    sizeof(GemmPush),
-                                   {tiles.localX, tiles.localY, 1, tiles.rowsPerInvocation, tiles.colsPerInvocation,
-                                    texelK, static_cast<int>(act), hasBias, tiles.kUnroll}});
+                                   constants});
   return {&k, int64_t(tiles.rowsPerInvocation) * tiles.localX, int64_t(tiles.colsPerInvocation) * tiles.localY};
 }
 
@@ -140,10 +146,15 @@ void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& 
   if (bias.defined() && bias.numel() != N) throw Error("linear: bias " + bias.describe() + " should have " + std::to_string(N));
   if (y.dtype() == DType::I32 || x.dtype() == DType::I32 || w.dtype() == DType::I32)
     throw Error("linear: integer tensors are not supported");
+  const bool quantized = isQuantized(w.dtype());
+  if (quantized && batched) throw Error("linear: a quantized weight " + w.describe() + " cannot be batched");
   if (M == 0 || N == 0) return;
   if (K == 0) throw Error("linear: K = 0");
 
-  const int texelK = K % 4 == 0 ? 4 : 1;
+  const int texelK = K % 4 == 0 ? 4 : 1;  // K of a quantized weight is a multiple of 32
+  // w's binding: its texels (texelK values each), or a quantized row's 32-bit words
+  const int wComponents = quantized ? 1 : texelK;
+  const int64_t wRowTexels = quantized ? int64_t(rowBytes(w.dtype(), K) / 4) : K / texelK;
   const int64_t kTexels = K / texelK;
   const GemmLaunch launch = gemmLaunch(engine, w.dtype(), y.dtype(), M, N, B, K, texelK, act, bias.defined());
   const Kernel& kernel = *launch.kernel;
@@ -162,16 +173,17 @@ void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& 
   // the smallest devices) its rows (N) too, each chunk writing its block of y's columns.
   // Chunk starts are multiples of steps that keep every binding's offset where the device
   // can bind it (the tensors themselves start aligned).
-  const uint64_t ySize = dtypeSize(y.dtype()), xSize = dtypeSize(x.dtype()), wSize = dtypeSize(w.dtype());
+  const uint64_t ySize = dtypeSize(y.dtype()), xSize = dtypeSize(x.dtype()), wRowBytes = rowBytes(w.dtype(), K);
   const uint64_t tAlign = ops::bindingAlignment(caps, true);
   const uint64_t sAlign = std::max<uint64_t>(1, caps.minStorageBufferOffsetAlignment);
   auto stepFor = [](uint64_t bytesPerUnit, uint64_t align) { return align / std::gcd(bytesPerUnit, align); };
   const uint64_t stepM = std::lcm(stepFor(uint64_t(K) * xSize, tAlign), stepFor(uint64_t(N) * ySize, sAlign));
-  const uint64_t stepN = std::lcm(std::lcm(stepFor(ySize, sAlign), stepFor(uint64_t(K) * wSize, tAlign)), stepFor(4, tAlign));
+  const uint64_t stepN = std::lcm(std::lcm(stepFor(ySize, sAlign), stepFor(wRowBytes, tAlign)), stepFor(4, tAlign));
   const uint64_t texelLimit = ops::texelInputLimit(engine, texelK);
+  const uint64_t wTexelLimit = ops::texelInputLimit(engine, wComponents);
   int64_t chunkN = N;
-  if (uint64_t(N) * uint64_t(kTexels) > texelLimit) {
-    chunkN = static_cast<int64_t>(texelLimit / uint64_t(kTexels) / stepN * stepN);
+  if (uint64_t(N) * uint64_t(wRowTexels) > wTexelLimit) {
+    chunkN = static_cast<int64_t>(wTexelLimit / uint64_t(wRowTexels) / stepN * stepN);
     if (chunkN <= 0) throw Error("linear: one row of weight " + w.describe() + " exceeds the device's texel-buffer size");
   }
   const uint64_t rowsByY = engine.device().bindingRangeLimit() / (uint64_t(N) * ySize);
@@ -184,15 +196,19 @@ void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& 
     const int64_t rows = std::min(chunk, M - m0);
     for (int64_t n0 = 0; n0 < N; n0 += chunkN) {
       const int64_t cols = std::min(chunkN, N - n0);
-      GemmPush push{int32_t(rows), int32_t(cols), int32_t(kTexels), int32_t(kTexels), int32_t(kTexels), int32_t(N), 0, 0, 0};
+      GemmPush push{int32_t(rows), int32_t(cols), int32_t(kTexels), int32_t(kTexels), int32_t(wRowTexels), int32_t(N),
+                    0, 0, 0};
       const Tensor wPart = cols == N ? w : w.reshape({N, K}).view(n0 * K, {cols, K});
+      const Tensor xPart = x2.view(m0 * K, {rows, K});
       // Without a bias the binding is a placeholder never read: the weight, or one element of
-      // it where the weight as R texels would be longer than a texel binding.
+      // it where the weight as R texels would be longer than a texel binding (of x for a
+      // quantized weight, whose words are no float texels).
       const Tensor bPart = bias.defined() ? (cols == N ? biasArg : b1.view(n0, {cols}))
+                           : quantized ? xPart.reshape({xPart.numel()}).view(0, {1})
                            : uint64_t(wPart.numel()) <= ops::texelInputLimit(engine, 1) ? wPart
                                                                                     : wPart.reshape({wPart.numel()}).view(0, {1});
       rec.dispatch(kernel,
-                   {Arg::texel(x2.view(m0 * K, {rows, K}), texelK), Arg::texel(wPart, texelK), Arg::texel(bPart, 1),
+                   {Arg::texel(xPart, texelK), Arg::texel(wPart, wComponents), Arg::texel(bPart, 1),
                     Arg::out(y2.view(m0 * N + n0, {(rows - 1) * N + cols}))},
                    push, ops::ceilDiv(rows, launch.rowsPerGroup), ops::ceilDiv(cols, launch.colsPerGroup), 1);
     }
