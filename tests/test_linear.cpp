@@ -1,6 +1,11 @@
 // Linear layer (shaders/gemm.comp via engine/ops/linear.cpp) against a float64 reference.
 #include "engine/ops/linear.h"
 
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
 #include "tests/test_support.h"
 
 namespace spar::test {
@@ -151,6 +156,116 @@ TEST_F(EngineTest, LinearOutputAboveStorageRange) {
   EXPECT_GE(rec.pending(), 2u);
   rec.run();
   expectClose(eng().download(y), linearRef(x, w, {}, 1, M, N, K, false, Activation::None), 1e-10, 1e-4, "above range");
+}
+
+// ---- Quantized weights (engine/tensor.h DType::Q8 / Q4, shaders/quant.glsl), against float64
+// of the dequantized weights: the kernel adds no error of its own beyond fp32 accumulation.
+
+// Rows of codes then scales, as PackedModel::upload lays them out, quantized here independently
+// of the converter (converter/spar_convert/quantize.py): per block of 32, scale = max|w| / Q
+// (127 or 7) rounded to f32, code = round(w / scale). `values`: code * scale in f32, what the
+// kernel multiplies with.
+struct QuantizedMatrix {
+  std::vector<uint8_t> rows;
+  std::vector<float> values;
+};
+
+QuantizedMatrix quantizeRows(const std::vector<float>& w, int64_t N, int64_t K, int bits) {
+  const int q = bits == 8 ? 127 : 7;
+  const size_t codeBytes = size_t(K) * bits / 8, rowBytes = codeBytes + size_t(K) / 32 * 4;
+  QuantizedMatrix m{std::vector<uint8_t>(size_t(N) * rowBytes, 0), std::vector<float>(w.size())};
+  for (int64_t n = 0; n < N; ++n)
+    for (int64_t b = 0; b < K / 32; ++b) {
+      const float* blk = w.data() + n * K + b * 32;
+      double amax = 0;
+      for (int j = 0; j < 32; ++j) amax = std::max(amax, std::abs(double(blk[j])));
+      const float scale = float(amax / q);
+      std::memcpy(m.rows.data() + size_t(n) * rowBytes + codeBytes + size_t(b) * 4, &scale, 4);
+      for (int j = 0; j < 32; ++j) {
+        const int64_t k = b * 32 + j;
+        const int code = scale > 0 ? int(std::clamp(std::nearbyint(double(blk[j]) / scale), double(-q), double(q))) : 0;
+        uint8_t* row = m.rows.data() + size_t(n) * rowBytes;
+        if (bits == 8) row[k] = uint8_t(int8_t(code));
+        else row[k / 2] |= uint8_t((code + 8) << (4 * (k & 1)));
+        m.values[size_t(n * K + k)] = float(code) * scale;
+      }
+    }
+  return m;
+}
+
+Tensor quantizedTensor(Engine& engine, const QuantizedMatrix& m, int64_t N, int64_t K, int bits) {
+  Tensor t = engine.tensor({N, K}, bits == 8 ? DType::Q8 : DType::Q4);
+  EXPECT_EQ(t.bytes(), m.rows.size());
+  engine.write(t, m.rows.data(), m.rows.size());
+  return t;
+}
+
+void expectQuantizedLinear(Engine& engine, const std::vector<float>& w, int64_t M, int64_t N, int64_t K, int bits,
+                           bool bias, Activation act, const std::string& what) {
+  const auto x = randomUniform(M * K, -1, 1, 21);
+  const auto b = bias ? randomUniform(N, -1, 1, 22) : std::vector<float>{};
+  const QuantizedMatrix q = quantizeRows(w, N, K, bits);
+  Tensor tx = engine.fromFloats({M, K}, x), tw = quantizedTensor(engine, q, N, K, bits);
+  Tensor tb = bias ? engine.fromFloats({N}, b) : Tensor();
+  GuardedOutput y(engine, {M, N});
+  Recorder rec(engine);
+  linear(rec, tx, tw, tb, y.tensor(), act);
+  rec.run();
+  const auto ref = linearRef(x, q.values, b, 1, M, N, K, false, act);
+  double peak = 0;
+  for (double v : ref) peak = std::max(peak, std::abs(v));
+  expectClose(y.read(), ref, 1e-10 * std::max<int64_t>(1, K / 16), 1e-6 * std::max(1.0, peak), what);
+  y.expectAllWritten();
+}
+
+// Odd M and N (rows past a register block), K of one and of several blocks, with and without
+// bias and activation; q8 and q4.
+TEST_F(EngineTest, LinearQuantizedMatchesFloat64OfDequantized) {
+  for (int bits : {8, 4}) {
+    const std::string q = bits == 8 ? "q8" : "q4";
+    expectQuantizedLinear(eng(), randomUniform(61 * 96, -1, 1, 23), 7, 61, 96, bits, false, Activation::None, q + " 7x61x96");
+    expectQuantizedLinear(eng(), randomUniform(37 * 32, -0.1f, 0.1f, 24), 33, 37, 32, bits, true, Activation::Gelu,
+                          q + " 33x37x32 gelu");
+  }
+}
+
+// Stiff blocks: one outlier of 1e4 among values of 1e-2 (the block's small values round to 0
+// codes), an all-zero block (scale 0), and blocks whose scale is float's smallest normal.
+TEST_F(EngineTest, LinearQuantizedStiffBlocks) {
+  const int64_t M = 5, N = 9, K = 128;
+  auto w = randomUniform(N * K, -1e-2f, 1e-2f, 25);
+  for (int64_t n = 0; n < N; ++n) {
+    w[size_t(n * K + 7)] = n % 2 ? 1e4f : -1e4f;                               // block 0: an outlier
+    for (int j = 32; j < 64; ++j) w[size_t(n * K + j)] = 0.0f;                // block 1: zeros
+    for (int j = 64; j < 96; ++j)                                             // block 2: tiny
+      w[size_t(n * K + j)] = float(j % 3 - 1) * 127.0f * std::numeric_limits<float>::min();
+  }
+  for (int bits : {8, 4}) {
+    const QuantizedMatrix q = quantizeRows(w, N, K, bits);
+    float tinyScale;
+    std::memcpy(&tinyScale, q.rows.data() + K * bits / 8 + 2 * 4, 4);
+    EXPECT_GE(tinyScale, std::numeric_limits<float>::min()) << "block 2's scale is a normal float";
+    expectQuantizedLinear(eng(), w, M, N, K, bits, true, Activation::None, bits == 8 ? "q8 stiff" : "q4 stiff");
+  }
+}
+
+// A quantized weight longer than the device's texel binding is read in row chunks, as f32
+// weights are: 3646 rows of 18 words under the vulkan-1.2-min profile's 65536 texels (its
+// device_profile run); on lavapipe's 2^27 texels, 40000 rows in one binding.
+TEST_F(EngineTest, LinearQuantizedWeightInRowChunks) {
+  const int64_t M = 3, K = 64;
+  const uint64_t rowWords = rowBytes(DType::Q8, K) / 4;
+  const int64_t N = int64_t(std::min<uint64_t>(eng().caps().maxTexelBufferElements / rowWords + 5, 40000));
+  expectQuantizedLinear(eng(), randomUniform(N * K, -1, 1, 26), M, N, K, 8, true, Activation::None, "q8 row chunks");
+}
+
+TEST_F(EngineTest, LinearQuantizedRefusesBatchedAndPartialBlocks) {
+  EXPECT_THROW(eng().tensor({4, 40}, DType::Q8), Error);  // rows must be whole blocks of 32
+  Tensor x = eng().fromFloats({2, 3, 32}, randomUniform(2 * 3 * 32, -1, 1, 27));
+  Tensor w = eng().tensor({2, 4, 32}, DType::Q8);
+  GuardedOutput y(eng(), {2, 3, 4});
+  Recorder rec(eng());
+  EXPECT_THROW(linear(rec, x, w, Tensor(), y.tensor()), Error);
 }
 
 TEST_F(EngineTest, LinearRejectsMismatchedShapes) {
