@@ -374,8 +374,10 @@ TEST_F(HandMadeFileTest, CorruptFilesAreRefused) {
   meta.erase("format");
   expectRefused(write("noformat.spar", header({}, meta), data), "no 'format'");
   meta = goodMetadata();
+  meta["format_version"] = "3";
+  expectRefused(write("version.spar", header({}, meta), data), "unsupported format_version '3'");
   meta["format_version"] = "2";
-  expectRefused(write("version.spar", header({}, meta), data), "unsupported format_version '2'");
+  expectRefused(write("version2.spar", header({}, meta), data), "format_version '2' without __metadata__ quantized");
   meta = goodMetadata();
   meta["format_version"] = 1;
   expectRefused(write("version_int.spar", header({}, meta), data), "'format_version' is not a string");
@@ -417,6 +419,90 @@ TEST_F(HandMadeFileTest, CorruptFilesAreRefused) {
   expectRefused(write("newline_name.spar", header({{"bad\nname", tensor("X", {1}, 0, 4)}}), data), "unsupported dtype");
   expectRefused((dir_ / "does_not_exist.spar").string(), "cannot open");
   expectRefused(dir_.string(), "not a regular file");
+}
+
+// Quantized matrices (format version 2, converter/FORMAT.md "Quantized matrices"): a q8 and a
+// q4 matrix read back as code * scale, uploaded as rows of codes then scales, refused as f32;
+// every inconsistent record refused in one line naming the matrix.
+TEST_F(HandMadeFileTest, QuantizedMatricesAreReadAndBadRecordsRefused) {
+  auto file = [&](json records, std::vector<float> wScales = {0.5f, 0.25f}, json version = "2") {
+    std::vector<uint8_t> data;
+    json h;
+    h["__metadata__"] = goodMetadata();
+    h["__metadata__"]["format_version"] = version;
+    if (!records.is_null()) h["__metadata__"]["quantized"] = records.dump();
+    auto add = [&](const std::string& name, const char* dtype, Shape shape, const auto& values) {
+      const uint64_t begin = data.size();
+      append(data, values);
+      h[name] = {{"dtype", dtype}, {"shape", shape}, {"data_offsets", {begin, data.size()}}};
+    };
+    std::vector<int8_t> w(64);
+    for (int i = 0; i < 64; ++i) w[size_t(i)] = int8_t(i % 2 ? -i : i);
+    add("w", "I8", {2, 32}, w);
+    add("w.qscale", "F32", {2, 1}, wScales);
+    add("v", "U8", {1, 32}, std::vector<uint8_t>(32, 0x1F));  // codes 15 - 8 = 7 (even k), 1 - 8 = -7 (odd k)
+    add("v.qscale", "F32", {1, 2}, std::vector<float>{1.0f, 2.0f});
+    return packFile(h.dump(), data);
+  };
+  const json good = {{"w", {{"bits", 8}, {"block", 32}, {"shape", {2, 32}}}},
+                     {"v", {{"bits", 4}, {"block", 32}, {"shape", {1, 64}}}}};
+  const std::string path = write("quantized.spar", file(good));
+  {
+    PackedModel m = PackedModel::open(path);
+    EXPECT_EQ(m.info("w").shape, (Shape{2, 32}));
+    EXPECT_EQ(m.info("w").quantBits, 8);
+    EXPECT_EQ(m.naturalDType("w"), DType::Q8);
+    EXPECT_EQ(m.naturalDType("v"), DType::Q4);
+    const std::vector<float> w = m.floats("w");
+    EXPECT_EQ(w[3], -3 * 0.5f);
+    EXPECT_EQ(w[32 + 4], 36 * 0.25f);
+    const std::vector<float> v = m.floats("v");
+    EXPECT_EQ(v[0], 7.0f);
+    EXPECT_EQ(v[33], -14.0f);
+    Tensor t = m.upload(eng(), "w", DType::Q8);
+    EXPECT_EQ(t.dtype(), DType::Q8);
+    EXPECT_EQ(t.bytes(), 2u * 36u);
+    EXPECT_EQ(m.upload(eng(), "v", DType::Q4).bytes(), 40u);
+    try {
+      m.upload(eng(), "w", DType::F32);
+      ADD_FAILURE() << "a q8 matrix uploaded as f32";
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find("reach the GEMM only"), std::string::npos) << e.what();
+    }
+  }
+  auto with = [&](const char* name, const char* key, json value) {
+    json r = good;
+    if (value.is_null()) r[name].erase(key);
+    else r[name][key] = value;
+    return r;
+  };
+  expectRefused(write("q_bits.spar", file(with("w", "bits", 5))), "quantized tensor 'w': bit width 5");
+  expectRefused(write("q_block.spar", file(with("w", "block", 16))), "block of 16 values");
+  expectRefused(write("q_noshape.spar", file(with("w", "shape", nullptr))), "no 'shape'");
+  expectRefused(write("q_shape3.spar", file(with("w", "shape", {1, 2, 32}))), "is not [N, K]");
+  expectRefused(write("q_partial.spar", file(with("w", "shape", {4, 16}))), "not whole blocks of 32");
+  expectRefused(write("q_bitsdtype.spar", file(with("w", "bits", 4))), "codes are I8 [2, 32], 4-bit codes");
+  expectRefused(write("q_count.spar", file(with("v", "shape", {2, 32}))), "codes are U8 [1, 32]");
+  json missing = good;
+  missing["x"] = good["w"];
+  expectRefused(write("q_missing.spar", file(missing)), "quantized tensor 'x': no tensor of its codes");
+  json scaleShape = good;
+  scaleShape["v.qscale"] = {{"bits", 8}, {"block", 32}, {"shape", {1, 64}}};  // the scales named as a matrix
+  expectRefused(write("q_scalerecord.spar", file(scaleShape)), "quantized tensor 'v.qscale'");
+  expectRefused(write("q_v1.spar", file(good, {0.5f, 0.25f}, "1")), "__metadata__ quantized in a format_version '1'");
+  expectRefused(write("q_notobject.spar", file(json("["))), "quantized is not a JSON object");
+  // A scale that is not a finite non-negative float: refused when the matrix is read.
+  for (float bad : {std::nanf(""), std::numeric_limits<float>::infinity(), -1.0f}) {
+    PackedModel m = PackedModel::open(write("q_scale.spar", file(good, {0.5f, bad})));
+    try {
+      m.upload(eng(), "w", DType::Q8);
+      ADD_FAILURE() << "scale " << bad << " accepted";
+    } catch (const Error& e) {
+      const std::string msg = e.what();
+      std::cout << "  refused: " << msg << "\n";
+      EXPECT_NE(msg.find("quantized tensor 'w': block 1 has the scale"), std::string::npos) << msg;
+    }
+  }
 }
 
 // The model card (__metadata__.model_card, model/model_card.h): read and made into the sentence
