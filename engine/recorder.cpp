@@ -175,6 +175,10 @@ void Recorder::dispatch(const Kernel& kernel, const std::vector<Arg>& args, cons
     // is bound as a storage buffer of words, fp32 or fp16 (its format joins the signature: the
     // pipeline decodes what it is given).
     Arg a = args[i];
+    // Quantized matrices are words only a dequantizing kernel (its name has "_q_") can read: any
+    // other would take them for floats.
+    if (a.tensor.defined() && isQuantized(a.tensor.dtype()) && kernel.name.find("_q_") == std::string::npos)
+      throw Error(name + ": input " + a.tensor.describe() + " is a quantized matrix, which this kernel cannot read");
     if (a.kind == Bind::Texel && kernel.bindings[i] == Bind::StorageInput) {
       if (a.tensor.dtype() != DType::F32 && a.tensor.dtype() != DType::F16 && !isQuantized(a.tensor.dtype()))
         throw Error(name + ": input " + a.tensor.describe() + " is neither fp32, fp16 nor quantized");

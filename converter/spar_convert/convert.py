@@ -968,7 +968,12 @@ QUANTIZED_MATRICES = re.compile(
     r"\.\d+\.(?:attn\.to_qkv|attn\.fc|mlp\.mlp\.\d+)\.weight"
     r"|(?:dino\.blocks|lseg\.pretrained\.model\.blocks)\.\d+\.(?:attn\.qkv|attn\.proj|mlp\.fc1|mlp\.fc2)\.weight"
     r"|clip\.transformer\.resblocks\.\d+\.(?:attn\.in_proj_weight|attn\.out_proj\.weight|mlp\.c_fc\.weight"
-    r"|mlp\.c_proj\.weight))$")
+    r"|mlp\.c_proj\.weight)"
+    # SPAR's other linear layers: the semantic head (the largest single matrix), the fusion MLPs,
+    # the tokenizers and position MLPs, the RGB head
+    r"|(?:semantic_token_decoder|mlp_fuse|pe_embedder|temporal_pe_embedder|image_tokenizer|target_pose_tokenizer"
+    r"|target_pose_tokenizer2|target_pose_tokenizer_semantic"
+    r"|cv_drp\.estimator\.fusion_mlp\.net)\.\d+\.weight)$")
 
 
 def is_quantized(name, shape):
