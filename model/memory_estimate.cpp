@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <string>
 
+#include "model/quantized_matrices.h"
 #include "model/sam2_config.h"
 #include "model/weight_set.h"
 
@@ -43,10 +44,17 @@ MemoryNeed estimateMemory(const PackedModel& model, const SparConfig& c, const M
   MemoryNeed need;
   for (const std::string& name : model.names()) {
     const PackedTensorInfo& t = model.info(name);
-    if (t.dtype == FileDType::U8 || !used(name, q)) continue;  // U8: host data (CLIP's BPE table)
-    // float tensors reach the device as f32, matrices as f16 under an fp16 matrix type; ints as i32
-    const bool half = q.matrixType == DType::F16 && WeightSet::isMatrix(name, t.shape);
-    need.weightBytes += uint64_t(t.numel()) * (half ? 2 : 4);
+    if ((t.dtype == FileDType::U8 && !t.quantBits) || !used(name, q)) continue;  // U8: host data (CLIP's BPE table)
+    if (name.size() > 7 && name.compare(name.size() - 7, 7, ".qscale") == 0) continue;  // counted with its codes
+    // float tensors reach the device as f32, matrices as f16 under an fp16 matrix type, quantized
+    // ones (in the file, or by the q8 / q4 rule at upload) as rows of codes and scales; ints as i32
+    const bool half = q.matrixType == DType::F16 && WeightSet::isMatrix(name, t.shape) && !t.quantBits;
+    if (t.quantBits)
+      need.weightBytes += tensorBytes(t.shape, t.quantBits == 8 ? DType::Q8 : DType::Q4);
+    else if (isQuantized(q.matrixType) && isQuantizedMatrix(name, t.shape))
+      need.weightBytes += tensorBytes(t.shape, q.matrixType);
+    else
+      need.weightBytes += uint64_t(t.numel()) * (half ? 2 : 4);
   }
   const int64_t v = q.views, k = q.inputs, r = q.renderChunk, h = q.height, w = q.width, d = c.d;
   const int64_t p = c.patchSize, n = (h / p) * (w / p), hw = h * w, s = c.sceneTokens;

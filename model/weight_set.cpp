@@ -5,6 +5,7 @@
 #include "engine/engine.h"
 #include "engine/error.h"
 #include "engine/half.h"
+#include "model/quantized_matrices.h"
 
 namespace spar {
 namespace {
@@ -17,8 +18,8 @@ bool endsWith(const std::string& s, const std::string& tail) {
 
 WeightSet::WeightSet(Engine& engine, const PackedModel& model, DType matrixType)
     : engine_(engine), model_(model), matrixType_(matrixType) {
-  if (matrixType != DType::F32 && matrixType != DType::F16)
-    throw Error(std::string("weight matrices can be f32 or f16, not ") + dtypeName(matrixType));
+  if (matrixType != DType::F32 && matrixType != DType::F16 && !isQuantized(matrixType))
+    throw Error(std::string("weight matrices can be f32, f16, q8 or q4, not ") + dtypeName(matrixType));
   // fp16 matrices reach the kernels as fp16 texel buffers or as halves in the words of a
   // storage input: refused up front where neither is possible (Engine::readsFp16Inputs).
   if (matrixType == DType::F16 && !engine.readsFp16Inputs())
@@ -52,8 +53,13 @@ const Tensor& WeightSet::require(const std::string& name, const Shape& shape) {
   // Matrices follow the requested precision whatever the file stores: an F16 file's matrices
   // are widened under F32, so an fp32 run uses only the f32 kernel variants (each extra
   // variant costs seconds of shader JIT on lavapipe) and computes with the same values.
-  // A quantized matrix stays quantized under either (the GEMM dequantizes it).
-  if (matrix && !isQuantized(want)) want = matrixType_;
+  // A quantized matrix stays quantized under every type (the GEMM dequantizes it). Under Q8 / Q4
+  // the matrices the converter would quantize are quantized at upload, the others stay f32.
+  if (matrix && !isQuantized(want)) {
+    if (!isQuantized(matrixType_)) want = matrixType_;
+    else if (isQuantizedMatrix(name, model_.info(name).shape)) want = matrixType_;
+    else want = DType::F32;
+  }
   return require(name, shape, want);
 }
 
@@ -76,10 +82,37 @@ const Tensor& WeightSet::require(const std::string& name, const Shape& shape, DT
   const PackedTensorInfo& info = model_.info(name);
   const bool rounded = matrixType_ == DType::F16 && info.dtype == FileDType::F32 && isMatrix(name, info.shape) &&
                        (want == DType::F32 || want == DType::F16);
-  Tensor t = rounded ? uploadRounded(name, want) : model_.upload(engine_, name, want);
+  Tensor t;
+  if (isQuantized(want) && !info.quantBits) {  // an f32 / f16 file's matrix quantized here
+    checkQuantizable(name, want);
+    const std::vector<uint8_t> rows = quantizeRows(model_.floats(name), info.shape[0], info.shape[1], want);
+    t = engine_.tensor(info.shape, want);
+    engine_.write(t, rows.data(), rows.size());
+  } else {
+    t = rounded ? uploadRounded(name, want) : model_.upload(engine_, name, want);
+  }
   bytes_ += t.bytes();
   order_.push_back(key);
   return loaded_.emplace(std::move(key), std::move(t)).first->second;
+}
+
+const std::vector<std::string>& WeightSet::precisions() {
+  static const std::vector<std::string> names = {"fp32", "fp16", "q8", "q4"};
+  return names;
+}
+
+DType WeightSet::precisionType(const std::string& precision) {
+  if (precision == "fp32") return DType::F32;
+  if (precision == "fp16") return DType::F16;
+  if (precision == "q8") return DType::Q8;
+  if (precision == "q4") return DType::Q4;
+  throw Error("--precision must be fp32, fp16, q8 or q4, not '" + precision + "'");
+}
+
+void WeightSet::checkQuantizable(const std::string& name, DType want) const {
+  if (!isQuantizedMatrix(name, model_.info(name).shape))
+    throw Error(model_.errorPrefix() + "tensor '" + name + "' is not a matrix the " + dtypeName(want) +
+                " rule quantizes (converter/FORMAT.md, Quantized matrices)");
 }
 
 Tensor WeightSet::optional(const std::string& name, const Shape& shape) {

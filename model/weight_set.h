@@ -5,7 +5,9 @@
 //
 // Weight precision: with matrixType F16 every weight matrix (the tensors `spar-convert --fp16`
 // stores as F16, converter/FORMAT.md) reaches the device with fp16 values even when the file
-// holds F32, so one F32 file serves both precisions and gives what its --fp16 pack would.
+// holds F32, so one F32 file serves both precisions and gives what its --fp16 pack would. With
+// Q8 / Q4 the matrices `--weights q8 / q4` quantizes are quantized at upload (the rest as f32),
+// as that pack holds them; a quantized file's matrices stay quantized under every type.
 #pragma once
 #include <cstdint>
 #include <map>
@@ -23,7 +25,7 @@ class Engine;
 class WeightSet {
  public:
   // The model must outlive the set. matrixType F32: matrices as f32 (an F16 file's widened);
-  // F16: matrices as fp16 (norms, biases, tokens and codes are never touched).
+  // F16: matrices as fp16 (norms, biases, tokens and codes are never touched); Q8 / Q4: see above.
   WeightSet(Engine& engine, const PackedModel& model, DType matrixType = DType::F32);
 
   const PackedModel& model() const { return model_; }
@@ -44,6 +46,9 @@ class WeightSet {
   void clear();
 
   DType matrixType() const { return matrixType_; }
+  // The matrix type of a --precision name: fp32, fp16, q8, q4 (throws spar::Error otherwise).
+  static DType precisionType(const std::string& precision);
+  static const std::vector<std::string>& precisions();
   // The --fp16 rule (converter/spar_convert/convert.py is_matrix): a float tensor of 2 or more
   // dimensions named *.weight / *in_proj_weight / *text_projection, except the view-type table
   // and SAM2's decoder tokens (sam2.*_token(s).weight).
@@ -58,6 +63,8 @@ class WeightSet {
 
  private:
   void checkShape(const std::string& name, const Shape& shape) const;
+  // Throws unless `name` is a matrix the q8 / q4 rule quantizes (model/quantized_matrices.h).
+  void checkQuantizable(const std::string& name, DType want) const;
   // An F32 file's matrix with fp16 values, in `want` (matrixType F16 only).
   Tensor uploadRounded(const std::string& name, DType want) const;
 

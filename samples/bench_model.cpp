@@ -11,6 +11,7 @@
 #include "model/packed_model.h"
 #include "model/spar_config.h"
 #include "model/spar_pipeline.h"
+#include "model/weight_set.h"
 
 namespace spar::bench {
 namespace {
@@ -58,7 +59,7 @@ nlohmann::ordered_json benchModel(Engine& engine, const ModelBenchArgs& a) {
 
   SparPipelineOptions po;
   po.profile = true;
-  po.weightType = a.precision == "fp16" ? DType::F16 : DType::F32;
+  po.weightType = WeightSet::precisionType(a.precision);
   SparPipeline pipeline(engine, model, po);
   SparRequest req;
   const int64_t v = a.views + a.targets;

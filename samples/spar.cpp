@@ -21,6 +21,7 @@
 #include "samples/spar_cli/render_command.h"
 #include "samples/spar_cli/render_jobs.h"
 #include "samples/spar_cli/selftest_command.h"
+#include "model/weight_set.h"
 
 namespace {
 
@@ -96,9 +97,10 @@ int main(int argc, char** argv) {
                                      "lerp positions) instead of the targets");
   pathOpt->excludes(cameras);
   render->add_option("--precision", a.precision,
-                     "fp32, or fp16: weight matrices held as fp16 on the device (half the memory; activations "
-                     "and accumulation stay fp32)")
-      ->check(CLI::IsMember({"fp32", "fp16"}));
+                     "fp32; fp16: weight matrices held as fp16 on the device (half the memory); q8 / q4: the "
+                     "transformer blocks' and linear layers' matrices as 8- or 4-bit codes with a scale per 32 "
+                     "(0.28 / 0.16 of fp32; converter/FORMAT.md). Activations and accumulation stay fp32")
+      ->check(CLI::IsMember(spar::WeightSet::precisions()));
   std::string renderSize;
   auto* renderSizeOpt = render->add_option("--size", renderSize, kSizeHelp)->type_name("HxW");
   auto* assumeStaticOpt = render->add_flag("--assume-static", a.assumeStatic,
@@ -156,8 +158,8 @@ int main(int argc, char** argv) {
       ->required();
   evalCmd->add_option("--views", e.views, "numbers of input views K, comma-separated (default 2,3,4)")
       ->type_name("\"2,3,4\"");
-  evalCmd->add_option("--precision", e.precision, "fp32, or fp16 weight matrices on the device")
-      ->check(CLI::IsMember({"fp32", "fp16"}));
+  evalCmd->add_option("--precision", e.precision, "fp32, fp16, q8 or q4 weight matrices on the device (see render)")
+      ->check(CLI::IsMember(spar::WeightSet::precisions()));
   std::string evalSize;
   auto* evalSizeOpt = evalCmd->add_option("--size", evalSize, std::string(kSizeHelp) + "; the scenes must be this size")
                           ->type_name("HxW");

@@ -13,6 +13,7 @@
 #include "engine/error.h"
 #include "samples/bench_cases.h"
 #include "samples/bench_model.h"
+#include "model/weight_set.h"
 
 int main(int argc, char** argv) {
   CLI::App app{"spar-bench: time, throughput and error of the engine's ops"};
@@ -44,8 +45,8 @@ int main(int argc, char** argv) {
   app.add_option("--views", m.views, "with --model: input views (default 4)")->needs(modelOpt);
   app.add_option("--targets", m.targets, "with --model: target views rendered (default 4)")->needs(modelOpt);
   app.add_option("--size", size, "with --model: HxW (default: the model's size)")->needs(modelOpt);
-  app.add_option("--precision", m.precision, "with --model: fp32 or fp16 weight matrices")
-      ->check(CLI::IsMember({"fp32", "fp16"}))
+  app.add_option("--precision", m.precision, "with --model: fp32, fp16, q8 or q4 weight matrices")
+      ->check(CLI::IsMember(spar::WeightSet::precisions()))
       ->needs(modelOpt);
   app.add_flag("--assume-static", m.assumeStatic, "with --model: no DINOv3 / CV-DRP")->needs(modelOpt);
   app.add_flag("--semantic", m.semantic, "with --model: render semantic features too")->needs(modelOpt);

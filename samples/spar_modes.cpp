@@ -205,9 +205,10 @@ int main(int argc, char** argv) {
   app.add_option("--config", a.config, "spar-reference --config (tiny|full|PATH; default: inferred)");
   app.add_option("--frames", a.frames, "all frames in capture order");
   app.add_option("--inputs", a.inputs, "positions of the input frames, e.g. 0,2 (the rest are targets)");
+  std::string modeNames;
+  for (const Mode& m : allModes()) modeNames += (modeNames.empty() ? "" : ",") + m.name;
   app.add_option("--modes", a.modes,
-                 "comma-separated subset of fp32,fp16,fp32-static,fp16-static,fp32-refine,fp16-refine,fp32-refined,"
-                 "fp16-refined (default: all; the refine modes when the model has SAM2.1)");
+                 "comma-separated subset of " + modeNames + " (default: all; the refine modes when the model has SAM2.1)");
   app.add_option("--sam2", a.sam2, "the SAM2.1 checkpoint the model was packed with (the reference's, refine modes)");
   app.add_option("--sam2-config", a.sam2Config, "its variant for the reference (NAME|YAML|JSON; default: inferred)");
   app.add_option("--repeat", a.repeat, "measured runs per mode after the first (median reported; default 3)");

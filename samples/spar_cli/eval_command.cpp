@@ -26,6 +26,7 @@
 #include "samples/spar_cli/index_page.h"
 #include "samples/spar_cli/progress.h"
 #include "samples/spar_cli/render_outputs.h"
+#include "model/weight_set.h"
 
 namespace spar::cli {
 namespace {
@@ -105,7 +106,11 @@ void runEval(const EvalArgs& a) {
   const auto start = Clock::now();
   // 1. The command line alone (exit 2).
   if (a.noGating && a.assumeStatic) throw UsageError("--no-gating and --assume-static exclude each other");
-  if (a.precision != "fp32" && a.precision != "fp16") throw UsageError("--precision must be fp32 or fp16");
+  try {
+    WeightSet::precisionType(a.precision);
+  } catch (const Error& e) {
+    throw UsageError(e.what());
+  }
   if (a.maskSource != "raw" && a.maskSource != "refined") throw UsageError("--mask-source must be raw or refined");
   const bool refine = a.refine || a.maskSource == "refined";
   if (refine && a.assumeStatic) throw UsageError("--refine / --mask-source refined and --assume-static exclude each other");
@@ -197,7 +202,7 @@ void runEval(const EvalArgs& a) {
     deviceName = engine.caps().name;
     SparPipelineOptions po;
     po.profile = false;
-    po.weightType = a.precision == "fp16" ? DType::F16 : DType::F32;
+    po.weightType = WeightSet::precisionType(a.precision);
     SparPipeline pipeline(engine, model, po);  // once: weights stay on the device for every scene
     PromptEmbeddings text;
     if (semantic) {

@@ -27,6 +27,7 @@
 #include "samples/spar_cli/render_outputs.h"
 #include "samples/spar_cli/staged_dir.h"
 #include "samples/spar_cli/warnings.h"
+#include "model/weight_set.h"
 
 namespace spar::cli {
 namespace {
@@ -241,7 +242,7 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
 
     SparPipelineOptions po;
     po.profile = true;
-    po.weightType = a.precision == "fp16" ? DType::F16 : DType::F32;
+    po.weightType = WeightSet::precisionType(a.precision);
 
     // A request that cannot fit the device is refused here, before any work, with its need.
     MemoryQuery mq;

@@ -37,6 +37,11 @@ const std::vector<Mode>& allModes() {
       {"fp16", DType::F16, false},
       {"fp32-static", DType::F32, true},
       {"fp16-static", DType::F16, true},
+      // quantized matrices (converter/FORMAT.md, "Quantized matrices"), quantized at upload
+      {"q8", DType::Q8, false},
+      {"q4", DType::Q4, false},
+      {"q8-static", DType::Q8, true},
+      {"q4-static", DType::Q4, true},
       // SAM2.1 refinement: the masks refined, CV-DRP's still gating (-refine), or the refined
       // ones gating (-refined, the official mask_source: refined)
       {"fp32-refine", DType::F32, false, true, false},

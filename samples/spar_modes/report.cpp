@@ -46,7 +46,7 @@ nlohmann::ordered_json reportJson(const ReportSetup& setup, const std::vector<Mo
     for (const StageStat& s : r.run.stages) stages.push_back({{"name", s.name}, {"gpu_ms", s.gpuMs}, {"wall_ms", s.wallMs}});
     modes.push_back({
         {"mode", r.run.mode.name},
-        {"weights", r.run.mode.weightType == DType::F16 ? "f16" : "f32"},
+        {"weights", dtypeName(r.run.mode.weightType)},
         {"assume_static", r.run.mode.assumeStatic},
         {"refine", r.run.mode.refine},
         {"refined_gating", r.run.mode.refinedGating},

@@ -1,0 +1,53 @@
+#include "model/quantized_matrices.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <regex>
+
+#include "engine/error.h"
+
+namespace spar {
+
+bool isQuantizedMatrix(const std::string& name, const Shape& shape) {
+  // Kept in step with converter/spar_convert/convert.py by tests/test_spar_quantized.cpp.
+  static const std::regex rule(
+      "^(?:(?:transformer_encoder|transformer_encoder_geom|transformer_decoder|cv_drp\\.estimator\\.transformer_layers)"
+      "\\.\\d+\\.(?:attn\\.to_qkv|attn\\.fc|mlp\\.mlp\\.\\d+)\\.weight"
+      "|(?:dino\\.blocks|lseg\\.pretrained\\.model\\.blocks)\\.\\d+\\.(?:attn\\.qkv|attn\\.proj|mlp\\.fc1|mlp\\.fc2)\\.weight"
+      "|clip\\.transformer\\.resblocks\\.\\d+\\.(?:attn\\.in_proj_weight|attn\\.out_proj\\.weight|mlp\\.c_fc\\.weight"
+      "|mlp\\.c_proj\\.weight)"
+      "|(?:semantic_token_decoder|mlp_fuse|pe_embedder|temporal_pe_embedder|image_tokenizer|target_pose_tokenizer"
+      "|target_pose_tokenizer2|target_pose_tokenizer_semantic"
+      "|cv_drp\\.estimator\\.fusion_mlp\\.net)\\.\\d+\\.weight)$");
+  return shape.size() == 2 && shape[1] % 32 == 0 && std::regex_match(name, rule);
+}
+
+std::vector<uint8_t> quantizeRows(const std::vector<float>& w, int64_t N, int64_t K, DType type) {
+  if (!isQuantized(type) || K % 32 || int64_t(w.size()) != N * K)
+    throw Error("quantizeRows: " + std::string(dtypeName(type)) + shapeString({N, K}) + " of " +
+                std::to_string(w.size()) + " values");
+  const int bits = type == DType::Q8 ? 8 : 4, levels = bits == 8 ? 127 : 7;
+  const size_t codeBytes = size_t(K) * size_t(bits) / 8, rowBytes = codeBytes + size_t(K) / 8;
+  std::vector<uint8_t> out(size_t(N) * rowBytes, 0);
+  for (int64_t n = 0; n < N; ++n) {
+    uint8_t* row = out.data() + size_t(n) * rowBytes;
+    for (int64_t b = 0; b < K / 32; ++b) {
+      const float* block = w.data() + n * K + b * 32;
+      double amax = 0;
+      for (int j = 0; j < 32; ++j) amax = std::max(amax, std::abs(double(block[j])));
+      const float scale = float(amax / levels);
+      std::memcpy(row + codeBytes + size_t(b) * 4, &scale, 4);
+      for (int j = 0; j < 32; ++j) {
+        const int64_t k = b * 32 + j;
+        const double c = scale > 0 ? std::nearbyint(double(block[j]) / double(scale)) : 0.0;
+        const int code = int(std::clamp(c, double(-levels), double(levels)));
+        if (bits == 8) row[k] = uint8_t(int8_t(code));
+        else row[k / 2] |= uint8_t((code + 8) << (4 * (k & 1)));
+      }
+    }
+  }
+  return out;
+}
+
+}  // namespace spar
