@@ -1,7 +1,7 @@
 // spar-modes (samples/spar_modes.cpp) as a user runs it, on its default inputs: the tiny model
 // of the spar_goldens fixture. Checks the report's structure, not its timings: every mode
 // present, every number finite, the static modes without DINOv3 / CV-DRP and with fewer weight
-// bytes, fp16 weights with fewer bytes than fp32, errors of the expected size, the markdown on
+// bytes, fp16 weights with fewer bytes than fp32 and q8 / q4 fewer still, errors of the expected size, the markdown on
 // stdout and the SVG plot written.
 #include <gtest/gtest.h>
 
@@ -52,10 +52,12 @@ TEST(SparModes, ReportOnTinyModel) {
   const Result r = run("--repeat 1 --out '" + (scratch() / "report").string() + "'");
   ASSERT_EQ(r.code, 0) << r.err;
   const nlohmann::json j = nlohmann::json::parse(readText(scratch() / "report" / "modes.json"));
-  ASSERT_EQ(j.at("modes").size(), 4u);
+  const std::vector<std::string> names = {"fp32",        "fp16",        "q8",        "q4",
+                                          "fp32-static", "fp16-static", "q8-static", "q4-static"};
+  ASSERT_EQ(j.at("modes").size(), names.size());
   std::map<std::string, nlohmann::json> modes;
   for (const auto& m : j.at("modes")) modes[m.at("mode").get<std::string>()] = m;
-  for (const char* name : {"fp32", "fp16", "fp32-static", "fp16-static"}) {
+  for (const std::string& name : names) {
     SCOPED_TRACE(name);
     ASSERT_TRUE(modes.count(name));
     const nlohmann::json& m = modes.at(name);
@@ -84,25 +86,29 @@ TEST(SparModes, ReportOnTinyModel) {
       ASSERT_TRUE(finiteNumber(e.at("mask_agreement")));
       EXPECT_GE(e.at("mask_agreement").get<double>(), 0.999);  // measured: 100%
     }
-    // The engine against the reference of its own mode: fp32 measured 147 dB, fp16 99 dB.
-    const bool half = m.at("weights") == "f16";
-    EXPECT_GE(m.at("vs_same_mode_reference").at("rgb_psnr_db").get<double>(), half ? 80.0 : 120.0);
+    // The engine against the reference of its own mode (fp32 for q8 / q4): fp32 measured
+    // 147 dB, fp16 99 dB, q8 72 dB, q4 48 dB.
+    const std::string weights = m.at("weights");
+    const double bound = weights == "f32" ? 120.0 : weights == "f16" ? 80.0 : weights == "q8" ? 60.0 : 40.0;
+    EXPECT_GE(m.at("vs_same_mode_reference").at("rgb_psnr_db").get<double>(), bound) << weights;
   }
   const auto bytes = [&](const char* name) { return modes.at(name).at("weight_bytes").get<uint64_t>(); };
   EXPECT_LT(bytes("fp32-static"), bytes("fp32"));
   EXPECT_LT(bytes("fp16-static"), bytes("fp16"));
   EXPECT_LT(bytes("fp16"), bytes("fp32"));
   EXPECT_LT(bytes("fp16-static"), bytes("fp32-static"));
+  EXPECT_LT(bytes("q8"), bytes("fp16"));
+  EXPECT_LT(bytes("q4"), bytes("q8"));
+  EXPECT_LT(bytes("q4-static"), bytes("q8-static"));
 
   // The table on stdout (and in modes.md), one row per mode; the plot with one point per mode.
   EXPECT_EQ(r.out, readText(scratch() / "report" / "modes.md"));
-  for (const char* row : {"| fp32 |", "| fp16 |", "| fp32-static |", "| fp16-static |"})
-    EXPECT_NE(r.out.find(row), std::string::npos) << row;
+  for (const std::string& name : names) EXPECT_NE(r.out.find("| " + name + " |"), std::string::npos) << name;
   const std::string svg = readText(scratch() / "report" / "modes.svg");
   EXPECT_EQ(svg.rfind("<svg", 0), 0u);
   size_t circles = 0;
   for (size_t at = svg.find("<circle"); at != std::string::npos; at = svg.find("<circle", at + 1)) ++circles;
-  EXPECT_EQ(circles, 4u);
+  EXPECT_EQ(circles, names.size());
 
   // A second report reuses the reference's goldens (same inputs) and may select modes.
   const Result again = run("--repeat 1 --modes fp16-static --out '" + (scratch() / "report").string() + "'");
