@@ -20,6 +20,7 @@
 
 #include "engine/half.h"
 #include "model/packed_model.h"
+#include "model/quantized_matrices.h"
 #include "pipeline_check.h"
 #include "test_support.h"
 
@@ -79,7 +80,8 @@ struct Outputs {
   uint64_t bytes = 0;
 };
 
-Outputs runInterleaved(Engine& engine, const std::string& modelPath, DType weightType) {
+// keepWeights: every uploaded weight downloaded into Outputs::weights (f32 / f16 ones).
+Outputs runInterleaved(Engine& engine, const std::string& modelPath, DType weightType, bool keepWeights = true) {
   const GoldenCase g("interleaved");
   const PackedModel model = PackedModel::open(modelPath);
   SparPipeline pipe(engine, model, {.profile = false, .weightType = weightType});
@@ -94,9 +96,47 @@ Outputs runInterleaved(Engine& engine, const std::string& modelPath, DType weigh
   r.rgb = pipe.renderTargets();
   r.bytes = pipe.weightBytesLoaded();
   const WeightSet& w = pipe.weights();
-  for (const auto& [name, dtype] : w.loaded())
+  if (keepWeights)
+    for (const auto& [name, dtype] : w.loaded())
     r.weights[name + ":" + dtypeName(dtype)] = engine.download(w.loadedTensor(name, dtype));
   return r;
+}
+
+// ---- Quantized matrices (converter/FORMAT.md, "Quantized matrices")
+
+std::string quantizedPack(DType q) { return goldenPath(q == DType::Q8 ? "tiny_q8.spar" : "tiny_q4.spar"); }
+
+// What `spar-convert --weights q8` quantizes is exactly what isQuantizedMatrix names (the rule
+// the engine applies at upload to an fp32 file); every other tensor is stored as in the fp32 file.
+TEST_F(SparPrecisionTest, QuantizedRuleIsTheConverters) {
+  const PackedModel f32 = PackedModel::open(tinyModelPath()), pack = PackedModel::open(quantizedPack(DType::Q8));
+  EXPECT_EQ(pack.metadata().at("format_version"), PackedModel::kQuantFormatVersion);
+  size_t quantized = 0;
+  for (const std::string& name : f32.names()) {
+    const PackedTensorInfo& info = f32.info(name);
+    ASSERT_TRUE(pack.has(name)) << name;
+    const bool q = pack.info(name).quantBits == 8;
+    EXPECT_EQ(q, isQuantizedMatrix(name, info.shape)) << name;
+    EXPECT_EQ(pack.info(name).shape, info.shape) << name;
+    if (!q) EXPECT_EQ(pack.info(name).dtype, info.dtype) << name;
+    quantized += q;
+  }
+  EXPECT_GT(quantized, 30u);
+}
+
+// Q8 / Q4 at upload from the fp32 file == the q8 / q4 pack read as stored: the same codes and
+// scales (both quantize the same float32 values by the same rule), so the same outputs, bit for
+// bit, and the same bytes on the device.
+TEST_F(SparPrecisionTest, QuantizedPackEqualsUpload) {
+  for (DType q : {DType::Q8, DType::Q4}) {
+    SCOPED_TRACE(dtypeName(q));
+    const Outputs pack = runInterleaved(eng(), quantizedPack(q), DType::F32, false);
+    const Outputs upload = runInterleaved(eng(), tinyModelPath(), q, false);
+    EXPECT_EQ(pack.rgb, upload.rgb);
+    EXPECT_EQ(pack.motionInput, upload.motionInput);
+    EXPECT_EQ(pack.motionTarget, upload.motionTarget);
+    EXPECT_EQ(pack.bytes, upload.bytes);
+  }
 }
 
 // F16 at upload from the F32 file == the --fp16 pack: the same weights on the device, bit for

@@ -24,6 +24,7 @@ writes OUT_DIR/
     focal_large/, focal_small/ a model whose canonical_k_head predicts focal 1001.25 / 0.001
   and what single test programs read beyond those (made here once per build, not once per test):
     tiny16.spar               tiny.pt packed with --fp16
+    tiny_q8.spar, tiny_q4.spar tiny.pt packed with --weights q8 / q4
     dino/                     make_dino_golden.py: DINOv3 on constant and non-square images
     cv_drp/                   make_cv_drp_golden.py: pairs.json and identical/
     masked/                   make_mask_model.py: masked.pt / masked.spar (mixed motion masks)
@@ -228,6 +229,8 @@ def main():
     convert("-q", ck, "--config", cfg_path, "-o", packed)
     # The same checkpoint packed with --fp16 (tests/test_spar_precision.cpp).
     convert("-q", "--fp16", ck, "--config", cfg_path, "-o", os.path.join(out, "tiny16.spar"))
+    for q in ("q8", "q4"):  # and quantized (tests/test_spar_precision.cpp)
+        convert("-q", "--weights", q, ck, "--config", cfg_path, "-o", os.path.join(out, "tiny_%s.spar" % q))
     cases = {
         "interleaved": ["--frames", *f, "--inputs", "0,2,4"],
         "odd_targets": ["--frames", *f, "--inputs", "1,3"],
