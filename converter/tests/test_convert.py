@@ -227,6 +227,63 @@ def test_fp16_halves_the_matrices(f32, work):
     assert os.path.getsize(out16) < 0.6 * os.path.getsize(out32)
 
 
+@pytest.mark.parametrize("kind", ["q8", "q4"])
+def test_quantized_weights_layout_and_error(f32, work, kind):
+    """--weights q8 / q4 (FORMAT.md "Quantized matrices"): the rule's matrices as codes and
+    <name>.qscale, recorded in __metadata__.quantized, format version 2; every value within half a
+    step of its block's scale of the fp32 one; all else stored as in the fp32 file."""
+    from spar_convert import quantize as q
+    from spar_convert.convert import is_quantized
+    out32, _, f, _, _, _ = f32
+    outq, _, _ = convert(work, "tiny_%s.spar" % kind, "--weights", kind)
+    h, meta, cfg, rec = read(outq)
+    assert meta["format_version"] == "2" and rec["weights"] == kind and rec["fp16"] is False
+    records = json.loads(meta["quantized"])
+    names = [n for n in f.keys() if is_quantized(n, f.info(n).shape)]
+    assert sorted(records) == sorted(names) and len(names) > 30
+    for name in f.keys():
+        i32 = f.info(name)
+        if name not in records:
+            assert h.info(name).dtype == i32.dtype and h.get(name).tobytes() == f.get(name).tobytes(), name
+            continue
+        n, k = i32.shape
+        assert records[name] == {"bits": q.BITS[kind], "block": 32, "shape": [n, k]}
+        codes, scales = h.get(name), h.get(name + ".qscale")
+        assert codes.dtype == (np.int8 if kind == "q8" else np.uint8) and codes.shape == ((n, k) if kind == "q8" else (n, k // 2))
+        assert scales.dtype == np.float32 and scales.shape == (n, k // 32)
+        w = f.get(name).astype(np.float64)
+        err = np.abs(q.dequantize(codes, scales, kind) - w).reshape(n, k // 32, 32).max(axis=2)
+        assert np.all(err <= scales.astype(np.float64) * 0.5 + 1e-12), name
+        assert rec["converted"][name].endswith("-> " + kind)
+    ratio = os.path.getsize(outq) / os.path.getsize(out32)
+    print("%s: %.3f of the fp32 file" % (kind, ratio))
+    assert ratio < (0.75 if kind == "q8" else 0.7)  # the tiny model's embeddings and heads stay fp32
+
+
+def test_quantize_stiff_blocks():
+    """One outlier of 1e4 among values of 1e-2 (they become 0), an all-zero block (scale 0, codes
+    0), a block of float's smallest normal values: scales finite and the values within half a step."""
+    from spar_convert import quantize as q
+    w = np.full((2, 96), 1e-2)
+    w[:, 5] = 1e4
+    w[:, 32:64] = 0.0
+    w[:, 64:] = np.finfo(np.float32).tiny * np.arange(32) % 3
+    for kind in ("q8", "q4"):
+        codes, scales = q.quantize(w, kind)
+        assert np.all(np.isfinite(scales)) and np.all(scales[:, 1] == 0)
+        d = q.dequantize(codes, scales, kind)
+        assert np.all(d[:, 32:64] == 0) and d[0, 5] == pytest.approx(1e4, rel=1e-6)
+        assert np.all(np.abs(d - w).reshape(2, 3, 32).max(axis=2) <= scales * 0.5 + 1e-45)
+    with pytest.raises(ValueError, match="whole blocks"):
+        q.quantize(np.ones((2, 40)), "q8")
+
+
+def test_fp16_and_other_weights_conflict(work):
+    _, _, se = convert(work, "conflict.spar", "--fp16", "--weights", "q8", expect=2)
+    assert "--fp16 is --weights fp16" in se
+    assert not os.path.exists(os.path.join(work["dir"], "conflict.spar"))
+
+
 def test_separate_dino_file_overrides(work):
     d = work["dir"]
     other = DinoV3Backbone(tiny().dino, seed=99, perturb=True)
