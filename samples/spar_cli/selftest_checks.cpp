@@ -7,6 +7,8 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <random>
 
 #include "engine/ops/attention.h"
@@ -15,6 +17,7 @@
 #include "engine/ops/norm.h"
 #include "engine/ops/reduce_channels.h"
 #include "engine/ops/unary.h"
+#include "model/quantized_matrices.h"
 
 namespace spar::cli {
 namespace {
@@ -93,6 +96,49 @@ SelftestCheck linearF16Check(Engine& engine) {
           for (int64_t n = 0; n < N; ++n) {
             double s = 0;
             for (int64_t k = 0; k < K; ++k) s += double(x[size_t(m * K + k)]) * double(wRounded[size_t(n * K + k)]);
+            y[size_t(m * N + n)] = s;
+          }
+        return y;
+      });
+}
+
+// Quantized weight matrices (q8 / q4: the GEMM dequantizes them, converter/FORMAT.md), against
+// float64 of the dequantized weights, with the stiff blocks: row 0 has an outlier of 1e4 among
+// values of 0.1, row 1 an all-zero block, row 2 a block of float's smallest normal values.
+SelftestCheck linearQuantizedCheck(Engine& engine, DType q) {
+  const int64_t M = 67, N = 130, K = 96;
+  const auto x = uniform(size_t(M * K), -1, 1, 91);
+  auto w = uniform(size_t(N * K), -0.1f, 0.1f, 92);
+  w[7] = 1e4f;
+  for (int64_t k = 32; k < 64; ++k) w[size_t(K + k)] = 0.0f;
+  for (int64_t k = 64; k < 96; ++k) w[size_t(2 * K + k)] = float(k % 3) * std::numeric_limits<float>::min();
+  const std::vector<uint8_t> rows = quantizeRows(w, N, K, q);
+  const int bits = q == DType::Q8 ? 8 : 4;
+  const size_t codeBytes = size_t(K) * size_t(bits) / 8, rowBytes = codeBytes + size_t(K) / 8;
+  auto value = [&](int64_t n, int64_t k) {  // code * scale, as the kernel computes it
+    const uint8_t* row = rows.data() + size_t(n) * rowBytes;
+    float scale;
+    std::memcpy(&scale, row + codeBytes + size_t(k / 32) * 4, 4);
+    const int code = bits == 8 ? int(int8_t(row[k])) : int((row[k / 2] >> (4 * (k & 1))) & 0xF) - 8;
+    return double(float(code) * scale);
+  };
+  return check(
+      engine, std::string("linear 67x130x96, ") + dtypeName(q) + " weights, stiff blocks",
+      // max abs: 1e-6 of the outputs' scale, 1e4 in row 0 (fp32 accumulation; measured 3-4e-3)
+      std::string(familyName(KernelFamily::CpuBlocks)) + " (dequantizing)", 1e-9, 1e-2,
+      [&](Recorder& rec) {
+        Tensor tx = engine.fromFloats({M, K}, x), tw = engine.tensor({N, K}, q);
+        engine.write(tw, rows.data(), rows.size());
+        Tensor y = engine.tensor({M, N});
+        linear(rec, tx, tw, Tensor(), y);
+        return y;
+      },
+      [&] {
+        std::vector<double> y(size_t(M * N));
+        for (int64_t m = 0; m < M; ++m)
+          for (int64_t n = 0; n < N; ++n) {
+            double s = 0;
+            for (int64_t k = 0; k < K; ++k) s += double(x[size_t(m * K + k)]) * value(n, k);
             y[size_t(m * N + n)] = s;
           }
         return y;
@@ -261,6 +307,8 @@ std::vector<SelftestCheck> runSelftestChecks(Engine& engine) {
   checks.push_back(linearCheck(engine, 130, 768, 518, false, 21));
   // fp16 weights where the device can read them (elsewhere the engine keeps weights fp32).
   if (engine.readsFp16Inputs()) checks.push_back(linearF16Check(engine));
+  // Quantized weights: every device reads them (32-bit words).
+  for (DType q : {DType::Q8, DType::Q4}) checks.push_back(linearQuantizedCheck(engine, q));
   checks.push_back(attentionCheck(engine));
   checks.push_back(layerNormCheck(engine));
   checks.push_back(softmaxCheck(engine));
