@@ -17,6 +17,7 @@ bool isQuantizedMatrix(const std::string& name, const Shape& shape) {
       "|(?:dino\\.blocks|lseg\\.pretrained\\.model\\.blocks)\\.\\d+\\.(?:attn\\.qkv|attn\\.proj|mlp\\.fc1|mlp\\.fc2)\\.weight"
       "|clip\\.transformer\\.resblocks\\.\\d+\\.(?:attn\\.in_proj_weight|attn\\.out_proj\\.weight|mlp\\.c_fc\\.weight"
       "|mlp\\.c_proj\\.weight)"
+      "|clip\\.token_embedding\\.weight"
       "|(?:semantic_token_decoder|mlp_fuse|pe_embedder|temporal_pe_embedder|image_tokenizer|target_pose_tokenizer"
       "|target_pose_tokenizer2|target_pose_tokenizer_semantic"
       "|cv_drp\\.estimator\\.fusion_mlp\\.net)\\.\\d+\\.weight)$");

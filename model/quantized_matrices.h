@@ -12,8 +12,8 @@
 namespace spar {
 
 // The converter's rule (QUANTIZED_MATRICES in converter/spar_convert/convert.py): the linear
-// layers of the transformer blocks and SPAR's other linear layers but the RGB head, 2-D with
-// rows of whole blocks of 32.
+// layers of the transformer blocks and SPAR's other linear layers but the RGB head, and CLIP's
+// token embedding (engine/ops/embedding.h reads it quantized), 2-D with rows of whole blocks of 32.
 bool isQuantizedMatrix(const std::string& name, const Shape& shape);
 
 // Rows of codes then scales (engine/tensor.h DType::Q8 / Q4) of the row-major [N, K] matrix

@@ -1,6 +1,11 @@
 // Embedding lookup (shaders/embedding.comp via engine/ops/embedding.cpp): exact row copies
-// from f32 and f16 tables, repeated ids, ids outside the table (zero rows), odd widths.
+// from f32 and f16 tables, q8 / q4 tables dequantized, repeated ids, ids outside the table
+// (zero rows), odd widths.
 #include "engine/ops/embedding.h"
+
+#include <cstring>
+
+#include "model/quantized_matrices.h"
 #include "tests/test_support.h"
 
 namespace spar::test {
@@ -34,6 +39,35 @@ TEST_F(EngineTest, EmbeddingF32OddWidth) { check(eng(), 61, 7, DType::F32, {0, 6
 TEST_F(EngineTest, EmbeddingF16) {  // an fp16 table read as fp16 texels or as halves in words
   if (!eng().readsFp16Inputs()) GTEST_SKIP() << "device without fp16 inputs";
   check(eng(), 257, 64, DType::F16, {256, 1, 2, 3, 128, 1});
+}
+// A quantized table (CLIP's token embedding under q8 / q4, model/quantized_matrices.h): each row
+// dequantized exactly as code * scale (the row layout quantizeRows makes), invalid ids zero.
+TEST_F(EngineTest, EmbeddingQuantizedTable) {
+  const int64_t V = 37, D = 96;
+  const std::vector<float> table = randomUniform(size_t(V * D), -3, 3, 213);
+  const std::vector<int32_t> ids = {36, 0, 5, 5, -1, 37, 20};
+  for (DType q : {DType::Q8, DType::Q4}) {
+    SCOPED_TRACE(dtypeName(q));
+    const std::vector<uint8_t> rows = quantizeRows(table, V, D, q);
+    const Tensor t = eng().tensor({V, D}, q);
+    eng().write(t, rows.data(), rows.size());
+    const int bits = q == DType::Q8 ? 8 : 4;
+    const size_t codeBytes = size_t(D) * size_t(bits) / 8, rowBytes = codeBytes + size_t(D) / 8;
+    std::vector<float> values(table.size());
+    for (int64_t v = 0; v < V; ++v)
+      for (int64_t d = 0; d < D; ++d) {
+        const uint8_t* row = rows.data() + size_t(v) * rowBytes;
+        float scale;
+        std::memcpy(&scale, row + codeBytes + size_t(d / 32) * 4, 4);
+        const int code = bits == 8 ? int(int8_t(row[d])) : int((row[d / 2] >> (4 * (d & 1))) & 0xF) - 8;
+        values[size_t(v * D + d)] = float(code) * scale;
+      }
+    GuardedOutput out(eng(), {int64_t(ids.size()), D});
+    Recorder rec(eng());
+    embedding(rec, t, idTensor(eng(), ids), out.tensor());
+    rec.run();
+    EXPECT_EQ(out.read(), gatherRef(values, V, D, ids));
+  }
 }
 TEST_F(EngineTest, EmbeddingInvalidIdsGiveZeros) { check(eng(), 61, 9, DType::F32, {-1, 61, 3, 1000000, 60}); }
 TEST_F(EngineTest, EmbeddingManyTokens) {

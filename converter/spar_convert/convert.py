@@ -969,6 +969,8 @@ QUANTIZED_MATRICES = re.compile(
     r"|(?:dino\.blocks|lseg\.pretrained\.model\.blocks)\.\d+\.(?:attn\.qkv|attn\.proj|mlp\.fc1|mlp\.fc2)\.weight"
     r"|clip\.transformer\.resblocks\.\d+\.(?:attn\.in_proj_weight|attn\.out_proj\.weight|mlp\.c_fc\.weight"
     r"|mlp\.c_proj\.weight)"
+    # CLIP's token embedding (the embedding kernel dequantizes its rows)
+    r"|clip\.token_embedding\.weight"
     # SPAR's other linear layers: the semantic head (the largest single matrix), the fusion MLPs,
     # the tokenizers and position MLPs, the RGB head
     r"|(?:semantic_token_decoder|mlp_fuse|pe_embedder|temporal_pe_embedder|image_tokenizer|target_pose_tokenizer"
@@ -1185,7 +1187,6 @@ def convert(args, out=None):
         record = {
             "converter": PROG,
             "fp16": args.weights == "fp16",
-            "weights": args.weights,
             "components": components,
             "sources": {k: v for k, v in inp.source_of.items()},
             "files": [{"role": r, "path": os.path.basename(p), "bytes": n} for r, p, n in inp.files],
@@ -1206,8 +1207,10 @@ def convert(args, out=None):
             "components": json.dumps(components, sort_keys=True, separators=(",", ":")),
             "conversion": json.dumps(record, sort_keys=True, separators=(",", ":")),
         }
-        if quantized:
+        if quantized:  # only then: a file without quantized matrices stays what it was
+            record["weights"] = args.weights
             metadata["quantized"] = json.dumps(quantized, sort_keys=True, separators=(",", ":"))
+            metadata["conversion"] = json.dumps(record, sort_keys=True, separators=(",", ":"))
         if card is not None:
             metadata["model_card"] = card_text(card)
         if sam2_cfg is not None:

@@ -18,7 +18,7 @@ void embedding(Recorder& rec, const Tensor& table, const Tensor& ids, const Tens
   Engine& engine = rec.engine();
   const DeviceCaps& caps = engine.caps();
   if (!table.defined() || table.rank() != 2 || table.dtype() == DType::I32)
-    throw Error(op + ": table must be f32 or f16 [V, D], got " + (table.defined() ? table.describe() : "(none)"));
+    throw Error(op + ": table must be f32, f16, q8 or q4 [V, D], got " + (table.defined() ? table.describe() : "(none)"));
   if (!ids.defined() || ids.dtype() != DType::I32)
     throw Error(op + ": ids must be i32, got " + (ids.defined() ? ids.describe() : "(none)"));
   ops::requireF32(out, op, "out");
@@ -29,6 +29,17 @@ void embedding(Recorder& rec, const Tensor& table, const Tensor& ids, const Tens
   if (V == 0) throw Error(op + ": empty table");
   for (const Tensor* t : {&table, &out}) ops::checkElementCount(*t, op.c_str());
   if (out.bytes() > engine.device().bindingRangeLimit()) throw Error(op + ": out " + out.describe() + " exceeds one binding");
+
+  if (isQuantized(table.dtype())) {  // bound whole, as words (shaders/quant.glsl)
+    if (table.bytes() / 4 > ops::texelInputLimit(engine, 1))
+      throw Error(op + ": quantized table " + table.describe() + " exceeds one binding");
+    const Kernel& kernel = engine.kernel({"embedding_q_f32", {Bind::Texel, Bind::Read, Bind::Write}, sizeof(EmbeddingPush),
+                                          {ops::elementLocalX(engine.caps()), 1, 1, table.dtype() == DType::Q8 ? 8 : 4}});
+    const ops::Grid grid = ops::linearGrid(caps, ops::ceilDiv(uint64_t(T * D), ops::elementLocalX(engine.caps())), op);
+    const EmbeddingPush push{int32_t(T), int32_t(D), int32_t(V), 0, int32_t(V), 0, 1};
+    rec.dispatch(kernel, {Arg::texel(table, 1), Arg::in(ids), Arg::out(out)}, push, grid.x, grid.y, 1, op);
+    return;
+  }
 
   // Row ranges of the table that fit one texel binding whose start is aligned for the device.
   const uint64_t es = dtypeSize(table.dtype());
