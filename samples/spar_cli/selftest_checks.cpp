@@ -75,6 +75,19 @@ SelftestCheck linearCheck(Engine& engine, int64_t M, int64_t N, int64_t K, bool 
       });
 }
 
+// float64 x W^T of x [M, K] and the weights w(n, k) the kernel reads.
+std::vector<double> productRef(const std::vector<float>& x, int64_t M, int64_t N, int64_t K,
+                               const std::function<double(int64_t, int64_t)>& w) {
+  std::vector<double> y(size_t(M * N));
+  for (int64_t m = 0; m < M; ++m)
+    for (int64_t n = 0; n < N; ++n) {
+      double s = 0;
+      for (int64_t k = 0; k < K; ++k) s += double(x[size_t(m * K + k)]) * w(n, k);
+      y[size_t(m * N + n)] = s;
+    }
+  return y;
+}
+
 // fp16 weight matrices (the fp16 precision): the plan's fp16 GEMM family (fp16 arithmetic or
 // cooperative matrices where the device has them), against float64 of the fp16-rounded weights.
 SelftestCheck linearF16Check(Engine& engine) {
@@ -90,16 +103,7 @@ SelftestCheck linearF16Check(Engine& engine) {
         linear(rec, tx, tw, Tensor(), y);
         return y;
       },
-      [&] {
-        std::vector<double> y(size_t(M * N));
-        for (int64_t m = 0; m < M; ++m)
-          for (int64_t n = 0; n < N; ++n) {
-            double s = 0;
-            for (int64_t k = 0; k < K; ++k) s += double(x[size_t(m * K + k)]) * double(wRounded[size_t(n * K + k)]);
-            y[size_t(m * N + n)] = s;
-          }
-        return y;
-      });
+      [&] { return productRef(x, M, N, K, [&](int64_t n, int64_t k) { return double(wRounded[size_t(n * K + k)]); }); });
 }
 
 // Quantized weight matrices (q8 / q4: the GEMM dequantizes them, converter/FORMAT.md), against
@@ -133,16 +137,7 @@ SelftestCheck linearQuantizedCheck(Engine& engine, DType q) {
         linear(rec, tx, tw, Tensor(), y);
         return y;
       },
-      [&] {
-        std::vector<double> y(size_t(M * N));
-        for (int64_t m = 0; m < M; ++m)
-          for (int64_t n = 0; n < N; ++n) {
-            double s = 0;
-            for (int64_t k = 0; k < K; ++k) s += double(x[size_t(m * K + k)]) * value(n, k);
-            y[size_t(m * N + n)] = s;
-          }
-        return y;
-      });
+      [&] { return productRef(x, M, N, K, value); });
 }
 
 SelftestCheck attentionCheck(Engine& engine) {
