@@ -3,25 +3,55 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
-#include <regex>
+#include <set>
 
 #include "engine/error.h"
 
 namespace spar {
 
+namespace {
+
+// `name` with every all-digit component (a layer index) written '#'.
+std::string withLayerIndices(const std::string& name) {
+  std::string out;
+  size_t begin = 0;
+  while (begin <= name.size()) {
+    size_t end = name.find('.', begin);
+    if (end == std::string::npos) end = name.size();
+    const std::string part = name.substr(begin, end - begin);
+    const bool digits = !part.empty() && std::all_of(part.begin(), part.end(), [](char c) { return c >= '0' && c <= '9'; });
+    if (begin) out += '.';
+    out += digits ? std::string("#") : part;
+    begin = end + 1;
+  }
+  return out;
+}
+
+std::set<std::string> quantizedPatterns() {
+  std::set<std::string> p = {"clip.token_embedding.weight"};
+  for (const char* stack : {"transformer_encoder", "transformer_encoder_geom", "transformer_decoder",
+                            "cv_drp.estimator.transformer_layers"})
+    for (const char* layer : {".#.attn.to_qkv.weight", ".#.attn.fc.weight", ".#.mlp.mlp.#.weight"})
+      p.insert(std::string(stack) + layer);
+  for (const char* vit : {"dino.blocks", "lseg.pretrained.model.blocks"})
+    for (const char* layer : {".#.attn.qkv.weight", ".#.attn.proj.weight", ".#.mlp.fc1.weight", ".#.mlp.fc2.weight"})
+      p.insert(std::string(vit) + layer);
+  for (const char* layer : {".#.attn.in_proj_weight", ".#.attn.out_proj.weight", ".#.mlp.c_fc.weight", ".#.mlp.c_proj.weight"})
+    p.insert(std::string("clip.transformer.resblocks") + layer);
+  for (const char* seq : {"semantic_token_decoder", "mlp_fuse", "pe_embedder", "temporal_pe_embedder", "image_tokenizer",
+                          "target_pose_tokenizer", "target_pose_tokenizer2", "target_pose_tokenizer_semantic",
+                          "cv_drp.estimator.fusion_mlp.net"})
+    p.insert(std::string(seq) + ".#.weight");
+  return p;
+}
+
+}  // namespace
+
 bool isQuantizedMatrix(const std::string& name, const Shape& shape) {
-  // Kept in step with converter/spar_convert/convert.py by tests/test_spar_quantized.cpp.
-  static const std::regex rule(
-      "^(?:(?:transformer_encoder|transformer_encoder_geom|transformer_decoder|cv_drp\\.estimator\\.transformer_layers)"
-      "\\.\\d+\\.(?:attn\\.to_qkv|attn\\.fc|mlp\\.mlp\\.\\d+)\\.weight"
-      "|(?:dino\\.blocks|lseg\\.pretrained\\.model\\.blocks)\\.\\d+\\.(?:attn\\.qkv|attn\\.proj|mlp\\.fc1|mlp\\.fc2)\\.weight"
-      "|clip\\.transformer\\.resblocks\\.\\d+\\.(?:attn\\.in_proj_weight|attn\\.out_proj\\.weight|mlp\\.c_fc\\.weight"
-      "|mlp\\.c_proj\\.weight)"
-      "|clip\\.token_embedding\\.weight"
-      "|(?:semantic_token_decoder|mlp_fuse|pe_embedder|temporal_pe_embedder|image_tokenizer|target_pose_tokenizer"
-      "|target_pose_tokenizer2|target_pose_tokenizer_semantic"
-      "|cv_drp\\.estimator\\.fusion_mlp\\.net)\\.\\d+\\.weight)$");
-  return shape.size() == 2 && shape[1] % 32 == 0 && std::regex_match(name, rule);
+  // Kept in step with QUANTIZED_MATRICES of converter/spar_convert/convert.py by
+  // tests/test_spar_precision.cpp (QuantizedRuleIsTheConverters).
+  static const std::set<std::string> patterns = quantizedPatterns();
+  return shape.size() == 2 && shape[1] % 32 == 0 && patterns.count(withLayerIndices(name)) != 0;
 }
 
 std::vector<uint8_t> quantizeRows(const std::vector<float>& w, int64_t N, int64_t K, DType type) {

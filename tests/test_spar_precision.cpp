@@ -107,21 +107,29 @@ Outputs runInterleaved(Engine& engine, const std::string& modelPath, DType weigh
 std::string quantizedPack(DType q) { return goldenPath(q == DType::Q8 ? "tiny_q8.spar" : "tiny_q4.spar"); }
 
 // What `spar-convert --weights q8` quantizes is exactly what isQuantizedMatrix names (the rule
-// the engine applies at upload to an fp32 file); every other tensor is stored as in the fp32 file.
+// the engine applies at upload to an fp32 file); every other tensor is stored as in the fp32
+// file. On the tiny model and on the semantic one (LSeg's ViT, CLIP's tower and token embedding).
 TEST_F(SparPrecisionTest, QuantizedRuleIsTheConverters) {
-  const PackedModel f32 = PackedModel::open(tinyModelPath()), pack = PackedModel::open(quantizedPack(DType::Q8));
-  EXPECT_EQ(pack.metadata().at("format_version"), PackedModel::kQuantFormatVersion);
-  size_t quantized = 0;
-  for (const std::string& name : f32.names()) {
-    const PackedTensorInfo& info = f32.info(name);
-    ASSERT_TRUE(pack.has(name)) << name;
-    const bool q = pack.info(name).quantBits == 8;
-    EXPECT_EQ(q, isQuantizedMatrix(name, info.shape)) << name;
-    EXPECT_EQ(pack.info(name).shape, info.shape) << name;
-    if (!q) EXPECT_EQ(pack.info(name).dtype, info.dtype) << name;
-    quantized += q;
+  for (const auto& [fp32Path, q8Path] : {std::pair{tinyModelPath(), quantizedPack(DType::Q8)},
+                                         std::pair{semanticGoldenPath("tiny_semantic.spar"),
+                                                   semanticGoldenPath("tiny_semantic_q8.spar")}}) {
+    SCOPED_TRACE(q8Path);
+    const PackedModel f32 = PackedModel::open(fp32Path), pack = PackedModel::open(q8Path);
+    EXPECT_EQ(pack.metadata().at("format_version"), PackedModel::kQuantFormatVersion);
+    size_t quantized = 0, backbones = 0;
+    for (const std::string& name : f32.names()) {
+      const PackedTensorInfo& info = f32.info(name);
+      ASSERT_TRUE(pack.has(name)) << name;
+      const bool q = pack.info(name).quantBits == 8;
+      EXPECT_EQ(q, isQuantizedMatrix(name, info.shape)) << name;
+      EXPECT_EQ(pack.info(name).shape, info.shape) << name;
+      if (!q) EXPECT_EQ(pack.info(name).dtype, info.dtype) << name;
+      quantized += q;
+      backbones += q && (name.rfind("clip.", 0) == 0 || name.rfind("lseg.", 0) == 0);
+    }
+    EXPECT_GT(quantized, 30u);
+    if (f32.has("clip.token_embedding.weight")) EXPECT_GT(backbones, 20u);
   }
-  EXPECT_GT(quantized, 30u);
 }
 
 // Q8 / Q4 at upload from the fp32 file == the q8 / q4 pack read as stored: the same codes and

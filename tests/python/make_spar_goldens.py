@@ -186,6 +186,9 @@ def main_semantic(out, bpe):
     reference("make-checkpoint", "--config", cfg_path, "--seed", "7", "--perturb", "--no-optimizer", "-o", ck)
     require_bpe(bpe)
     convert("-q", ck, "--config", cfg_path, "--bpe", bpe, "-o", packed)
+    # and with --weights q8: LSeg's and CLIP's matrices under the rule (tests/test_spar_precision.cpp)
+    convert("-q", "--weights", "q8", ck, "--config", cfg_path, "--bpe", bpe, "-o",
+            os.path.join(out, "tiny_semantic_q8.spar"))
     with open(os.path.join(out, "labels.json"), "w") as fh:
         json.dump(LABELS, fh, ensure_ascii=False)
     labels = ["--labels", ",".join(LABELS), "--bpe", bpe]
