@@ -349,12 +349,16 @@ void PackedModel::parseQuantized() {
 void PackedModel::checkScales(const std::string& name) const {
   const auto& i = info(name);
   const auto bytes = data(i.scales);
+  // The largest code magnitude (128: an int8 of -128; 8: a nibble of 0) times the scale must stay
+  // a finite float, or a value would be infinite.
+  const float largest = std::numeric_limits<float>::max() / (i.quantBits == 8 ? 128.0f : 8.0f);
   for (size_t b = 0; b < bytes.size() / 4; ++b) {
     float s;
     std::memcpy(&s, bytes.data() + 4 * b, 4);
-    if (!(s >= 0.0f && s <= std::numeric_limits<float>::max()))
+    if (!(s >= 0.0f && s <= largest))
       fail(path_, "quantized tensor " + quoted(name) + ": block " + std::to_string(b) + " has the scale " +
-                      std::to_string(s) + " (a scale is finite and not negative; the file is damaged)");
+                      std::to_string(s) + " (a scale is finite, not negative, and at most float's largest / " +
+                      (i.quantBits == 8 ? "128" : "8") + "; the file is damaged)");
   }
 }
 

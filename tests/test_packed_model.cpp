@@ -491,8 +491,10 @@ TEST_F(HandMadeFileTest, QuantizedMatricesAreReadAndBadRecordsRefused) {
   expectRefused(write("q_scalerecord.spar", file(scaleShape)), "quantized tensor 'v.qscale'");
   expectRefused(write("q_v1.spar", file(good, {0.5f, 0.25f}, "1")), "__metadata__ quantized in a format_version '1'");
   expectRefused(write("q_notobject.spar", file(json("["))), "quantized is not a JSON object");
-  // A scale that is not a finite non-negative float: refused when the matrix is read.
-  for (float bad : {std::nanf(""), std::numeric_limits<float>::infinity(), -1.0f}) {
+  // A scale that is not a finite non-negative float, or too large for its codes: refused when
+// the matrix is read.
+  // (and one whose largest code times it would not be a finite float: 128 * 3e38)
+  for (float bad : {std::nanf(""), std::numeric_limits<float>::infinity(), -1.0f, 3e38f}) {
     PackedModel m = PackedModel::open(write("q_scale.spar", file(good, {0.5f, bad})));
     try {
       m.upload(eng(), "w", DType::Q8);

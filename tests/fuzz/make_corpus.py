@@ -4,7 +4,8 @@
     tests/fuzz/corpus/spar_reader/*.spar   small packed models (converter's safetensors writer,
                                             real tiny / full configs, every dtype, empty and
                                             scalar tensors, a non-finite weight, a model card,
-                                            a SAM2.1 variant's metadata and tensors)
+                                            a SAM2.1 variant's metadata and tensors, quantized
+                                            q8 / q4 matrices)
     tests/fuzz/corpus/checkpoint/*.pt      small torch.save checkpoints (bare state_dict, the
                                             training wrapper, parameters, views sharing a
                                             storage, a deflated zip, a TorchScript archive)
@@ -29,7 +30,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "converter"))
 
 from spar_convert import model_config  # noqa: E402
-from spar_convert.convert import FORMAT, FORMAT_VERSION  # noqa: E402
+from spar_convert.convert import FORMAT, FORMAT_VERSION, QUANT_FORMAT_VERSION  # noqa: E402
 from spar_convert.model_card import card_text  # noqa: E402
 from spar_convert.safetensors_file import write_safetensors  # noqa: E402
 
@@ -76,6 +77,16 @@ def spar_seeds(out):
            {"sam2.image_encoder.trunk.pos_embed": np.ones((1, 8, 7, 7), dtype=np.float32),
             "sam2.no_mem_embed": np.zeros((1, 1, 64), dtype=np.float16)},
            extra={"sam2_config": json.dumps(sam2, sort_keys=True, separators=(",", ":"))})
+    # Quantized matrices (format version 2, FORMAT.md "Quantized matrices"): a q8 and a q4 one.
+    packed(out / "quantized.spar", photometric,
+           {"w": (np.arange(64) % 9 - 4).astype(np.int8).reshape(2, 32),
+            "w.qscale": np.array([[0.5], [0.25]], dtype=np.float32),
+            "v": np.full((1, 32), 0x1F, dtype=np.uint8),
+            "v.qscale": np.array([[1.0, 2.0]], dtype=np.float32)},
+           extra={"format_version": QUANT_FORMAT_VERSION,
+                  "quantized": json.dumps({"w": {"bits": 8, "block": 32, "shape": [2, 32]},
+                                           "v": {"bits": 4, "block": 32, "shape": [1, 64]}},
+                                          sort_keys=True, separators=(",", ":"))})
     packed(out / "nonfinite.spar", tiny,
            {"inf": np.array([1, np.inf], dtype=np.float32), "nan": np.array([np.nan], dtype=np.float16)})
 

@@ -59,13 +59,15 @@ void touchTensors(const spar::PackedModel& m) {
     const auto& info = m.info(name);  // a listed name must be found
     const auto bytes = m.data(name);
     require(info.begin <= info.end && bytes.size() == info.bytes(), "data span matches info");
-    require(info.bytes() == static_cast<uint64_t>(info.numel()) * spar::fileDTypeSize(info.dtype),
+    // (a quantized matrix's shape is the matrix's, its bytes its codes': bits / 8 a value)
+    require(info.quantBits ? info.bytes() * 8 == static_cast<uint64_t>(info.numel()) * uint64_t(info.quantBits)
+                           : info.bytes() == static_cast<uint64_t>(info.numel()) * spar::fileDTypeSize(info.dtype),
             "byte count matches dtype and shape");
     require(8 + info.end <= m.fileBytes(), "tensor inside the file");
     for (uint8_t b : bytes) sum += b;  // every byte read: out-of-bounds shows under ASan
     try {
       m.checkFinite(name);
-      if (info.dtype == spar::FileDType::F32 || info.dtype == spar::FileDType::F16) {
+      if (info.dtype == spar::FileDType::F32 || info.dtype == spar::FileDType::F16 || info.quantBits) {
         const std::vector<float> v = m.floats(name);
         require(v.size() == static_cast<size_t>(info.numel()), "floats() size");
         for (float x : v) require(std::isfinite(x), "floats() after checkFinite are finite");
