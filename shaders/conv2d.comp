@@ -13,10 +13,17 @@
 // constants so every index into the tile is a compile-time constant.
 // Measured on llvmpipe, 2 threads: 3x3, 64 -> 64 channels, 128x128, RC 16 x RY 2 x RX 8:
 // about 21 ms (57 GFLOPS); reading x as RGBA texels instead of R saves about 25%.
-//! variant conv2d_f32 OUT4=0
-//! variant conv2d_f32_out4 OUT4=1
+//
+// W_QUANT: w is a block-quantized kernel (q8 / q4 by W_BITS, shaders/quant.glsl): the matrix
+// [Cout, Cin*KH*KW], each row its code words then its scales, dequantized per RGBA texel of 4
+// weights as the rows are read (TEXEL_W is 4: the host quantizes only rows of whole blocks of 32).
+//! variant conv2d_f32 OUT4=0 W_QUANT=0
+//! variant conv2d_f32_out4 OUT4=1 W_QUANT=0
+//! variant conv2d_q_f32 OUT4=0 W_QUANT=1
+//! variant conv2d_q_f32_out4 OUT4=1 W_QUANT=1
 #extension GL_GOOGLE_include_directive : require
 #include "common.glsl"
+#include "quant.glsl"
 
 layout(local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in;
 layout(constant_id = 3) const int KH = 3;
@@ -39,9 +46,14 @@ layout(constant_id = 14) const int SHIFT = 0;
 // SIMD lanes of a CPU device; otherwise x and y index column and row blocks (2-D workgroup
 // tiles, which GPUs want for cache locality).
 layout(constant_id = 15) const bool FLAT = false;
+layout(constant_id = 16) const int W_BITS = 8;  // W_QUANT: 8 (q8) or 4 (q4)
 
 TEXEL_INPUT(0, X, TEXEL_X)     // TEXEL_X texels
+#if W_QUANT
+QUANT_INPUT(1, W)              // R32_UINT words of whole rows (quant.glsl)
+#else
 TEXEL_INPUT(1, W, TEXEL_W)     // TEXEL_W texels
+#endif
 TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
 // OUT4: y is written as whole vec4s, RX/4 per output row of the block (the host guarantees
 // RX, Wo and outBase multiples of 4). llvmpipe scatters a store whose address is not
@@ -59,7 +71,8 @@ layout(push_constant) uniform Push {
   int padY, padX;
   int coBlocks;   // ceil(Cout / RC)
   int zBase;      // first (image, channel block) unit of this dispatch
-  int inBase, wBase, biasBase;  // element of x, w, bias at texel 0 of X, W, BIAS
+  int inBase, wBase, biasBase;  // element of x, w, bias at texel 0 of X, W, BIAS (W_QUANT:
+                                 // wBase is the word of w's first row at word 0 of W)
   int outBase;                   // element of the output tensor at y[0]
 } p;
 
@@ -106,9 +119,14 @@ void main() {
     texIn[t] = tx >= 0 && tx < p.W / 4;
     texOff[t] = clamp(tx, 0, p.W / 4 - 1);
   }
-  // First weight of each channel of the block (channels past Cout repeat the last one).
+  // First weight of each channel of the block (channels past Cout repeat the last one); with
+  // W_QUANT the first word of its row (a row: Cin*KK/4 texels of codes and scales).
+  const int kTexels = p.Cin * KK / 4;
+  const int rowWords = W_BITS == 8 ? kTexels + kTexels / 8 : kTexels / 2 + kTexels / 8;
   int wOff[RC];
-  [[unroll]] for (int c = 0; c < RC; ++c) wOff[c] = min(co0 + c, p.Cout - 1) * p.Cin * KK - p.wBase;
+  [[unroll]] for (int c = 0; c < RC; ++c)
+    wOff[c] = W_QUANT != 0 ? min(co0 + c, p.Cout - 1) * rowWords - p.wBase
+                           : min(co0 + c, p.Cout - 1) * p.Cin * KK - p.wBase;
 
   float acc[RC * RY * RX];
   [[unroll]] for (int i = 0; i < RC * RY * RX; ++i) acc[i] = 0.0;
@@ -142,16 +160,26 @@ void main() {
     [[unroll]] for (int c = 0; c < RC; ++c) {
       float wv[G * KK];
       if (TEXEL_W == 4) {
+#if W_QUANT
+        const int t0 = ci0 * KK / 4;  // texel of the row
+#else
         const int t0 = (wOff[c] + ci0 * KK) / 4;
+#endif
         [[unroll]] for (int t = 0; t < G * KK / 4; ++t) {
+#if W_QUANT
+          const vec4 q = fetchq_W(wOff[c], t0 + t, kTexels);
+#else
           const vec4 q = fetch_W(t0 + t);
+#endif
           wv[4 * t] = q.x;
           wv[4 * t + 1] = q.y;
           wv[4 * t + 2] = q.z;
           wv[4 * t + 3] = q.w;
         }
       } else {
+#if !W_QUANT
         [[unroll]] for (int t = 0; t < G * KK; ++t) wv[t] = fetch_W(wOff[c] + ci0 * KK + t).x;
+#endif
       }
       [[unroll]] for (int g = 0; g < G; ++g)
         [[unroll]] for (int ky = 0; ky < KH; ++ky)

@@ -2,7 +2,9 @@
 #include "engine/ops/conv2d.h"
 
 #include <algorithm>
+#include <cmath>
 
+#include "tests/quantized_weights.h"
 #include "tests/test_support.h"
 
 namespace spar::test {
@@ -234,6 +236,65 @@ TEST_F(EngineTest, Conv2dOutputSplitIntoChunks) {
   lowered.restore();
   expectClose(y.read(), conv2dRef(c, x, w, b), 1e-8, 1e-4, "chunked");
   y.expectAllWritten();
+}
+
+// ---- Quantized kernels (engine/tensor.h DType::Q8 / Q4: the matrix [Cout, Cin*kh*kw]),
+// against float64 of the dequantized weights: the kernel adds no error beyond fp32
+// accumulation. Odd Cout, odd image sizes; a 3x3 with bias (K = 288: nine blocks), a 1x1 at
+// stride 2 without bias (the placeholder binding) and vec4 stores; the stiff blocks.
+void expectQuantizedConv(Engine& eng, const ConvCase& c, const std::vector<float>& w, int bits, const std::string& what) {
+  const int64_t K = c.Cin * c.KH * c.KW;
+  const auto x = randomUniform(c.N * c.Cin * c.H * c.W, -1, 1, 31);
+  const auto b = c.bias ? randomUniform(c.Cout, -1, 1, 32) : std::vector<float>{};
+  const QuantizedMatrix q = quantizeReference(w, c.Cout, K, bits);
+  Tensor tx = eng.fromFloats({c.N, c.Cin, c.H, c.W}, x), tw = quantizedTensor(eng, q, c.Cout, K, bits);
+  Tensor tb = c.bias ? eng.fromFloats({c.Cout}, b) : Tensor();
+  GuardedOutput y(eng, outShape(c));
+  Conv2dParams p = paramsOf(c);
+  p.kernelH = int(c.KH);
+  p.kernelW = int(c.KW);
+  Recorder rec(eng);
+  conv2d(rec, tx, tw, tb, y.tensor(), p);
+  rec.run();
+  const auto ref = conv2dRef(c, x, q.values, b);
+  // fp32 accumulation's own bound: K * 2^-24 * sum |w x| of an output (Higham's gamma_K); with
+  // an outlier of 1e4 every later product is added at that magnitude's spacing
+  auto absOf = [](std::vector<float> v) {
+    for (float& e : v) e = std::abs(e);
+    return v;
+  };
+  ConvCase plain = c;
+  plain.act = Activation::None;
+  double peak = 0, products = 0;
+  for (double v : ref) peak = std::max(peak, std::abs(v));
+  for (double v : conv2dRef(plain, absOf(x), absOf(q.values), {})) products = std::max(products, v);
+  const double accumulation = double(K) * std::ldexp(1.0, -24) * products;
+  expectClose(y.read(), ref, 1e-10 * std::max<int64_t>(1, K / 16), std::max(1e-6 * std::max(1.0, peak), accumulation), what);
+  y.expectAllWritten();
+}
+
+TEST_F(EngineTest, Conv2dQuantizedMatchesFloat64OfDequantized) {
+  const ConvCase c3{1, 32, 11, 9, 13, 3, 3, 1, 1, 1, true, Activation::None};
+  expectQuantizedConv(eng(), c3, randomUniform(13 * 32 * 9, -1, 1, 33), 8, "q8 3x3");
+  const ConvCase c1{2, 64, 10, 16, 7, 1, 1, 2, 0, 0, false, Activation::None};  // Wo 8: vec4 stores
+  expectQuantizedConv(eng(), c1, randomUniform(7 * 64, -1, 1, 34), 4, "q4 1x1 stride 2");
+  // the stiff blocks: one row of 9 blocks per output channel, the first three stiff
+  expectQuantizedConv(eng(), c3, stiffQuantizedRows(13, 32 * 9, 35), 4, "q4 3x3 stiff");
+}
+
+TEST_F(EngineTest, Conv2dQuantizedRefusesWhatItCannotRead) {
+  Tensor x = eng().tensor({1, 32, 8, 8}), y = eng().tensor({1, 6, 8, 8});
+  Tensor w = eng().tensor({6, 32 * 9}, DType::Q8);
+  Recorder rec(eng());
+  Conv2dParams p;
+  p.padY = p.padX = 1;
+  EXPECT_THROW(conv2d(rec, x, w, Tensor(), y, p), Error);  // no kernel size
+  p.kernelH = p.kernelW = 3;
+  EXPECT_NO_THROW(conv2d(rec, x, w, Tensor(), y, p));
+  p.kernelW = 1;
+  EXPECT_THROW(conv2d(rec, x, w, Tensor(), y, p), Error);  // K is not Cin * kh * kw
+  EXPECT_EQ(rec.pending(), 1u);
+  rec.run();
 }
 
 TEST_F(EngineTest, Conv2dRejectsBadShapes) {

@@ -6,6 +6,7 @@
 #include <cstring>
 #include <limits>
 
+#include "tests/quantized_weights.h"
 #include "tests/test_support.h"
 
 namespace spar::test {
@@ -161,50 +162,11 @@ TEST_F(EngineTest, LinearOutputAboveStorageRange) {
 // ---- Quantized weights (engine/tensor.h DType::Q8 / Q4, shaders/quant.glsl), against float64
 // of the dequantized weights: the kernel adds no error of its own beyond fp32 accumulation.
 
-// Rows of codes then scales, as PackedModel::upload lays them out, quantized here independently
-// of the converter (converter/spar_convert/quantize.py): per block of 32, scale = max|w| / Q
-// (127 or 7) rounded to f32, code = round(w / scale). `values`: code * scale in f32, what the
-// kernel multiplies with.
-struct QuantizedMatrix {
-  std::vector<uint8_t> rows;
-  std::vector<float> values;
-};
-
-QuantizedMatrix quantizeRows(const std::vector<float>& w, int64_t N, int64_t K, int bits) {
-  const int q = bits == 8 ? 127 : 7;
-  const size_t codeBytes = size_t(K) * bits / 8, rowBytes = codeBytes + size_t(K) / 32 * 4;
-  QuantizedMatrix m{std::vector<uint8_t>(size_t(N) * rowBytes, 0), std::vector<float>(w.size())};
-  for (int64_t n = 0; n < N; ++n)
-    for (int64_t b = 0; b < K / 32; ++b) {
-      const float* blk = w.data() + n * K + b * 32;
-      double amax = 0;
-      for (int j = 0; j < 32; ++j) amax = std::max(amax, std::abs(double(blk[j])));
-      const float scale = float(amax / q);
-      std::memcpy(m.rows.data() + size_t(n) * rowBytes + codeBytes + size_t(b) * 4, &scale, 4);
-      for (int j = 0; j < 32; ++j) {
-        const int64_t k = b * 32 + j;
-        const int code = scale > 0 ? int(std::clamp(std::nearbyint(double(blk[j]) / scale), double(-q), double(q))) : 0;
-        uint8_t* row = m.rows.data() + size_t(n) * rowBytes;
-        if (bits == 8) row[k] = uint8_t(int8_t(code));
-        else row[k / 2] |= uint8_t((code + 8) << (4 * (k & 1)));
-        m.values[size_t(n * K + k)] = float(code) * scale;
-      }
-    }
-  return m;
-}
-
-Tensor quantizedTensor(Engine& engine, const QuantizedMatrix& m, int64_t N, int64_t K, int bits) {
-  Tensor t = engine.tensor({N, K}, bits == 8 ? DType::Q8 : DType::Q4);
-  EXPECT_EQ(t.bytes(), m.rows.size());
-  engine.write(t, m.rows.data(), m.rows.size());
-  return t;
-}
-
 void expectQuantizedLinear(Engine& engine, const std::vector<float>& w, int64_t M, int64_t N, int64_t K, int bits,
                            bool bias, Activation act, const std::string& what) {
   const auto x = randomUniform(M * K, -1, 1, 21);
   const auto b = bias ? randomUniform(N, -1, 1, 22) : std::vector<float>{};
-  const QuantizedMatrix q = quantizeRows(w, N, K, bits);
+  const QuantizedMatrix q = quantizeReference(w, N, K, bits);
   Tensor tx = engine.fromFloats({M, K}, x), tw = quantizedTensor(engine, q, N, K, bits);
   Tensor tb = bias ? engine.fromFloats({N}, b) : Tensor();
   GuardedOutput y(engine, {M, N});
@@ -233,15 +195,9 @@ TEST_F(EngineTest, LinearQuantizedMatchesFloat64OfDequantized) {
 // codes), an all-zero block (scale 0), and blocks whose scale is float's smallest normal.
 TEST_F(EngineTest, LinearQuantizedStiffBlocks) {
   const int64_t M = 5, N = 9, K = 128;
-  auto w = randomUniform(N * K, -1e-2f, 1e-2f, 25);
-  for (int64_t n = 0; n < N; ++n) {
-    w[size_t(n * K + 7)] = n % 2 ? 1e4f : -1e4f;                               // block 0: an outlier
-    for (int j = 32; j < 64; ++j) w[size_t(n * K + j)] = 0.0f;                // block 1: zeros
-    for (int j = 64; j < 96; ++j)                                             // block 2: tiny
-      w[size_t(n * K + j)] = float(j % 3 - 1) * 127.0f * std::numeric_limits<float>::min();
-  }
+  const auto w = stiffQuantizedRows(N, K, 25);
   for (int bits : {8, 4}) {
-    const QuantizedMatrix q = quantizeRows(w, N, K, bits);
+    const QuantizedMatrix q = quantizeReference(w, N, K, bits);
     float tinyScale;
     std::memcpy(&tinyScale, q.rows.data() + K * bits / 8 + 2 * 4, 4);
     EXPECT_GE(tinyScale, std::numeric_limits<float>::min()) << "block 2's scale is a normal float";

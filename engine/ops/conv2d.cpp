@@ -112,15 +112,19 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   using namespace ops;
   Engine& engine = rec.engine();
   const DeviceCaps& caps = engine.caps();
+  const bool quantized = isQuantized(w.dtype());
   requireF32(x, "conv2d", "input");
-  requireF32(w, "conv2d", "weight");
+  if (!quantized) requireF32(w, "conv2d", "weight");
   requireF32(y, "conv2d", "output");
   if (bias.defined()) requireF32(bias, "conv2d", "bias");
   if (x.rank() != 4) throw Error("conv2d: input must be [N, Cin, H, W], got " + x.describe());
-  if (w.rank() != 4) throw Error("conv2d: weight must be [Cout, Cin, kh, kw], got " + w.describe());
+  if (quantized ? w.rank() != 2 || params.kernelH < 1 || params.kernelW < 1 : w.rank() != 4)
+    throw Error("conv2d: weight must be [Cout, Cin, kh, kw], or a quantized [Cout, Cin*kh*kw] with the kernel size "
+                "in the parameters; got " + w.describe());
   const int64_t N = x.dim(0), Cin = x.dim(1), H = x.dim(2), W = x.dim(3);
-  const int64_t Cout = w.dim(0), KH = w.dim(2), KW = w.dim(3);
-  if (w.dim(1) != Cin) throw Error("conv2d: weight " + w.describe() + " does not match input " + x.describe());
+  const int64_t Cout = w.dim(0), KH = quantized ? params.kernelH : w.dim(2), KW = quantized ? params.kernelW : w.dim(3);
+  if (quantized ? w.dim(1) != Cin * KH * KW : w.dim(1) != Cin)
+    throw Error("conv2d: weight " + w.describe() + " does not match input " + x.describe());
   if (params.stride < 1 || params.padY < 0 || params.padX < 0) throw Error("conv2d: stride must be >= 1, padding >= 0");
   if (KH < 1 || KW < 1 || KH > 32 || KW > 32) throw Error("conv2d: kernel size must be 1..32, got " + w.describe());
   const int64_t Ho = conv2dOutputSize(H, KH, params.stride, params.padY);
@@ -132,18 +136,22 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   for (const Tensor* t : {&x, &w, &y}) checkElementCount(*t, "conv2d");
   if (y.numel() == 0) return;
   if (Cin == 0) throw Error("conv2d: input has no channels");
-  if (engine.plan().conv == KernelFamily::Tiled) return conv2dAsGemm(rec, x, w, bias, y, params);
+  if (engine.plan().conv == KernelFamily::Tiled && !quantized) return conv2dAsGemm(rec, x, w, bias, y, params);
 
   const ConvTiles tiles = chooseConvTiles(caps, engine.options().tuning, KH, KW, Cout);
-  // Weights and bias may sit at any offset: they are bound from an aligned start.
-  const BoundRange wr = bindRange(caps, w, 0, w.numel(), true);
+  // Weights and bias may sit at any offset: they are bound from an aligned start. A quantized
+  // kernel is bound whole, as its 32-bit words (a tensor of its own starts aligned).
+  const BoundRange wr = quantized ? BoundRange{w, 0} : bindRange(caps, w, 0, w.numel(), true);
+  if (quantized && (Cin * KH * KW) % 32) throw Error("conv2d: quantized weight " + w.describe() + " has partial blocks");
   const BoundRange br = bias.defined() ? bindRange(caps, bias, 0, Cout, true) : wr;
   // Input channels per step: a step's weights are whole RGBA texels when Cin*kh*kw is a
   // multiple of 4 (and the binding starts on a texel); otherwise one channel with R texels.
+  // (A quantized row is whole blocks of 32: always RGBA, dequantized a texel at a time.)
   const int64_t kk = KH * KW;
   const bool rgba = (Cin * kk) % 4 == 0 && wr.base % 4 == 0;
   const int G = rgba ? int(4 / std::gcd<int64_t>(kk, 4)) : 1;
-  if (uint64_t(wr.view.numel() / (rgba ? 4 : 1)) > ops::texelInputLimit(engine, rgba ? 4 : 1))
+  const int wComponents = quantized ? 1 : rgba ? 4 : 1;
+  if (uint64_t(quantized ? w.bytes() / 4 : wr.view.numel() / wComponents) > ops::texelInputLimit(engine, wComponents))
     throw Error("conv2d: weight " + w.describe() + " exceeds the device's texel-buffer size");
   // Input rows as RGBA texels (4 columns each) when rows and every tile start stay on texel
   // boundaries: W and cols*stride multiples of 4 and x starting on a texel.
@@ -156,12 +164,13 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   // (a multiple of cols in a row of Wo) and the binding's base on a 4-element boundary.
   const bool rowsOf4 = tiles.cols % 4 == 0 && Wo % 4 == 0;
   const auto kernelFor = [&](bool out4) -> const Kernel& {
-    return engine.kernel({out4 ? "conv2d_f32_out4" : "conv2d_f32",
+    std::vector<int32_t> constants = {tiles.localX, tiles.localY, 1, int(KH), int(KW), params.stride, tiles.channels,
+                                      tiles.rows, tiles.cols, G, rgba ? 4 : 1, static_cast<int>(params.act),
+                                      bias.defined(), rgbaX ? 4 : 1, rgbaX ? (4 - params.padX % 4) % 4 : 0, flat};
+    if (quantized) constants.push_back(w.dtype() == DType::Q8 ? 8 : 4);  // W_BITS
+    return engine.kernel({std::string(quantized ? "conv2d_q_f32" : "conv2d_f32") + (out4 ? "_out4" : ""),
                           {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                          sizeof(ConvPush),
-                          {tiles.localX, tiles.localY, 1, int(KH), int(KW), params.stride, tiles.channels, tiles.rows,
-                           tiles.cols, G, rgba ? 4 : 1, static_cast<int>(params.act), bias.defined(), rgbaX ? 4 : 1,
-                           rgbaX ? (4 - params.padX % 4) % 4 : 0, flat}});
+                          sizeof(ConvPush), constants});
   };
 
   // One workgroup layer per (image, block of output channels).
@@ -175,7 +184,10 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
                         int32_t(Wo),       params.padY,     params.padX, int32_t(coBlocks), int32_t(c.u0),
                         c.in.base,         wr.base,         br.base,     c.out.base};
     rec.dispatch(kernelFor(rowsOf4 && c.out.base % 4 == 0),
-                 {Arg::texel(c.in.view, rgbaX ? 4 : 1), Arg::texel(wr.view, rgba ? 4 : 1), Arg::texel(br.view, 1),
+                 {Arg::texel(c.in.view, rgbaX ? 4 : 1), Arg::texel(wr.view, wComponents),
+                  // without a bias a placeholder never read: the weight, or for a quantized one
+                  // (words, no float texels) one element of x
+                  Arg::texel(bias.defined() || !quantized ? br.view : c.in.view.view(0, {1}), 1),
                   Arg::out(c.out.view)},
                  push, gx, gy, static_cast<uint32_t>(c.u1 - c.u0));
   });
