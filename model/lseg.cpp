@@ -168,6 +168,11 @@ void LSegEncoder::loadWeights(WeightSet& weights) {
     return weights.require(kPrefix + name, shape, DType::F32);
   };
   const auto any = [&](const std::string& name, const Shape& shape) { return weights.require(kPrefix + name, shape); };
+  // A 3x3 convolution kernel: f32, or quantized where the file or the q8 / q4 rule has it so
+  // (conv2d dequantizes it; it arrives as the matrix [Cout, Cin*9]).
+  const auto convKernel = [&](const std::string& name, const Shape& shape) {
+    return isQuantized(weights.uploadType(kPrefix + name)) ? any(name, shape) : f32(name, shape);
+  };
 
   // The patch-embedding conv [W, 3, p, p] is a batch of W "images" 3 x p x p: patchify turns
   // it into [W, p*p*3] in the (ph pw c) order of the image patches, so the embedding is one GEMM
@@ -208,18 +213,19 @@ void LSegEncoder::loadWeights(WeightSet& weights) {
     h.projB = any(a + "3.bias", {r});
     const HookTail& t = kTails[k];
     if (t.kind != Tail::None) {
-      h.tailW = f32(a + "4.weight", {r, r, t.kernel, t.kernel});
+      h.tailW = t.kind == Tail::Conv ? convKernel(a + "4.weight", {r, r, t.kernel, t.kernel})
+                                      : f32(a + "4.weight", {r, r, t.kernel, t.kernel});
       h.tailB = f32(a + "4.bias", {r});
     }
-    h.rnW = f32("scratch.layer" + std::to_string(k + 1) + "_rn.weight", {f, r, 3, 3});
+    h.rnW = convKernel("scratch.layer" + std::to_string(k + 1) + "_rn.weight", {f, r, 3, 3});
   }
   for (int k = 0; k < 4; ++k) {
     const std::string rn = "scratch.refinenet" + std::to_string(k + 1) + ".";
     Fusion& fz = fusion_[size_t(k)];
     const auto unit = [&](int u) {
       const std::string b = rn + "resConfUnit" + std::to_string(u) + ".";
-      return ResidualUnit{f32(b + "conv1.weight", {f, f, 3, 3}), f32(b + "conv1.bias", {f}),
-                          f32(b + "conv2.weight", {f, f, 3, 3}), f32(b + "conv2.bias", {f})};
+      return ResidualUnit{convKernel(b + "conv1.weight", {f, f, 3, 3}), f32(b + "conv1.bias", {f}),
+                          convKernel(b + "conv2.weight", {f, f, 3, 3}), f32(b + "conv2.bias", {f})};
     };
     if (k < 3) fz.rcu1 = unit(1);  // refinenet4 has a single input (the converter drops its unit 1)
     fz.rcu2 = unit(2);
@@ -315,17 +321,18 @@ void LSegEncoder::reassemble(Recorder& rec, Buffers& b, int k, int64_t gh, int64
     convTranspose2d(rec, grid, h.tailW, h.tailB, src);
   } else if (t.kind == Tail::Conv) {
     src = b.tail.view(0, tailShape);
-    conv2d(rec, grid, h.tailW, h.tailB, src, {.stride = 2, .padY = 1, .padX = 1});
+    conv2d(rec, grid, h.tailW, h.tailB, src, {.stride = 2, .padY = 1, .padX = 1, .kernelH = 3, .kernelW = 3});
   }
-  conv2d(rec, src, h.rnW, Tensor(), b.layers[size_t(k)], {.stride = 1, .padY = 1, .padX = 1});
+  conv2d(rec, src, h.rnW, Tensor(), b.layers[size_t(k)], {.stride = 1, .padY = 1, .padX = 1, .kernelH = 3, .kernelW = 3});
 }
 
 // x += conv2(relu(conv1(relu(x)))), in place; the inner ReLU is fused into conv1.
 void LSegEncoder::residualUnit(Recorder& rec, const ResidualUnit& u, const Tensor& x, Buffers& b) {
   const Tensor a = b.scratchA.view(0, x.shape()), c = b.scratchB.view(0, x.shape());
   unary(rec, UnaryOp::Relu, x, a);
-  conv2d(rec, a, u.conv1W, u.conv1B, c, {.stride = 1, .padY = 1, .padX = 1, .act = Activation::Relu});
-  conv2d(rec, c, u.conv2W, u.conv2B, a, {.stride = 1, .padY = 1, .padX = 1});
+  conv2d(rec, a, u.conv1W, u.conv1B, c,
+         {.stride = 1, .padY = 1, .padX = 1, .act = Activation::Relu, .kernelH = 3, .kernelW = 3});
+  conv2d(rec, c, u.conv2W, u.conv2B, a, {.stride = 1, .padY = 1, .padX = 1, .kernelH = 3, .kernelW = 3});
   add(rec, x, a, x);
 }
 

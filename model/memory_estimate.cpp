@@ -50,9 +50,9 @@ MemoryNeed estimateMemory(const PackedModel& model, const SparConfig& c, const M
     // ones (in the file, or by the q8 / q4 rule at upload) as rows of codes and scales; ints as i32
     const bool half = q.matrixType == DType::F16 && WeightSet::isMatrix(name, t.shape) && !t.quantBits;
     if (t.quantBits)
-      need.weightBytes += tensorBytes(t.shape, t.quantBits == 8 ? DType::Q8 : DType::Q4);
+      need.weightBytes += tensorBytes(quantizedMatrixShape(t.shape), t.quantBits == 8 ? DType::Q8 : DType::Q4);
     else if (isQuantized(q.matrixType) && isQuantizedMatrix(name, t.shape))
-      need.weightBytes += tensorBytes(t.shape, q.matrixType);
+      need.weightBytes += tensorBytes(quantizedMatrixShape(t.shape), q.matrixType);
     else
       need.weightBytes += uint64_t(t.numel()) * (half ? 2 : 4);
   }

@@ -16,6 +16,7 @@
 #include "engine/engine.h"
 #include "engine/error.h"
 #include "engine/half.h"
+#include "model/quantized_matrices.h"
 
 namespace spar {
 
@@ -317,11 +318,20 @@ void PackedModel::parseQuantized() {
       fail(path_, t + ": bit width " + oneLine(bitsJ.dump()) + " (this reader knows 8 and 4)");
     if (!blockJ.is_number_integer() || blockJ.get<int64_t>() != 32)
       fail(path_, t + ": block of " + oneLine(blockJ.dump()) + " values (this reader knows 32)");
-    if (!shapeJ.is_array() || shapeJ.size() != 2 || !shapeJ[0].is_number_unsigned() || !shapeJ[1].is_number_unsigned() ||
-        shapeJ[0].get<uint64_t>() > (uint64_t(1) << 31) || shapeJ[1].get<uint64_t>() > (uint64_t(1) << 31))
-      fail(path_, t + ": shape " + oneLine(shapeJ.dump()) + " is not [N, K]");
+    // [N, K], or a convolution kernel [Cout, Cin, kh, kw]: the matrix [Cout, Cin*kh*kw]
+    bool shapeOk = shapeJ.is_array() && (shapeJ.size() == 2 || shapeJ.size() == 4);
+    Shape logical;
+    uint64_t rowValues = 1;
+    for (size_t d = 0; shapeOk && d < shapeJ.size(); ++d) {
+      shapeOk = shapeJ[d].is_number_unsigned() && shapeJ[d].get<uint64_t>() <= (uint64_t(1) << 31);
+      if (!shapeOk) break;
+      logical.push_back(shapeJ[d].get<int64_t>());
+      if (d) rowValues *= shapeJ[d].get<uint64_t>();
+      shapeOk = rowValues <= (uint64_t(1) << 31);
+    }
+    if (!shapeOk) fail(path_, t + ": shape " + oneLine(shapeJ.dump()) + " is not [N, K] nor [Cout, Cin, kh, kw]");
     const int bits = bitsJ.get<int>();
-    const int64_t n = shapeJ[0].get<int64_t>(), k = shapeJ[1].get<int64_t>();
+    const int64_t n = logical[0], k = int64_t(rowValues);
     if (k % 32) fail(path_, t + ": rows of " + std::to_string(k) + " values are not whole blocks of 32");
     auto codes = tensors_.find(name);
     if (codes == tensors_.end()) fail(path_, t + ": no tensor of its codes");
@@ -340,7 +350,7 @@ void PackedModel::parseQuantized() {
                                                 : std::string(fileDTypeName(scales->second.dtype)) + " " +
                                                       shapeString(scales->second.shape)) +
                       ", not F32 " + shapeString(scaleShape) + " (one per block of 32)");
-    c.shape = {n, k};
+    c.shape = logical;
     c.quantBits = bits;
     c.scales = scaleName;
   }
@@ -454,7 +464,8 @@ Tensor PackedModel::upload(Engine& engine, const std::string& name, DType want) 
                       ": this stage reads it as " + dtypeName(want) + " (quantized matrices reach the GEMM only; "
                       "convert the model with --weights fp32 or fp16)");
     const auto scales = data(i.scales);
-    const int64_t rows = i.shape[0], k = i.shape[1];
+    const Shape matrix = quantizedMatrixShape(i.shape);
+    const int64_t rows = matrix[0], k = matrix[1];
     const size_t codeBytes = size_t(k) * size_t(i.quantBits) / 8, scaleBytes = size_t(k) / 32 * 4;
     std::vector<uint8_t> v(size_t(rows) * (codeBytes + scaleBytes));
     for (int64_t r = 0; r < rows; ++r) {
@@ -462,7 +473,7 @@ Tensor PackedModel::upload(Engine& engine, const std::string& name, DType want) 
       std::memcpy(dst, bytes.data() + size_t(r) * codeBytes, codeBytes);
       std::memcpy(dst + codeBytes, scales.data() + size_t(r) * scaleBytes, scaleBytes);
     }
-    Tensor t = engine.tensor(i.shape, q);
+    Tensor t = engine.tensor(matrix, q);
     if (!v.empty()) engine.write(t, v.data(), v.size());
     return t;
   }

@@ -31,8 +31,10 @@ size_t fileDTypeSize(FileDType t);
 
 struct PackedTensorInfo {
   FileDType dtype = FileDType::F32;
-  // The tensor's shape; for a quantized matrix (quantBits 8 or 4) the matrix's [N, K], while the
+  // The tensor's shape; for a quantized matrix (quantBits 8 or 4) the matrix's [N, K] (or a
+  // convolution kernel's [Cout, Cin, kh, kw], quantized as [Cout, K = Cin*kh*kw]), while the
   // entry holds its codes (I8 [N, K] or U8 [N, K / 2]) and `scales` names its F32 [N, K / 32].
+  // It uploads as the Q8 / Q4 matrix [N, K] (model/quantized_matrices.h quantizedMatrixShape).
   Shape shape;
   uint64_t begin = 0, end = 0;  // byte range in the data area (after the header)
   int quantBits = 0;

@@ -38,6 +38,18 @@ std::set<std::string> quantizedPatterns() {
       p.insert(std::string(vit) + layer);
   for (const char* layer : {".#.attn.in_proj_weight", ".#.attn.out_proj.weight", ".#.mlp.c_fc.weight", ".#.mlp.c_proj.weight"})
     p.insert(std::string("clip.transformer.resblocks") + layer);
+  // LSeg's convolutions but the transposed ones of hooks 1 and 2 (act_postprocess1.4 / 2.4)
+  for (const char* conv : {"lseg.pretrained.act_postprocess1.3.weight", "lseg.pretrained.act_postprocess2.3.weight",
+                           "lseg.pretrained.act_postprocess3.3.weight", "lseg.pretrained.act_postprocess4.3.weight",
+                           "lseg.pretrained.act_postprocess4.4.weight"})
+    p.insert(conv);
+  for (int i = 1; i <= 4; ++i) {
+    const std::string n = std::to_string(i);
+    p.insert("lseg.scratch.layer" + n + "_rn.weight");
+    for (const char* unit : {".resConfUnit1.conv1.weight", ".resConfUnit1.conv2.weight", ".resConfUnit2.conv1.weight",
+                             ".resConfUnit2.conv2.weight"})
+      p.insert("lseg.scratch.refinenet" + n + unit);
+  }
   for (const char* seq : {"semantic_token_decoder", "mlp_fuse", "pe_embedder", "temporal_pe_embedder", "image_tokenizer",
                           "target_pose_tokenizer", "target_pose_tokenizer2", "target_pose_tokenizer_semantic",
                           "cv_drp.estimator.fusion_mlp.net"})
@@ -47,11 +59,21 @@ std::set<std::string> quantizedPatterns() {
 
 }  // namespace
 
+Shape quantizedMatrixShape(const Shape& shape) {
+  if (shape.empty()) return {0, 0};
+  int64_t k = 1;
+  for (size_t i = 1; i < shape.size(); ++i) k *= shape[i];
+  return {shape[0], k};
+}
+
 bool isQuantizedMatrix(const std::string& name, const Shape& shape) {
   // Kept in step with QUANTIZED_MATRICES of converter/spar_convert/convert.py by
-  // tests/test_spar_precision.cpp (QuantizedRuleIsTheConverters).
+  // tests/test_spar_precision.cpp (QuantizedRuleIsTheConverters). Names are matched as they
+  // are (LSeg's convolutions: hook and unit numbers are part of the name) and with every
+  // layer index written '#'.
   static const std::set<std::string> patterns = quantizedPatterns();
-  return shape.size() == 2 && shape[1] % 32 == 0 && patterns.count(withLayerIndices(name)) != 0;
+  return (shape.size() == 2 || shape.size() == 4) && quantizedMatrixShape(shape)[1] % 32 == 0 &&
+         (patterns.count(name) != 0 || patterns.count(withLayerIndices(name)) != 0);
 }
 
 std::vector<uint8_t> quantizeRows(const std::vector<float>& w, int64_t N, int64_t K, DType type) {

@@ -48,6 +48,11 @@ void WeightSet::checkShape(const std::string& name, const Shape& shape) const {
 
 const Tensor& WeightSet::require(const std::string& name, const Shape& shape) {
   checkShape(name, shape);
+  return require(name, shape, uploadType(name));
+}
+
+DType WeightSet::uploadType(const std::string& name) const {
+  if (!model_.has(name)) throw Error(model_.errorPrefix() + "tensor '" + name + "' is missing");
   const bool matrix = isMatrix(name, model_.info(name).shape);
   DType want = model_.naturalDType(name);
   // Matrices follow the requested precision whatever the file stores: an F16 file's matrices
@@ -60,7 +65,7 @@ const Tensor& WeightSet::require(const std::string& name, const Shape& shape) {
     else if (isQuantizedMatrix(name, model_.info(name).shape)) want = matrixType_;
     else want = DType::F32;
   }
-  return require(name, shape, want);
+  return want;
 }
 
 Tensor WeightSet::uploadRounded(const std::string& name, DType want) const {
@@ -85,8 +90,9 @@ const Tensor& WeightSet::require(const std::string& name, const Shape& shape, DT
   Tensor t;
   if (isQuantized(want) && !info.quantBits) {  // an f32 / f16 file's matrix quantized here
     checkQuantizable(name, want);
-    const std::vector<uint8_t> rows = quantizeRows(model_.floats(name), info.shape[0], info.shape[1], want);
-    t = engine_.tensor(info.shape, want);
+    const Shape matrix = quantizedMatrixShape(info.shape);  // a conv kernel as [Cout, Cin*kh*kw]
+    const std::vector<uint8_t> rows = quantizeRows(model_.floats(name), matrix[0], matrix[1], want);
+    t = engine_.tensor(matrix, want);
     engine_.write(t, rows.data(), rows.size());
   } else {
     t = rounded ? uploadRounded(name, want) : model_.upload(engine_, name, want);

@@ -36,6 +36,9 @@ class WeightSet {
   // a matrix as F16 under matrixType F16.
   // Throws one line naming the tensor when it is missing or shaped differently.
   const Tensor& require(const std::string& name, const Shape& shape);
+  // The dtype require(name, shape) uploads `name` in (throws if the file lacks it). A quantized
+  // convolution kernel [Cout, Cin, kh, kw] arrives as its matrix [Cout, Cin*kh*kw].
+  DType uploadType(const std::string& name) const;
   // Same, in a given dtype (F32 <-> F16 converted; see PackedModel::upload). Under matrixType
   // F16 a matrix asked for as F32 (an op that reads only f32) holds the fp16-rounded values.
   const Tensor& require(const std::string& name, const Shape& shape, DType want);

@@ -481,6 +481,17 @@ TEST_F(HandMadeFileTest, QuantizedMatricesAreReadAndBadRecordsRefused) {
   expectRefused(write("q_noshape.spar", file(with("w", "shape", nullptr))), "no 'shape'");
   expectRefused(write("q_shape3.spar", file(with("w", "shape", {1, 2, 32}))), "is not [N, K]");
   expectRefused(write("q_partial.spar", file(with("w", "shape", {4, 16}))), "not whole blocks of 32");
+  expectRefused(write("q_partial4.spar", file(with("w", "shape", {2, 4, 2, 2}))), "rows of 16 values are not whole blocks");
+  // A convolution kernel [Cout, Cin, kh, kw] is quantized as the matrix [Cout, Cin*kh*kw]: its
+  // own shape kept, uploaded as that matrix.
+  {
+    PackedModel m = PackedModel::open(write("q_conv.spar", file(with("w", "shape", {2, 8, 2, 2}))));
+    EXPECT_EQ(m.info("w").shape, (Shape{2, 8, 2, 2}));
+    EXPECT_EQ(m.floats("w")[32 + 4], 36 * 0.25f);
+    const Tensor t = m.upload(eng(), "w", DType::Q8);
+    EXPECT_EQ(t.shape(), (Shape{2, 32}));
+    EXPECT_EQ(t.bytes(), 2u * 36u);
+  }
   expectRefused(write("q_bitsdtype.spar", file(with("w", "bits", 4))), "codes are I8 [2, 32], 4-bit codes");
   expectRefused(write("q_count.spar", file(with("v", "shape", {2, 32}))), "codes are U8 [1, 32]");
   json missing = good;

@@ -123,12 +123,16 @@ TEST_F(SparPrecisionTest, QuantizedRuleIsTheConverters) {
       const bool q = pack.info(name).quantBits == 8;
       EXPECT_EQ(q, isQuantizedMatrix(name, info.shape)) << name;
       EXPECT_EQ(pack.info(name).shape, info.shape) << name;
-      if (!q) EXPECT_EQ(pack.info(name).dtype, info.dtype) << name;
+      if (!q) {
+        EXPECT_EQ(pack.info(name).dtype, info.dtype) << name;
+      }
       quantized += q;
       backbones += q && (name.rfind("clip.", 0) == 0 || name.rfind("lseg.", 0) == 0);
     }
     EXPECT_GT(quantized, 30u);
-    if (f32.has("clip.token_embedding.weight")) EXPECT_GT(backbones, 20u);
+    if (f32.has("clip.token_embedding.weight")) {
+      EXPECT_GT(backbones, 20u);
+    }
   }
 }
 

@@ -975,13 +975,25 @@ QUANTIZED_MATRICES = re.compile(
     # the tokenizers and position MLPs, the RGB head
     r"|(?:semantic_token_decoder|mlp_fuse|pe_embedder|temporal_pe_embedder|image_tokenizer|target_pose_tokenizer"
     r"|target_pose_tokenizer2|target_pose_tokenizer_semantic"
-    r"|cv_drp\.estimator\.fusion_mlp\.net)\.\d+\.weight)$")
+    r"|cv_drp\.estimator\.fusion_mlp\.net)\.\d+\.weight"
+    # LSeg's convolutions [Cout, Cin, kh, kw] (quantized as the matrix [Cout, Cin*kh*kw]; the
+    # conv2d kernel dequantizes them): the 1x1 projection after each hook's readout, hook 4's
+    # 3x3 stride-2 conv, the 3x3 layerN_rn and the refinenets' residual units. Not the
+    # transposed convs of hooks 1 and 2 (act_postprocess1.4 / 2.4), nor the 1x1 out_conv / head.
+    r"|lseg\.pretrained\.act_postprocess[1-4]\.3\.weight|lseg\.pretrained\.act_postprocess4\.4\.weight"
+    r"|lseg\.scratch\.layer[1-4]_rn\.weight|lseg\.scratch\.refinenet[1-4]\.resConfUnit[12]\.conv[12]\.weight)$")
+
+
+def quantized_rows(shape):
+    """(N, K) of the matrix a quantized tensor is: [N, K], or [Cout, Cin*kh*kw] of a conv."""
+    return int(shape[0]), int(np.prod(shape[1:], dtype=np.int64))
 
 
 def is_quantized(name, shape):
-    """Whether --weights q8 / q4 quantize this tensor: a 2-D block linear whose rows are whole
-    blocks of 32."""
-    return len(shape) == 2 and shape[1] % quant.BLOCK == 0 and bool(QUANTIZED_MATRICES.match(name))
+    """Whether --weights q8 / q4 quantize this tensor: a 2-D block linear or a 4-D convolution
+    kernel of the rule, whose rows (all but the first dimension) are whole blocks of 32."""
+    return (len(shape) in (2, 4) and quantized_rows(shape)[1] % quant.BLOCK == 0
+            and bool(QUANTIZED_MATRICES.match(name)))
 
 
 def _quantized_specs(entry):
@@ -991,7 +1003,7 @@ def _quantized_specs(entry):
 
     def codes_and_scales():
         if not cache:
-            a = np.asarray(entry.make(), dtype=np.float64)
+            a = np.asarray(entry.make(), dtype=np.float64).reshape(quantized_rows(entry.shape))
             if not np.all(np.isfinite(a)):
                 raise ConvertError("tensor %r has NaN or Inf values (%s)"
                                    % (entry.name, "; ".join(entry.sources)))
@@ -1003,7 +1015,7 @@ def _quantized_specs(entry):
         cache.clear()
         return v
 
-    n, k = entry.shape
+    n, k = quantized_rows(entry.shape)
     codes_shape = (n, k) if entry.quant == "q8" else (n, k // 2)
     return [TensorSpec(entry.name, "I8" if entry.quant == "q8" else "U8", codes_shape,
                        lambda: codes_and_scales()[0]),

@@ -233,7 +233,7 @@ def test_quantized_weights_layout_and_error(f32, work, kind):
     <name>.qscale, recorded in __metadata__.quantized, format version 2; every value within half a
     step of its block's scale of the fp32 one; all else stored as in the fp32 file."""
     from spar_convert import quantize as q
-    from spar_convert.convert import is_quantized
+    from spar_convert.convert import is_quantized, quantized_rows
     out32, _, f, _, _, _ = f32
     outq, _, _ = convert(work, "tiny_%s.spar" % kind, "--weights", kind)
     h, meta, cfg, rec = read(outq)
@@ -241,17 +241,21 @@ def test_quantized_weights_layout_and_error(f32, work, kind):
     records = json.loads(meta["quantized"])
     names = [n for n in f.keys() if is_quantized(n, f.info(n).shape)]
     assert sorted(records) == sorted(names) and len(names) > 30
+    # LSeg's convolutions by the rule: 3x3 and 1x1 kernels, not the transposed ones
+    convs = [n for n in names if len(f.info(n).shape) == 4]
+    assert "lseg.pretrained.act_postprocess4.4.weight" in convs and "lseg.pretrained.act_postprocess1.3.weight" in convs
+    assert not any(n.startswith("lseg.pretrained.act_postprocess1.4") for n in f.keys() if n in records)
     for name in f.keys():
         i32 = f.info(name)
         if name not in records:
             assert h.info(name).dtype == i32.dtype and h.get(name).tobytes() == f.get(name).tobytes(), name
             continue
-        n, k = i32.shape
-        assert records[name] == {"bits": q.BITS[kind], "block": 32, "shape": [n, k]}
+        n, k = quantized_rows(i32.shape)  # a convolution kernel as [Cout, Cin*kh*kw]
+        assert records[name] == {"bits": q.BITS[kind], "block": 32, "shape": list(i32.shape)}
         codes, scales = h.get(name), h.get(name + ".qscale")
         assert codes.dtype == (np.int8 if kind == "q8" else np.uint8) and codes.shape == ((n, k) if kind == "q8" else (n, k // 2))
         assert scales.dtype == np.float32 and scales.shape == (n, k // 32)
-        w = f.get(name).astype(np.float64)
+        w = f.get(name).astype(np.float64).reshape(n, k)
         err = np.abs(q.dequantize(codes, scales, kind) - w).reshape(n, k // 32, 32).max(axis=2)
         assert np.all(err <= scales.astype(np.float64) * 0.5 + 1e-12), name
         assert rec["converted"][name].endswith("-> " + kind)

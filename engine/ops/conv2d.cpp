@@ -125,6 +125,9 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   const int64_t Cout = w.dim(0), KH = quantized ? params.kernelH : w.dim(2), KW = quantized ? params.kernelW : w.dim(3);
   if (quantized ? w.dim(1) != Cin * KH * KW : w.dim(1) != Cin)
     throw Error("conv2d: weight " + w.describe() + " does not match input " + x.describe());
+  if (!quantized && ((params.kernelH && params.kernelH != KH) || (params.kernelW && params.kernelW != KW)))
+    throw Error("conv2d: weight " + w.describe() + " is no " + std::to_string(params.kernelH) + "x" +
+                std::to_string(params.kernelW) + " kernel");
   if (params.stride < 1 || params.padY < 0 || params.padX < 0) throw Error("conv2d: stride must be >= 1, padding >= 0");
   if (KH < 1 || KW < 1 || KH > 32 || KW > 32) throw Error("conv2d: kernel size must be 1..32, got " + w.describe());
   const int64_t Ho = conv2dOutputSize(H, KH, params.stride, params.padY);

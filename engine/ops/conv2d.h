@@ -24,7 +24,8 @@ struct Conv2dParams {
   int stride = 1;   // the same along y and x
   int padY = 0, padX = 0;  // zero padding on each side
   Activation act = Activation::None;
-  // A quantized w (Q8 / Q4) is the matrix [Cout, Cin*kh*kw]: its kernel size goes here.
+  // A quantized w (Q8 / Q4) is the matrix [Cout, Cin*kh*kw]: its kernel size goes here
+  // (0: from w's shape; given with an f32 w, it must be w's).
   int kernelH = 0, kernelW = 0;
 };
 
