@@ -101,7 +101,9 @@ ClipTextEncoder::ClipTextEncoder(Engine& engine, WeightSet& weights, const ClipT
   std::vector<float> projT(proj.size());
   for (int64_t i = 0; i < W; ++i)
     for (int64_t j = 0; j < E; ++j) projT[size_t(j * W + i)] = proj[size_t(i * E + j)];
-  projection_ = engine_.fromFloats({E, W}, projT, weights.matrixType());
+  // In the matrix type, as the file's other matrices; under q8 / q4 as f32, as their packs keep
+  // it (the projection is outside the quantization rule, model/quantized_matrices.h).
+  projection_ = engine_.fromFloats({E, W}, projT, isQuantized(weights.matrixType()) ? DType::F32 : weights.matrixType());
 
   blocks_.reserve(size_t(config_.layers));
   for (int64_t i = 0; i < config_.layers; ++i) blocks_.emplace_back(engine_, options_, blockWeights(weights, i, W));

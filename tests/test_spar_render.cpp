@@ -686,6 +686,29 @@ TEST(spar_render, SemanticHeadOnlyWhenAsked) {
   for (const auto& n : entries(plain)) EXPECT_NE(n.rfind("labels_", 0), 0u) << n;
 }
 
+// --precision q8 on an fp32 file quantizes at upload what `spar-convert --weights q8` packs
+// (LSeg's convolutions, CLIP's tower; CLIP's projection stays f32 in both), so the views, masks
+// and label maps are the pack's, byte for byte, and so are the weight bytes on the device.
+TEST(spar_render, QuantizedAtUploadRendersAsThePack) {
+  const fs::path upload = scratch() / "q8_upload", pack = scratch() / "q8_pack";
+  for (const auto& d : {upload, pack}) fs::remove_all(d);
+  const auto views = std::vector<std::string>{"--images", frame(0), frame(2), "--targets", frame(1), "--labels", "sofa,floor"};
+  const RunResult a = spar(cat({"--model", semanticGoldenPath("tiny_semantic.spar"), "--precision", "q8"},
+                               cat(views, {"--out", upload.string()})));
+  ASSERT_EQ(a.code, 0) << a.err;
+  const RunResult b = spar(cat({"--model", semanticGoldenPath("tiny_semantic_q8.spar")}, cat(views, {"--out", pack.string()})));
+  ASSERT_EQ(b.code, 0) << b.err;
+  auto names = entries(pack);
+  EXPECT_EQ(names, entries(upload));
+  EXPECT_EQ(names.count("labels_00.png"), 1u);
+  for (const auto& n : names) {
+    if (n.size() > 4 && n.substr(n.size() - 4) == ".png") {
+      EXPECT_EQ(readText(pack / n), readText(upload / n)) << n;
+    }
+  }
+  EXPECT_EQ(readJson(pack / "report.json")["weights_bytes_loaded"], readJson(upload / "report.json")["weights_bytes_loaded"]);
+}
+
 // --refine: SAM2.1-refined masks beside the raw ones (refined_XX.png, 0 / 255), and in
 // report.json what SAM2 decided per input view and its stage; without it no SAM2 stage, weight
 // or file. --mask-source refined gates with them, which changes the views. (The model's masks

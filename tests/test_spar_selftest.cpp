@@ -22,11 +22,13 @@ TEST(spar_selftest, PassesAndPrintsTheDeviceLimitsPlanAndVerdict) {
   for (const char* part : {"device ", "limits ", "plan\n", "linear 130x768x518", "softmax 33x1001", "conv2d 3x3",
                            "validation layer: on, 0 messages", "linear 67x130x96, fp16 weights",
                            "linear 67x130x96, q8 weights, stiff blocks", "linear 67x130x96, q4 weights, stiff blocks",
+                           "conv2d 3x3 pad 1, 32->13 channels at 11x9, q8 weights",
+                           "conv2d 3x3 pad 1, 32->13 channels at 11x9, q4 weights",
                            "model img_tokens 1x5x16x32", "model cv_drp_input.binary", " pixels differ (",
                            "model rgb 1x2x3x64x64", "model lseg_features 1x3x16x32x32", "model text_embeddings 4x16",
                            "model label_logits 2x4x32x32", "model label_maps 2x64x64",
                            "model refined_input 3x64x64", "model refined_target 2x64x64", "model refine_iou 5x3",
-                           "model refine_logits 5x256x256", "verdict: PASS (35 of 35 checks passed)"})
+                           "model refine_logits 5x256x256", "verdict: PASS (37 of 37 checks passed)"})
     EXPECT_NE(r.out.find(part), std::string::npos) << part << "\n" << r.out;
 }
 
@@ -74,7 +76,7 @@ TEST(spar_selftest, AFailingOpFailsTheVerdict) {
   const CommandResult r = runValidated({SPAR_CLI, "selftest"}, scratch(), "SPAR_FAULT_ALLOCATION=1");
   EXPECT_EQ(r.code, 1) << r.out << r.err;
   EXPECT_NE(r.out.find("FAIL  linear 77x150x72"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("verdict: FAIL (34 of 35 checks passed)"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("verdict: FAIL (36 of 37 checks passed)"), std::string::npos) << r.out;
 }
 
 // A stage whose output is 1% off its reference fails that stage alone (here rgb, as a driver
@@ -97,13 +99,13 @@ TEST(spar_selftest, AStageOffItsReferenceOrAMissingModelFailsTheVerdict) {
   EXPECT_NE(r.out.find("FAIL  model refine_iou 5x3"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("pass  model decoder_out"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("pass  model refine_logits"), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("verdict: FAIL (33 of 35 checks passed)"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("verdict: FAIL (35 of 37 checks passed)"), std::string::npos) << r.out;
 
   r = runValidated({SPAR_CLI, "selftest", "--model-dir", (scratch() / "nowhere").string()}, scratch());
   EXPECT_EQ(r.code, 1) << r.out << r.err;
   EXPECT_NE(r.out.find("FAIL  model"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("the self-test model is not in " + (scratch() / "nowhere").string()), std::string::npos) << r.out;
-  EXPECT_NE(r.out.find("verdict: FAIL (10 of 11 checks passed)"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("verdict: FAIL (12 of 13 checks passed)"), std::string::npos) << r.out;
 }
 
 }  // namespace
