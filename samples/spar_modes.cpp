@@ -6,8 +6,9 @@
 //
 //   spar-modes [--model M.spar --checkpoint X.pt [--config C] --frames f0 f1 .. --inputs 0,2]
 //              [--modes fp32,fp16,fp32-static,fp16-static,fp32-refine,...] [--sam2 SAM2.pt [--sam2-config C]]
-//              [--repeat N] [--out DIR] [--device D]
+//              [--repeat N] [--out DIR] [--device D] [--labels "a,b,..."]
 //
+// --labels (semantic models): the targets' label maps in every mode, against the reference's.
 // Without --model: the tiny photometric model of the test fixture (build/tests/spar_goldens,
 // made by `ctest -R make_spar_goldens`), frames 0..4 with inputs 0,2,4. Writes DIR/modes.md
 // (also on stdout), DIR/modes.json and DIR/modes.svg (RGB PSNR against wall time); the
@@ -25,6 +26,7 @@
 #include "imaging/image_prep.h"
 #include "model/packed_model.h"
 #include "model/spar_config.h"
+#include "text/prompt_labels.h"
 #include "samples/spar_modes/accuracy.h"
 #include "samples/spar_modes/modes.h"
 #include "samples/spar_modes/reference.h"
@@ -38,7 +40,7 @@ using namespace spar;
 using namespace spar::modes;
 
 struct Args {
-  std::string model, checkpoint, config, inputs, modes, out = "spar-modes-out", device, sam2, sam2Config;
+  std::string model, checkpoint, config, inputs, modes, out = "spar-modes-out", device, sam2, sam2Config, labels;
   std::vector<std::string> frames;
   int repeat = 3;
 };
@@ -123,10 +125,22 @@ int run(Args a) {
     request.images.insert(request.images.end(), img.begin(), img.end());
   }
 
+  // Prompts: the targets' label maps in every mode, against the reference's (CLIP's tokenizer
+  // packed in the model; the reference reads the repository's copy of the same BPE table).
+  std::vector<std::string> labelNames;
+  Prompts prompts;
+  if (!a.labels.empty()) {
+    std::stringstream ss(a.labels);
+    for (std::string item; std::getline(ss, item, ',');) labelNames.push_back(item);
+    if (!config.useLseg) throw UsageError("--labels needs a model with the semantic branch");
+    prompts.ids = tokenizePrompts(model, labelNames).ids;
+    prompts.count = int64_t(labelNames.size());
+  }
+
   const fs::path out = fs::absolute(a.out);
   fs::create_directories(out);
-  const ReferenceInputs refIn{SPAR_PYTHON, SPAR_SOURCE_DIR, a.checkpoint,        a.config,
-                              a.frames,    request.plan.inputs, a.sam2, a.sam2Config};
+  const ReferenceInputs refIn{SPAR_PYTHON, SPAR_SOURCE_DIR,     a.checkpoint, a.config, a.frames,
+                              request.plan.inputs, a.sam2, a.sam2Config, a.labels, SPAR_CLIP_BPE};
   const bool anyStatic = std::any_of(modes.begin(), modes.end(), [](const Mode& m) { return m.assumeStatic; });
   std::vector<std::pair<ReferenceRun, std::string>> runs = {{ReferenceRun::Whole, (out / "reference").string()}};
   if (anyStatic) runs.emplace_back(ReferenceRun::Static, (out / "reference_static").string());
@@ -147,12 +161,13 @@ int run(Args a) {
   for (const Mode& m : modes) {
     std::fprintf(stderr, "spar-modes: %s ...\n", m.name.c_str());
     ModeResult r;
-    r.run = runMode(engineOptions, model, request, m, a.repeat);
+    r.run = runMode(engineOptions, model, request, m, a.repeat, prompts);
     deviceName = r.run.device;
     r.vsReference = rgbError(r.run.rgb, ref.rgb);
     r.maskAgreement = maskAgreement(r.run.motion, ref.mask, config.maskThreshold);
     r.motionMaxAbs = motionMaxAbs(r.run.motion, ref.motion);
     if (m.refine) r.refinedAgreement = maskAgreement(r.run.refined, refRefine.refined, 0.5);
+    r.labelAgreement = labelAgreement(r.run.labels, ref.labels);
     r.vsSameMode = rgbError(r.run.rgb, m.assumeStatic ? refStatic.rgb : m.refinedGating ? refRefine.rgb : ref.rgb);
     results.push_back(std::move(r));
   }
@@ -173,6 +188,7 @@ int run(Args a) {
   setup.referenceStaticMs = refStatic.modelMs;
   setup.referenceRefine = refRefine.dir;
   setup.referenceRefineMs = refRefine.modelMs;
+  setup.labels = labelNames;
 
   const std::string markdown = reportMarkdown(setup, results);
   std::vector<PlotPoint> points;
@@ -211,6 +227,9 @@ int main(int argc, char** argv) {
                  "comma-separated subset of " + modeNames + " (default: all; the refine modes when the model has SAM2.1)");
   app.add_option("--sam2", a.sam2, "the SAM2.1 checkpoint the model was packed with (the reference's, refine modes)");
   app.add_option("--sam2-config", a.sam2Config, "its variant for the reference (NAME|YAML|JSON; default: inferred)");
+  app.add_option("--labels", a.labels,
+                 "comma-separated prompts (semantic models): the targets' label maps in every mode, against the "
+                 "reference's");
   app.add_option("--repeat", a.repeat, "measured runs per mode after the first (median reported; default 3)");
   app.add_option("--out", a.out, "directory for modes.md, modes.json, modes.svg and the reference's goldens");
   app.add_option("--device", a.device, "Vulkan device index or part of its name (default: SPAR_DEVICE, else the "

@@ -45,4 +45,12 @@ std::optional<double> motionMaxAbs(const std::vector<float>& motion, const std::
   return m;
 }
 
+std::optional<double> labelAgreement(const std::vector<int32_t>& labels, const std::vector<int32_t>& reference) {
+  if (labels.empty() || reference.empty()) return std::nullopt;
+  sameSize(labels.size(), reference.size(), "label maps");
+  size_t same = 0;
+  for (size_t i = 0; i < labels.size(); ++i) same += labels[i] == reference[i];
+  return double(same) / double(labels.size());
+}
+
 }  // namespace spar::modes

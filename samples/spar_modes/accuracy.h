@@ -1,6 +1,7 @@
 // Error of one mode's output against a reference output (engineering.md "Report error against
-// run time": PSNR of RGB, max abs error, mask agreement).
+// run time": PSNR of RGB, max abs error, mask and label-map agreement).
 #pragma once
+#include <cstdint>
 #include <optional>
 #include <vector>
 
@@ -19,5 +20,9 @@ std::optional<double> maskAgreement(const std::vector<float>& motion, const std:
                                     double threshold);
 // Max |P - P_ref| of the motion probabilities; nullopt as above.
 std::optional<double> motionMaxAbs(const std::vector<float>& motion, const std::vector<float>& reference);
+
+// Share (0..1) of pixels whose label (prompt index) equals the reference's; nullopt when either
+// side has no label maps (no prompts).
+std::optional<double> labelAgreement(const std::vector<int32_t>& labels, const std::vector<int32_t>& reference);
 
 }  // namespace spar::modes

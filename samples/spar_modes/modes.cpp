@@ -3,9 +3,11 @@
 #include <algorithm>
 #include <chrono>
 #include <map>
+#include <optional>
 #include <sstream>
 
 #include "engine/error.h"
+#include "model/prompt_label_maps.h"
 
 namespace spar::modes {
 namespace {
@@ -19,13 +21,19 @@ double median(std::vector<double> v) {
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
-// One encode + render; returns its wall time in ms.
-double runOnce(SparPipeline& pipe, const SparRequest& request, ModeRun& out) {
+// One encode + render (+ label maps with prompts); returns its wall time in ms.
+double runOnce(Engine& engine, SparPipeline& pipe, const SparRequest& request, const PromptEmbeddings* text,
+               ModeRun& out) {
   const auto t0 = Clock::now();
   const SparEncoded& e = pipe.encode(request);
   out.motion = e.motionInput;
   out.refined = e.refinedInput;
   out.rgb = pipe.renderTargets();
+  if (text) {
+    out.labels.clear();
+    for (const std::vector<int32_t>& map : computeLabelMaps(engine, pipe.renderedFeatures(), *text).maps)
+      out.labels.insert(out.labels.end(), map.begin(), map.end());
+  }
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
 }
 
@@ -74,10 +82,14 @@ std::vector<Mode> selectModes(const std::string& list, bool sam2) {
 }
 
 ModeRun runMode(const EngineOptions& engineOptions, const PackedModel& model, const SparRequest& request,
-                const Mode& mode, int repeats) {
+                const Mode& mode, int repeats, const Prompts& prompts) {
   Engine engine(engineOptions);
   SparPipeline pipe(engine, model, {.profile = true, .keepIntermediates = false, .weightType = mode.weightType});
+  std::optional<PromptEmbeddings> text;
+  if (prompts.count)
+    text = encodePrompts(engine, model, pipe.config(), mode.weightType, prompts.ids, prompts.count);
   SparRequest req = request;
+  req.semanticFeatures = prompts.count > 0;
   req.assumeStatic = mode.assumeStatic;
   req.refine = mode.refine;
   req.maskSource = mode.refinedGating ? MaskSource::Refined : MaskSource::Raw;
@@ -87,14 +99,15 @@ ModeRun runMode(const EngineOptions& engineOptions, const PackedModel& model, co
   out.mode = mode;
   out.device = engine.caps().name;
   out.repeats = repeats;
-  out.firstRunMs = runOnce(pipe, req, out);
+  const PromptEmbeddings* textPtr = text ? &*text : nullptr;
+  out.firstRunMs = runOnce(engine, pipe, req, textPtr, out);
 
   // stageTimes() accumulates since construction: each run's share is the difference.
   std::vector<StageTime> before = pipe.stageTimes();
   std::map<std::string, std::vector<double>> gpu, wall;
   std::vector<double> totalWall, totalGpu;
   for (int r = 0; r < repeats; ++r) {
-    totalWall.push_back(runOnce(pipe, req, out));
+    totalWall.push_back(runOnce(engine, pipe, req, textPtr, out));
     const std::vector<StageTime>& now = pipe.stageTimes();
     double sum = 0;
     for (const StageTime& s : now) {

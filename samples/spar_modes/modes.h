@@ -42,11 +42,20 @@ struct ModeRun {
   std::vector<float> rgb;        // [T, 3, H, W] of the last run
   std::vector<float> motion;     // [K, H, W] P(dynamic) of the inputs (empty when static)
   std::vector<float> refined;    // [K, H, W] SAM2.1's refined masks, 0 or 1 (refine modes)
+  std::vector<int32_t> labels;   // [T, H, W] label maps of the targets (with prompts), last run
+};
+
+// Prompts for label maps (semantic models): CLIP token ids [P, 77] (text/prompt_labels.h).
+struct Prompts {
+  std::vector<int32_t> ids;
+  int64_t count = 0;
 };
 
 // Runs `mode` on a fresh engine (so its device memory and compiled kernels are its own): one
-// first run, then `repeats` measured runs of encode() + renderTargets().
+// first run, then `repeats` measured runs of encode() + renderTargets(), and with prompts the
+// targets' label maps (the prompts encoded once per mode, before the first run, as `spar render`
+// does; the text encoder's weights in the mode's precision).
 ModeRun runMode(const EngineOptions& engineOptions, const PackedModel& model, const SparRequest& request,
-                const Mode& mode, int repeats);
+                const Mode& mode, int repeats, const Prompts& prompts = {});
 
 }  // namespace spar::modes

@@ -48,6 +48,8 @@ nlohmann::json stamp(const ReferenceInputs& in, ReferenceRun run) {
           {"run", runName(run)},
           {"sam2", refine ? fileStamp(in.sam2) : nullptr},
           {"sam2_config", refine ? in.sam2Config : ""},
+          {"labels", in.labels},
+          {"bpe", in.labels.empty() ? nullptr : fileStamp(in.bpe)},
           {"precision", "fp32"}};
 }
 
@@ -72,6 +74,7 @@ std::vector<std::string> goldensArgv(const ReferenceInputs& in, ReferenceRun run
     if (run == ReferenceRun::Refine) a.push_back("--refine");
     else a.insert(a.end(), {"--mask-source", "refined"});
   }
+  if (!in.labels.empty()) a.insert(a.end(), {"--labels", in.labels, "--bpe", in.bpe});
   a.insert(a.end(), {"--out", dir.string()});
   return a;
 }
@@ -96,7 +99,7 @@ void makeGoldens(const ReferenceInputs& in, const std::vector<std::pair<Referenc
   if (code != 0) throw Error("the PyTorch reference failed: " + cmd);
 }
 
-Reference readReference(ReferenceRun run, const fs::path& dir, bool reused) {
+Reference readReference(ReferenceRun run, const fs::path& dir, bool reused, bool labels) {
   Reference r;
   r.dir = dir.string();
   r.reused = reused;
@@ -108,6 +111,8 @@ Reference readReference(ReferenceRun run, const fs::path& dir, bool reused) {
   }
   if (run == ReferenceRun::Refine || run == ReferenceRun::RefinedGating)  // [1, K, 1, H, W]
     r.refined = readNpy((dir / "refined_input.npy").string()).toFloats();
+  if (labels)  // label_maps [R, H, W] of the rendered targets, integer prompt indices
+    for (double v : readNpy((dir / "label_maps.npy").string()).toDoubles()) r.labels.push_back(int32_t(v));
   std::ifstream rep(dir / "report.json");
   if (!rep) throw Error(r.dir + "/report.json: cannot open");
   const nlohmann::json report = nlohmann::json::parse(rep);
@@ -149,7 +154,7 @@ std::vector<Reference> loadReferences(const ReferenceInputs& in,
   }
   std::vector<Reference> out;
   for (size_t i = 0; i < runs.size(); ++i)
-    out.push_back(readReference(runs[i].first, fs::absolute(runs[i].second), reused[i]));
+    out.push_back(readReference(runs[i].first, fs::absolute(runs[i].second), reused[i], !in.labels.empty()));
   return out;
 }
 

@@ -17,6 +17,8 @@ struct ReferenceInputs {
   std::vector<std::string> frames;
   std::vector<int64_t> inputs;
   std::string sam2, sam2Config;  // the SAM2.1 checkpoint and its variant (refine runs)
+  std::string labels;            // comma-separated prompts ("" = no label maps)
+  std::string bpe;               // CLIP's BPE merges table (the reference's tokenizer), with labels
 };
 
 // Which run of the reference: the whole model, --assume-static, --refine (CV-DRP's masks still
@@ -30,6 +32,7 @@ struct Reference {
   std::vector<float> motion;  // [K, H, W] P(dynamic) of the inputs (empty with assume-static)
   std::vector<float> mask;    // [K, H, W] its binary mask, 0 or 1 (empty with assume-static)
   std::vector<float> refined; // [K, H, W] SAM2.1's refined masks, 0 or 1 (refine runs)
+  std::vector<int32_t> labels;  // [T, H, W] label maps of the targets (with prompts)
   double modelMs = 0;         // the reference's own time of the model's stages (no file I/O)
 };
 

@@ -62,7 +62,8 @@ nlohmann::ordered_json reportJson(const ReportSetup& setup, const std::vector<Mo
           {"rgb_max_abs", r.vsReference.maxAbs},
           {"mask_agreement", number(r.maskAgreement)},
           {"motion_max_abs", number(r.motionMaxAbs)},
-          {"refined_mask_agreement", number(r.refinedAgreement)}}},
+          {"refined_mask_agreement", number(r.refinedAgreement)},
+          {"label_map_agreement", number(r.labelAgreement)}}},
         {"vs_same_mode_reference",
          {{"rgb_psnr_db", number(r.vsSameMode.psnrDb)}, {"rgb_max_abs", r.vsSameMode.maxAbs}}},
     });
@@ -77,6 +78,7 @@ nlohmann::ordered_json reportJson(const ReportSetup& setup, const std::vector<Mo
       {"inputs", setup.inputs},
       {"targets", setup.targets},
       {"image", {setup.height, setup.width}},
+      {"labels", setup.labels},
       {"reference",
        {{"precision", "fp32"},
         {"goldens", setup.reference},
@@ -97,15 +99,23 @@ std::string reportMarkdown(const ReportSetup& setup, const std::vector<ModeResul
   s += "Error against the PyTorch fp32 reference of the whole model (DINOv3 + CV-DRP on); times are medians of " +
        std::to_string(results.empty() ? 0 : results[0].run.repeats) +
        " runs of encode + render after a first run (weight upload, shader compilation).\n\n";
+  const bool labels = !setup.labels.empty();
+  if (labels) {
+    s += "Label maps of the targets for " + std::to_string(setup.labels.size()) + " prompts (";
+    for (size_t i = 0; i < setup.labels.size(); ++i) s += (i ? ", " : "") + setup.labels[i];
+    s += "), in every mode's wall time.\n\n";
+  }
   s += "| mode | wall ms | GPU ms | first run ms | weights MB | device peak MB | RGB PSNR dB | RGB max abs | mask "
-       "agreement % | refined mask agreement % | PSNR vs same-mode ref dB |\n";
-  s += "|---|---|---|---|---|---|---|---|---|---|---|\n";
+       "agreement % | refined mask agreement % |" + std::string(labels ? " label agreement % |" : "") +
+       " PSNR vs same-mode ref dB |\n";
+  s += std::string("|---|---|---|---|---|---|---|---|---|---|") + (labels ? "---|" : "") + "---|\n";
   for (const ModeResult& r : results) {
     s += "| " + r.run.mode.name + " | " + fmt("%.1f", r.run.wallMs) + " | " + fmt("%.1f", r.run.gpuMs) + " | " +
          fmt("%.0f", r.run.firstRunMs) + " | " + mb(r.run.weightBytes) + " | " + mb(r.run.devicePeakBytes) + " | " +
          psnr(r.vsReference.psnrDb) + " | " + fmt("%.2e", r.vsReference.maxAbs) + " | " +
          (r.maskAgreement ? fmt("%.3f", 100.0 * *r.maskAgreement) : std::string("n/a (no CV-DRP)")) + " | " +
          (r.refinedAgreement ? fmt("%.3f", 100.0 * *r.refinedAgreement) : std::string("-")) + " | " +
+         (labels ? (r.labelAgreement ? fmt("%.3f", 100.0 * *r.labelAgreement) : std::string("-")) + " | " : std::string()) +
          psnr(r.vsSameMode.psnrDb) + " |\n";
   }
   s += "\nPer stage, wall / GPU ms (median):\n\n| stage |";

@@ -20,6 +20,8 @@ struct ModeResult {
   std::optional<double> motionMaxAbs;
   // SAM2.1's refined input masks against the reference's refinement (refine modes)
   std::optional<double> refinedAgreement;
+  // the targets' label maps against the reference's (with prompts)
+  std::optional<double> labelAgreement;
   // Against the reference run in the same mode (--assume-static for the static modes,
   // --mask-source refined for the refined-gating ones): the engine's own error, without what
   // the shortcut itself changes.
@@ -35,6 +37,7 @@ struct ReportSetup {
   int64_t height = 0, width = 0;
   std::string reference, referenceStatic, referenceRefine;  // goldens directories ("" if not run)
   double referenceMs = 0, referenceStaticMs = 0, referenceRefineMs = 0;
+  std::vector<std::string> labels;  // the prompts ("" = none)
 };
 
 nlohmann::ordered_json reportJson(const ReportSetup& setup, const std::vector<ModeResult>& results);
