@@ -184,6 +184,7 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
   };
   out.push_back("linear, fp32 weights: " + gemmText(plan.gemm, false));
   out.push_back("linear, fp16 weights: " + gemmText(plan.gemmF16, true));
+  out.push_back("linear, q8 / q4 weights: " + gemmText(plan.quantizedGemm(), false) + ", dequantizing");
   out.push_back(plan.attention == KernelFamily::CpuBlocks
                     ? "attention: attention.comp (cpu register blocks)"
                     : "attention: attention_tiled.comp (" + std::to_string(plan.attentionQueries) + " queries, " +

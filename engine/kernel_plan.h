@@ -74,6 +74,11 @@ struct KernelPlan {
   // The tiles for a product of M x N outputs: gemmTiles when they give enough workgroups to
   // fill the device, gemmSmallTiles otherwise.
   const TiledGemmTiles& tilesFor(int64_t m, int64_t n, int64_t batch) const;
+  // The families that read block-quantized weights (DType::Q8 / Q4), dequantizing as they load
+  // them: the tiled one where the plan's f32 family for the op is tiled, else the register
+  // blocks (the cooperative-matrix kernels read fp16 only; conv is never CoopMat).
+  KernelFamily quantizedGemm() const { return gemm == KernelFamily::Tiled ? KernelFamily::Tiled : KernelFamily::CpuBlocks; }
+  KernelFamily quantizedConv() const { return conv; }
 };
 
 // From the device's properties and the overrides; throws Error for a forced family the device

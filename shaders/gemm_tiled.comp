@@ -20,13 +20,21 @@
 //   device's packed fp16 arithmetic), added into an fp32 accumulator: fp16 rounding of the
 //   inputs and of 4-term partial sums, never of the running sum. A partial beyond fp16's range
 //   saturates at +-65504 rather than becoming infinite.
-//! variant gemm_tiled_f32 OUT_F16=0 FP16_MATH=0 CONV=0
-//! variant gemm_tiled_f16out OUT_F16=1 FP16_MATH=0 CONV=0
-//! variant gemm_tiled_h16 OUT_F16=0 FP16_MATH=1 CONV=0
-//! variant gemm_tiled_h16_f16out OUT_F16=1 FP16_MATH=1 CONV=0
-//! variant conv2d_tiled_f32 OUT_F16=0 FP16_MATH=0 CONV=1
+// W_QUANT: W is a block-quantized matrix (q8 / q4 by W_BITS, shaders/quant.glsl; a convolution
+//   kernel as its [Cout, Cin*KH*KW]), read as 32-bit words and dequantized a texel of 4 k at a
+//   time while its tile is copied into shared memory: the compute loop is the f32 one. Rows are
+//   whole blocks of 32 (TEXEL_K 4); ldw (CONV: the row length in words, from wRow) is in words.
+//! variant gemm_tiled_f32 OUT_F16=0 FP16_MATH=0 CONV=0 W_QUANT=0
+//! variant gemm_tiled_f16out OUT_F16=1 FP16_MATH=0 CONV=0 W_QUANT=0
+//! variant gemm_tiled_h16 OUT_F16=0 FP16_MATH=1 CONV=0 W_QUANT=0
+//! variant gemm_tiled_h16_f16out OUT_F16=1 FP16_MATH=1 CONV=0 W_QUANT=0
+//! variant conv2d_tiled_f32 OUT_F16=0 FP16_MATH=0 CONV=1 W_QUANT=0
+//! variant gemm_tiled_q_f32 OUT_F16=0 FP16_MATH=0 CONV=0 W_QUANT=1
+//! variant gemm_tiled_q_f16out OUT_F16=1 FP16_MATH=0 CONV=0 W_QUANT=1
+//! variant conv2d_tiled_q_f32 OUT_F16=0 FP16_MATH=0 CONV=1 W_QUANT=1
 #extension GL_GOOGLE_include_directive : require
 #include "common.glsl"
+#include "quant.glsl"
 #if FP16_MATH
 #extension GL_EXT_shader_explicit_arithmetic_types_float16 : require
 #define TILE_T float16_t
@@ -50,9 +58,14 @@ layout(constant_id = 10) const bool HAS_BIAS = false;
 layout(constant_id = 11) const int KH = 1;        // CONV: kernel height, width, stride
 layout(constant_id = 12) const int KW = 1;
 layout(constant_id = 13) const int STRIDE = 1;
+layout(constant_id = 14) const int W_BITS = 8;    // W_QUANT: 8 (q8) or 4 (q4)
 
 TEXEL_INPUT(0, X, (CONV == 1 ? 1 : TEXEL_K))     // A (CONV: the image, R texels)
+#if W_QUANT
+QUANT_INPUT(1, W)
+#else
 TEXEL_INPUT(1, W, TEXEL_K)
+#endif
 TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
 layout(binding = 3) writeonly buffer Y { OUT_T y[]; };
 
@@ -136,7 +149,11 @@ void copyTiles(int img, int m0, int n0, int k0) {
     [[unroll]] for (int c = 0; c < TEXEL_K; ++c) tileA[(kt * TEXEL_K + c) * AS + r] = TO_TILE(v[c]);
   }
 #endif
-#if CONV
+#if CONV && W_QUANT
+  // a quantized row: its kTexels / (W_BITS == 8 ? 1 : 2) code words, then one scale a block
+  const int kTexels = p.wRow, wBatch = 0, wBase = p.wBase;
+  const int wLd = (W_BITS == 8 ? kTexels : kTexels / 2) + kTexels / 8;
+#elif CONV
   const int wBatch = 0, wLd = p.wRow, wBase = p.wBase, kTexels = p.wRow;
 #else
   const int wBatch = img * p.wBatch, wLd = p.ldw, wBase = 0, kTexels = p.K;
@@ -147,7 +164,11 @@ void copyTiles(int img, int m0, int n0, int k0) {
     const int r = i / wTexelsPerRow, kt = i - r * wTexelsPerRow;
     const int n = n0 + r;
     vec4 v = vec4(0.0);
+#if W_QUANT
+    if (n < colsN() && wk0 + kt < kTexels) v = fetchq_W(wBase + wBatch + n * wLd, wk0 + kt, kTexels);
+#else
     if (n < colsN() && wk0 + kt < kTexels) v = fetch_W(wBase + wBatch + n * wLd + wk0 + kt);
+#endif
     [[unroll]] for (int c = 0; c < TEXEL_K; ++c) tileW[(kt * TEXEL_K + c) * WS + r] = TO_TILE(v[c]);
   }
 }

@@ -45,7 +45,7 @@ TEST(spar_selftest, JsonUnderARaspberryPiProfile) {
   EXPECT_LE(doc.at("limits").at("max_compute_shared_memory_size").get<uint32_t>(), 16384u);
   EXPECT_FALSE(doc.at("limits").at("shader_float16").get<bool>());
   EXPECT_EQ(doc.at("validation").at("messages").get<int>(), 0);
-  ASSERT_EQ(doc.at("checks").size(), 10u);
+  ASSERT_EQ(doc.at("checks").size(), 12u);
   for (const auto& c : doc.at("checks")) {
     EXPECT_TRUE(c.at("passed").get<bool>()) << c.dump();
     EXPECT_LE(c.at("nmse").get<double>(), c.at("max_nmse").get<double>()) << c.dump();

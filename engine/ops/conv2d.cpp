@@ -24,26 +24,31 @@ struct ConvGemmPush {
 // K = Cin*kh*kw, the weight as PyTorch stores it is the [N, K] matrix), one workgroup layer
 // per work unit (an image, or a block of its output channels when one image's output is
 // larger than a binding).
+// A quantized w (the [Cout, Cin*KH*KW] matrix) is bound whole as its words and dequantized
+// while its tiles are copied (conv2d_tiled_q_f32).
 void conv2dAsGemm(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
-                  const Conv2dParams& params) {
+                  const Conv2dParams& params, int64_t KH, int64_t KW) {
   using namespace ops;
   Engine& engine = rec.engine();
   const DeviceCaps& caps = engine.caps();
+  const bool quantized = isQuantized(w.dtype());
   const int64_t N = x.dim(0), Cin = x.dim(1), H = x.dim(2), W = x.dim(3);
-  const int64_t Cout = w.dim(0), KH = w.dim(2), KW = w.dim(3), Ho = y.dim(2), Wo = y.dim(3);
+  const int64_t Cout = w.dim(0), Ho = y.dim(2), Wo = y.dim(3);
   const int64_t depth = Cin * KH * KW;
   const TiledGemmTiles& t = engine.plan().tilesFor(Ho * Wo, Cout, N);
-  const BoundRange wr = bindRange(caps, w, 0, w.numel(), true);
+  const BoundRange wr = quantized ? BoundRange{w, 0} : bindRange(caps, w, 0, w.numel(), true);
   const BoundRange br = bias.defined() ? bindRange(caps, bias, 0, Cout, true) : wr;
   // Weight rows as RGBA texels when they are whole texels from a texel-aligned start.
   const int texelK = depth % 4 == 0 && wr.base % 4 == 0 ? 4 : 1;
-  if (uint64_t(wr.view.numel() / texelK) > ops::texelInputLimit(engine, texelK))
+  const int wComponents = quantized ? 1 : texelK;
+  if (uint64_t(quantized ? w.bytes() / 4 : wr.view.numel() / texelK) > ops::texelInputLimit(engine, wComponents))
     throw Error("conv2d: weight " + w.describe() + " exceeds the device's texel-buffer size");
-  const Kernel& kernel = engine.kernel({"conv2d_tiled_f32",
+  std::vector<int32_t> constants = {t.invocations(), 1, 1, t.bm, t.bn, t.bk, t.tm, t.tn, texelK,
+                                    static_cast<int>(params.act), bias.defined(), int(KH), int(KW), params.stride};
+  if (quantized) constants.push_back(w.dtype() == DType::Q8 ? 8 : 4);  // W_BITS
+  const Kernel& kernel = engine.kernel({quantized ? "conv2d_tiled_q_f32" : "conv2d_tiled_f32",
                                         {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                                        sizeof(ConvGemmPush),
-                                        {t.invocations(), 1, 1, t.bm, t.bn, t.bk, t.tm, t.tn, texelK,
-                                         static_cast<int>(params.act), bias.defined(), int(KH), int(KW), params.stride}});
+                                        sizeof(ConvGemmPush), constants});
   // Output channels per unit: all of them, unless an image's output is over a binding.
   const int64_t plane = Ho * Wo;
   const int64_t room = bindingElements(engine, false) - alignmentSlack(caps, false);
@@ -61,7 +66,10 @@ void conv2dAsGemm(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor&
                             params.padY, params.padX, int32_t(depth / texelK), int32_t(-c.in.base),
                             int32_t(-wr.base / texelK), int32_t(-br.base), int32_t(-c.out.base), int32_t(blocks),
                             int32_t(blockChannels), int32_t(c.u0)};
-    rec.dispatch(kernel, {Arg::texel(c.in.view, 1), Arg::texel(wr.view, texelK), Arg::texel(br.view, 1), Arg::out(c.out.view)},
+    // without a bias a placeholder never read: the weight, or for a quantized one one element of x
+    rec.dispatch(kernel,
+                 {Arg::texel(c.in.view, 1), Arg::texel(wr.view, wComponents),
+                  Arg::texel(bias.defined() || !quantized ? br.view : c.in.view.view(0, {1}), 1), Arg::out(c.out.view)},
                  push, gx, gy, static_cast<uint32_t>(c.u1 - c.u0));
   });
 }
@@ -139,7 +147,8 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   for (const Tensor* t : {&x, &w, &y}) checkElementCount(*t, "conv2d");
   if (y.numel() == 0) return;
   if (Cin == 0) throw Error("conv2d: input has no channels");
-  if (engine.plan().conv == KernelFamily::Tiled && !quantized) return conv2dAsGemm(rec, x, w, bias, y, params);
+  if ((quantized ? engine.plan().quantizedConv() : engine.plan().conv) == KernelFamily::Tiled)
+    return conv2dAsGemm(rec, x, w, bias, y, params, KH, KW);
 
   const ConvTiles tiles = chooseConvTiles(caps, engine.options().tuning, KH, KW, Cout);
   // Weights and bias may sit at any offset: they are bound from an aligned start. A quantized

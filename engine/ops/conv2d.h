@@ -32,8 +32,8 @@ struct Conv2dParams {
 // x: [N, Cin, H, W], w: [Cout, Cin, kh, kw] (PyTorch layout), bias: [Cout] or undefined,
 // y: [N, Cout, Ho, Wo] with Ho = (H + 2 padY - kh) / stride + 1 (likewise Wo). All f32, except
 // that w may be a block-quantized kernel (engine/tensor.h DType::Q8 / Q4): the matrix
-// [Cout, Cin*kh*kw] with params.kernelH / kernelW, dequantized as the kernel reads it (on every
-// device by conv2d.comp's register blocks; the GPU family's implicit GEMM reads f32 only).
+// [Cout, Cin*kh*kw] with params.kernelH / kernelW, dequantized as the kernel reads it (by
+// conv2d.comp's register blocks, or by the GPU family's implicit GEMM, KernelPlan::quantizedConv).
 // y = act(conv(x, w) + bias). Kernels up to 32x32; beyond about 7x7 the register-blocked
 // kernel gets slow (a 14x14 stride-14 patch embedding runs at ~1.5 GFLOPS on llvmpipe):
 // express patch embeddings as patchify + linear instead.

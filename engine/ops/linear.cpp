@@ -33,9 +33,9 @@ GemmLaunch gemmLaunch(Engine& engine, DType wType, DType yType, int64_t M, int64
   const DeviceCaps& caps = engine.caps();
   const KernelPlan& plan = engine.plan();
   const bool f16Out = yType == DType::F16;
-  // Quantized weights: gemm.comp's register blocks dequantize them per texel, on every device
-  // (the tiled and cooperative-matrix kernels read f32 / f16 weights only, so far).
-  const KernelFamily family = isQuantized(wType)    ? KernelFamily::CpuBlocks
+  // Quantized weights: gemm.comp's register blocks or gemm_tiled.comp's tiles dequantize them
+  // as they read them (KernelPlan::quantizedGemm; the cooperative-matrix kernels read fp16 only).
+  const KernelFamily family = isQuantized(wType)    ? plan.quantizedGemm()
                               : wType == DType::F16 ? plan.gemmF16
                                                     : plan.gemm;
   if (family == KernelFamily::CoopMat) {
@@ -55,13 +55,13 @@ GemmLaunch gemmLaunch(Engine& engine, DType wType, DType yType, int64_t M, int64
   }
   if (family == KernelFamily::Tiled) {
     const TiledGemmTiles& t = plan.tilesFor(M, N, B);
-    const bool h16 = wType == DType::F16 && plan.fp16Math;
-    const std::string name = std::string(h16 ? "gemm_tiled_h16" : "gemm_tiled") + (f16Out ? "_f16out" : h16 ? "" : "_f32");
-    const Kernel& k = engine.kernel({name,
-                                     {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                                     sizeof(GemmPush),
-                                     {t.invocations(), 1, 1, t.bm, t.bn, t.bk, t.tm, t.tn, texelK, static_cast<int>(act),
-                                      hasBias, 1, 1, 1}});
+    const bool h16 = wType == DType::F16 && plan.fp16Math, quantized = isQuantized(wType);
+    const std::string name = std::string(h16 ? "gemm_tiled_h16" : quantized ? "gemm_tiled_q" : "gemm_tiled") +
+                             (f16Out ? "_f16out" : h16 ? "" : "_f32");
+    std::vector<int32_t> constants = {t.invocations(), 1, 1, t.bm, t.bn, t.bk, t.tm, t.tn, texelK, static_cast<int>(act),
+                                      hasBias, 1, 1, 1};
+    if (quantized) constants.push_back(wType == DType::Q8 ? 8 : 4);  // W_BITS
+    const Kernel& k = engine.kernel({name, {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write}, sizeof(GemmPush), constants});
     return {&k, t.bm, t.bn};
   }
   GemmTiles tiles = chooseGemmTiles(caps, engine.options().tuning, double(B) * double(M) * double(N) * double(K));

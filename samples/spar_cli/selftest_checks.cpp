@@ -135,7 +135,7 @@ SelftestCheck linearQuantizedCheck(Engine& engine, DType q) {
   return check(
       engine, std::string("linear 67x130x96, ") + dtypeName(q) + " weights, stiff blocks",
       // max abs: 1e-6 of the outputs' scale, 1e4 in row 0 (fp32 accumulation; measured 3-4e-3)
-      std::string(familyName(KernelFamily::CpuBlocks)) + " (dequantizing)", 1e-9, 1e-2,
+      std::string(familyName(engine.plan().quantizedGemm())) + " (dequantizing)", 1e-9, 1e-2,
       [&](Recorder& rec) {
         Tensor tx = engine.fromFloats({M, K}, x), tw = engine.tensor({N, K}, q);
         engine.write(tw, rows.data(), rows.size());
@@ -306,7 +306,7 @@ SelftestCheck conv2dQuantizedCheck(Engine& engine, DType q) {
       // max abs: fp32 accumulation's bound K * 2^-24 * sum |w x| with the outlier's product of up
       // to 1e4 in channel 0 (0.17; every later product is added at 1e4's spacing: measured 1.1e-2
       // with q8, 1.3e-2 with q4, on lavapipe)
-      std::string(familyName(KernelFamily::CpuBlocks)) + " (dequantizing)", 1e-9, double(K) * std::ldexp(1.0, -24) * 1e4,
+      std::string(familyName(engine.plan().quantizedConv())) + " (dequantizing)", 1e-9, double(K) * std::ldexp(1.0, -24) * 1e4,
       [&](Recorder& rec) {
         Tensor tx = engine.fromFloats({1, Cin, H, W}, x), tw = engine.tensor({Cout, K}, q), tb = engine.fromFloats({Cout}, b);
         engine.write(tw, rows.data(), rows.size());
