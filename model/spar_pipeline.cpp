@@ -113,13 +113,16 @@ Tensor selectViews(Recorder& rec, const Tensor& all, const std::vector<int64_t>&
 }  // namespace
 
 void SparPipeline::addStageTime(const std::string& name, double gpuMs, double wallMs, double buildMs) {
+  const uint64_t inUse = engine_.memory().bytesInUse(), peak = engine_.memory().peakBytes();
   auto it = std::find_if(stageTimes_.begin(), stageTimes_.end(), [&](const StageTime& s) { return s.name == name; });
   if (it == stageTimes_.end()) {
-    stageTimes_.push_back({name, gpuMs, wallMs, buildMs});
+    stageTimes_.push_back({name, gpuMs, wallMs, buildMs, inUse, peak});
   } else {
     it->gpuMs += gpuMs;
     it->wallMs += wallMs;
     it->buildMs += buildMs;
+    it->deviceBytesAfter = std::max(it->deviceBytesAfter, inUse);
+    it->devicePeakBytes = std::max(it->devicePeakBytes, peak);
   }
 }
 

@@ -353,11 +353,13 @@ PYBIND11_MODULE(spar, m) {
             py::list out;
             for (const spar::StageTime& t : s.open().stageTimes())
               out.append(py::dict(py::arg("name") = t.name, py::arg("gpu_ms") = t.gpuMs, py::arg("wall_ms") = t.wallMs,
-                                  py::arg("build_ms") = t.buildMs));
+                                  py::arg("build_ms") = t.buildMs, py::arg("device_bytes_after") = t.deviceBytesAfter,
+                                  py::arg("device_peak_bytes") = t.devicePeakBytes));
             return out;
           },
           "The stages that ran since the session was made: name, gpu_ms (compute), build_ms (the driver's "
-          "kernel builds), wall_ms.")
+          "kernel builds), wall_ms, device_bytes_after (device memory in use when it ended), device_peak_bytes "
+          "(the peak so far).")
       .def(
           "close",
           [](SessionBox& s) {

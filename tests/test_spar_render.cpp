@@ -682,6 +682,10 @@ TEST(spar_render, SemanticHeadOnlyWhenAsked) {
   for (const auto& st : a["stages"]) {
     EXPECT_NE(st["name"], "text_encoder");
     EXPECT_NE(st["name"], "labels");
+    // each stage's device memory: in use after it, within the run's peak so far, within the run's
+    EXPECT_GT(st["device_bytes_after"].get<double>(), 0.0) << st.dump();
+    EXPECT_LE(st["device_bytes_after"].get<double>(), st["device_peak_bytes"].get<double>()) << st.dump();
+    EXPECT_LE(st["device_peak_bytes"].get<double>(), a["device_memory"]["peak_bytes"].get<double>()) << st.dump();
   }
   for (const auto& n : entries(plain)) EXPECT_NE(n.rfind("labels_", 0), 0u) << n;
 }

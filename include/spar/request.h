@@ -93,10 +93,14 @@ struct Encoded {
 // GPU time of one stage (its dispatches' timestamps: compute only), the time the driver spent
 // building kernels for it (compiles at first dispatch; 0 once they are in its cache, and on
 // drivers that compile at pipeline creation), and host wall time around it (which includes
-// both and pipeline creation).
+// both and pipeline creation). Device memory: what was in use when the stage ended (weights
+// it uploaded and buffers kept for later stages included) and the peak of the run so far; a
+// stage whose peak is above both its own and the previous stage's in-use figure allocated that
+// much transiently (for a stage that ran more than once, the largest of its runs).
 struct StageTime {
   std::string name;
   double gpuMs = 0, wallMs = 0, buildMs = 0;
+  uint64_t deviceBytesAfter = 0, devicePeakBytes = 0;
 };
 
 }  // namespace spar

@@ -404,7 +404,8 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
     // gpu_ms: compute only; build_ms: the driver building kernels during the stage (first
     // dispatches on llvmpipe); wall_ms includes both and pipeline creation.
     for (const auto& s : pipeline.stageTimes())
-      stages.push_back({{"name", s.name}, {"gpu_ms", s.gpuMs}, {"build_ms", s.buildMs}, {"wall_ms", s.wallMs}});
+      stages.push_back({{"name", s.name}, {"gpu_ms", s.gpuMs}, {"build_ms", s.buildMs}, {"wall_ms", s.wallMs},
+                        {"device_bytes_after", s.deviceBytesAfter}, {"device_peak_bytes", s.devicePeakBytes}});
     if (a.labels) {
       stages.push_back(
           {{"name", "text_encoder"}, {"gpu_ms", text.gpuMs}, {"build_ms", text.buildMs}, {"wall_ms", text.wallMs}});
