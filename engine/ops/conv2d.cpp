@@ -154,7 +154,6 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   // Weights and bias may sit at any offset: they are bound from an aligned start. A quantized
   // kernel is bound whole, as its 32-bit words (a tensor of its own starts aligned).
   const BoundRange wr = quantized ? BoundRange{w, 0} : bindRange(caps, w, 0, w.numel(), true);
-  if (quantized && (Cin * KH * KW) % 32) throw Error("conv2d: quantized weight " + w.describe() + " has partial blocks");
   const BoundRange br = bias.defined() ? bindRange(caps, bias, 0, Cout, true) : wr;
   // Input channels per step: a step's weights are whole RGBA texels when Cin*kh*kw is a
   // multiple of 4 (and the binding starts on a texel); otherwise one channel with R texels.
