@@ -77,15 +77,19 @@ def spar_seeds(out):
            {"sam2.image_encoder.trunk.pos_embed": np.ones((1, 8, 7, 7), dtype=np.float32),
             "sam2.no_mem_embed": np.zeros((1, 1, 64), dtype=np.float16)},
            extra={"sam2_config": json.dumps(sam2, sort_keys=True, separators=(",", ":"))})
-    # Quantized matrices (format version 2, FORMAT.md "Quantized matrices"): a q8 and a q4 one.
+    # Quantized matrices (format version 2, FORMAT.md "Quantized matrices"): a q8 and a q4 one,
+    # and a q8 convolution kernel [2, 8, 2, 2] (its matrix [2, 32]).
     packed(out / "quantized.spar", photometric,
            {"w": (np.arange(64) % 9 - 4).astype(np.int8).reshape(2, 32),
             "w.qscale": np.array([[0.5], [0.25]], dtype=np.float32),
             "v": np.full((1, 32), 0x1F, dtype=np.uint8),
-            "v.qscale": np.array([[1.0, 2.0]], dtype=np.float32)},
+            "v.qscale": np.array([[1.0, 2.0]], dtype=np.float32),
+            "c": (np.arange(64) % 7 - 3).astype(np.int8).reshape(2, 32),
+            "c.qscale": np.array([[0.125], [2.0]], dtype=np.float32)},
            extra={"format_version": QUANT_FORMAT_VERSION,
                   "quantized": json.dumps({"w": {"bits": 8, "block": 32, "shape": [2, 32]},
-                                           "v": {"bits": 4, "block": 32, "shape": [1, 64]}},
+                                           "v": {"bits": 4, "block": 32, "shape": [1, 64]},
+                                           "c": {"bits": 8, "block": 32, "shape": [2, 8, 2, 2]}},
                                           sort_keys=True, separators=(",", ":"))})
     packed(out / "nonfinite.spar", tiny,
            {"inf": np.array([1, np.inf], dtype=np.float32), "nan": np.array([np.nan], dtype=np.float16)})
