@@ -461,7 +461,7 @@ Tensor PackedModel::upload(Engine& engine, const std::string& name, DType want) 
     const DType q = naturalDType(name);
     if (want != q)
       fail(path_, "tensor " + quoted(name) + " is a " + dtypeName(q) + " matrix " + shapeString(i.shape) +
-                      ": this stage reads it as " + dtypeName(want) + " (quantized matrices reach the GEMM only; "
+                      ": this stage reads it as " + dtypeName(want) + " (quantized matrices reach only the kernels that dequantize them; "
                       "convert the model with --weights fp32 or fp16)");
     const auto scales = data(i.scales);
     const Shape matrix = quantizedMatrixShape(i.shape);

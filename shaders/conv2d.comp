@@ -122,7 +122,7 @@ void main() {
   // First weight of each channel of the block (channels past Cout repeat the last one); with
   // W_QUANT the first word of its row (a row: Cin*KK/4 texels of codes and scales).
   const int kTexels = p.Cin * KK / 4;
-  const int rowWords = W_BITS == 8 ? kTexels + kTexels / 8 : kTexels / 2 + kTexels / 8;
+  const int rowWords = QUANT_ROW_WORDS(kTexels);
   int wOff[RC];
   [[unroll]] for (int c = 0; c < RC; ++c)
     wOff[c] = W_QUANT != 0 ? min(co0 + c, p.Cout - 1) * rowWords - p.wBase

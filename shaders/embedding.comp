@@ -42,7 +42,7 @@ void main() {
 #if W_QUANT
     // a row: its codes (dim / 4 or dim / 8 words), then its dim / 32 scales
     const int codeWords = W_BITS == 8 ? p.dim / 4 : p.dim / 8;
-    const int row = (id - p.rowBegin) * (codeWords + p.dim / 32);
+    const int row = (id - p.rowBegin) * QUANT_ROW_WORDS(p.dim / 4);
     const float s = uintBitsToFloat(word_table(row + codeWords + d / 32));
     const int code = W_BITS == 8 ? (int(word_table(row + d / 4)) << (24 - 8 * (d & 3))) >> 24
                                  : int((word_table(row + d / 8) >> (4 * (d & 7))) & 0xFu) - 8;

@@ -152,7 +152,7 @@ void copyTiles(int img, int m0, int n0, int k0) {
 #if CONV && W_QUANT
   // a quantized row: its kTexels / (W_BITS == 8 ? 1 : 2) code words, then one scale a block
   const int kTexels = p.wRow, wBatch = 0, wBase = p.wBase;
-  const int wLd = (W_BITS == 8 ? kTexels : kTexels / 2) + kTexels / 8;
+  const int wLd = QUANT_ROW_WORDS(kTexels);
 #elif CONV
   const int wBatch = 0, wLd = p.wRow, wBase = p.wBase, kTexels = p.wRow;
 #else

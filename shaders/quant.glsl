@@ -4,6 +4,8 @@
 // from the low byte; q4: 8 nibbles a word, value = nibble - 8), then its K/32 float32 scales.
 // The words come through a uniform texel buffer of R32_UINT texels, or through a storage
 // buffer of words in the *_sx twins (STORAGE_INPUTS=1): no 8- or 16-bit storage feature used.
+// QUANT_ROW_WORDS(kTexels): the 32-bit words of a row of kTexels * 4 values (its codes, then
+// one scale a block of 32; engine/tensor.h rowBytes / 4).
 // QUANT_INPUT(BINDING, NAME) declares the binding and
 //   vec4 fetchq_NAME(int row, int kk, int kTexels)
 // the 4 values k = 4 kk .. 4 kk + 3 of the row whose words start at `row` (kTexels = K / 4),
@@ -17,6 +19,8 @@
   layout(binding = BINDING) uniform utextureBuffer NAME;   \
   uint word_##NAME(int i) { return texelFetch(NAME, i).x; }
 #endif
+
+#define QUANT_ROW_WORDS(kTexels) ((W_BITS == 8 ? (kTexels) : (kTexels) / 2) + (kTexels) / 8)
 
 #define QUANT_INPUT(BINDING, NAME)                                                               \
   QUANT_WORDS(BINDING, NAME)                                                                     \
