@@ -291,8 +291,8 @@ SelftestCheck conv2dCheck(Engine& engine) {
       [&] { return conv3x3Ref(x, Cin, H, W, Cout, [&](int64_t co, int64_t k) { return double(w[size_t(co * K + k)]); }, b); });
 }
 
-// Quantized convolution kernels (q8 / q4: LSeg's, the matrix [Cout, Cin*9] dequantized by
-// conv2d's register blocks), against float64 of the dequantized weights; channel 0 has an
+// Quantized convolution kernels (q8 / q4: LSeg's, the matrix [Cout, Cin*9] dequantized by the
+// plan's conv2d family), against float64 of the dequantized weights; channel 0 has an
 // outlier of 1e4 among values of 0.1, channel 1 an all-zero block.
 SelftestCheck conv2dQuantizedCheck(Engine& engine, DType q) {
   const int64_t Cin = 32, H = 11, W = 9, Cout = 13, K = Cin * 9;
