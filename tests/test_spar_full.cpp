@@ -2,9 +2,10 @@
 // DINOv3 ViT-B/16, LSeg ViT-L/16 with the semantic branch) with random perturbed weights from the
 // reference, 3 frames in order with inputs 0, 2 and target 1 (the canonical view), every stage
 // against the float64 reference, semantic features included (fixture spar_goldens_full:
-// tests/python/make_spar_goldens.py --full). At 128x128, not the official 256x256: the same
-// weights, widths and depths with a quarter of the image tokens (measured alone: this test 49 ->
-// 28 s, the fixture's float64 reference 38 -> 24 s; largest stage NMSE 3.6e-12). Label "full".
+// tests/python/make_spar_goldens.py --full). At 64x64, not the official 256x256: the same
+// weights, widths and depths with 16 image tokens a view (measured alone: this test 49 s at
+// 256x256, 28 s at 128x128, 13 s at 64x64; largest stage NMSE 3.6e-12 at 128, 2.9e-12 at 64;
+// the scene tokens, 768 at any size, keep the encoder and renderer at full length). Label "full".
 #include <cstdio>
 
 #include "pipeline_check.h"

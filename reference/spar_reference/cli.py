@@ -739,11 +739,13 @@ class Run:
 
 
 # ============================================================================ commands
-def test_checkpoint(cfg, seed: int, perturb: bool, optimizer_state: bool) -> Dict[str, Any]:
+def test_checkpoint(cfg, seed: int, perturb: bool, optimizer_state: bool, backbone_init: bool = True) -> Dict[str, Any]:
     """What make-checkpoint saves: the official training checkpoint of random weights from
-    ``seed`` (spar.make_checkpoint), with CLIP's text tower where the model has LSeg."""
+    ``seed`` (spar.make_checkpoint), with CLIP's text tower where the model has LSeg.
+    ``backbone_init``: as make_checkpoint has it."""
     from .spar import make_checkpoint
-    ck = make_checkpoint(cfg, seed=seed, perturb=perturb, optimizer_state=optimizer_state)
+    ck = make_checkpoint(cfg, seed=seed, perturb=perturb, optimizer_state=optimizer_state,
+                         backbone_init=backbone_init)
     if cfg.use_lseg:
         add_clip_text(ck, cfg, seed + 13, perturb)
     return ck

@@ -18,8 +18,9 @@ of input and target views, and returns a dict with every stage's output (see ``f
 
 from __future__ import annotations
 
-import math
+import contextlib
 import functools
+import math
 import warnings
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
@@ -950,7 +951,7 @@ def make_checkpoint(cfg: SparConfig, seed: int = 0, *, perturb: bool = False,
                     dino: Any = None, lseg: Any = None, step: int = 2000,
                     optimizer_state: bool = True, lr: float = 2e-4, weight_decay: float = 0.05,
                     betas: Tuple[float, float] = (0.9, 0.95), warmup: int = 3000,
-                    train_steps: int = 20000) -> Dict[str, Any]:
+                    train_steps: int = 20000, backbone_init: bool = True) -> Dict[str, Any]:
     """What the official training saves (train_spar.save_checkpoint):
     ``{"model": state_dict, "optimizer": AdamW state_dict, "lr_scheduler": LambdaLR
     state_dict, "fwdbwd_pass_step": step, "param_update_step": step}``.
@@ -967,14 +968,23 @@ def make_checkpoint(cfg: SparConfig, seed: int = 0, *, perturb: bool = False,
     'default' (params with dim > 1, weight decay) and 'default_nodecay' (1-D params) over the
     trainable parameters (frozen backbones excluded); with ``optimizer_state`` each parameter
     gets synthetic Adam moments at ``step``. The scheduler is the cosine-with-warmup LambdaLR
-    stepped ``step`` times."""
+    stepped ``step`` times.
+
+    ``backbone_init=False`` builds the backbones without torch.nn.init's initial values, which
+    their own seeded randomization overwrites anyway (a full-size model: 6.6 s saved). SPAR's
+    own modules then draw theirs from a different point of the global generator, so the
+    weights differ from the default's: for callers that need valid fixed-seed weights, not
+    these particular ones (the full-size test fixture, made again on every build)."""
+    from .backbones import no_initial_values
     torch.manual_seed(seed)
-    if dino is None:
-        from . import dino_v3 as dino_mod
-        dino = _build_backbone(dino_mod.DinoV3, cfg.dino, seed + 11, perturb)
-    if lseg is None and cfg.use_lseg:
-        from . import lseg as lseg_mod
-        lseg = _build_backbone(lseg_mod.LSegEncoder, cfg.lseg, seed + 12, perturb)
+    skip = contextlib.nullcontext() if backbone_init else no_initial_values()
+    with skip:
+        if dino is None:
+            from . import dino_v3 as dino_mod
+            dino = _build_backbone(dino_mod.DinoV3, cfg.dino, seed + 11, perturb)
+        if lseg is None and cfg.use_lseg:
+            from . import lseg as lseg_mod
+            lseg = _build_backbone(lseg_mod.LSegEncoder, cfg.lseg, seed + 12, perturb)
     model = SPAR(cfg, dino=dino, lseg=lseg)
     if perturb:
         perturb_parameters(model, seed + 1)
