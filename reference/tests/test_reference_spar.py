@@ -593,6 +593,25 @@ def test_checkpoint_with_real_backbones_round_trip(tmp_path):
         assert err < STAGE_RTOL, (k, err)
 
 
+@pytest.mark.skipif(not _real_backbones_available(), reason="backbone references not present")
+def test_backbones_without_initial_values_are_the_same():
+    """make_checkpoint(backbone_init=False) skips torch.nn.init inside the backbones: their
+    seeded randomization sets every one of their tensors, so DINOv3's and LSeg's are equal bit
+    for bit to the default's (and finite); only SPAR's own, drawn later from the global
+    generator, may differ."""
+    cfg = spar_config.tiny()
+    a = spar.make_checkpoint(cfg, seed=4, perturb=True, step=1, optimizer_state=False)["model"]
+    b = spar.make_checkpoint(cfg, seed=4, perturb=True, step=1, optimizer_state=False,
+                             backbone_init=False)["model"]
+    assert a.keys() == b.keys()
+    backbone = [k for k in a if k.startswith(("_dino_v3.", "lseg_model."))]
+    assert backbone
+    for k in backbone:
+        assert torch.equal(a[k], b[k]), k
+        if b[k].is_floating_point():
+            assert torch.isfinite(b[k]).all(), k
+
+
 def test_sincos_codes_follow_official_grid():
     """pe_utils: 1D code concat(sin(p f), cos(p f)), f_k = 10000^(-k/(dim/2)); 2D code built
     from meshgrid(arange(gw), arange(gh), 'ij') flattened (non-square grid included)."""
