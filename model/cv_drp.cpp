@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <string>
+#include <utility>
 
 #include "engine/error.h"
 #include "engine/ops/binary.h"
@@ -89,10 +90,12 @@ Tensor CvDrp::scratch(Tensor& held, const Shape& shape) {
   return held.view(0, shape);
 }
 
-void CvDrp::planScratch(int64_t views, int64_t images, int64_t n) {
-  // What each buffer holds in turn (forward, then decode): the largest of them.
-  int64_t ping = std::max(views * n * 3 * d_, images * n * kProjectChannels);
-  int64_t pong = std::max(views * n * 2 * d_, images * n * kProjectChannels);
+namespace {
+// The ping and pong buffers' sizes for a call: what each holds in turn (forward, then decode),
+// the largest of them.
+std::pair<int64_t, int64_t> pingPongFloats(int64_t d, int64_t views, int64_t images, int64_t n) {
+  int64_t ping = std::max(views * n * 3 * d, images * n * kProjectChannels);
+  int64_t pong = std::max(views * n * 2 * d, images * n * kProjectChannels);
   int64_t pixels = n;
   for (int i = 1; i < 4; ++i) {
     pixels *= 4;
@@ -100,8 +103,23 @@ void CvDrp::planScratch(int64_t views, int64_t images, int64_t n) {
     pong = std::max(pong, images * kUpChannels[i] * pixels);  // 3x3 conv output
   }
   ping = std::max(ping, images * kFinalChannels * pixels * 4);
+  return {ping, pong};
+}
+}  // namespace
+
+void CvDrp::planScratch(int64_t views, int64_t images, int64_t n) {
+  const auto [ping, pong] = pingPongFloats(d_, views, images, n);
   scratch(pingBuf_, {ping});
   scratch(pongBuf_, {pong});
+}
+
+int64_t CvDrp::pairCount(int64_t views, CvDrpMode mode) { return int64_t(cvDrpPairs(views, mode).size()); }
+
+int64_t CvDrp::scratchFloats(int64_t d, int64_t views, int64_t pairs, int64_t n) {
+  const int64_t images = 2 * pairs;
+  const auto [ping, pong] = pingPongFloats(d, views, images, n);
+  // + the pair batch's tokens [P, 2n, D] and its decoder logits [2P, 1, 16gh, 16gw]
+  return ping + pong + images * n * d + images * 256 * n;
 }
 
 // tokens: [images, n, D] -> out: [images, 1, 16gh, 16gw]. Activations alternate between the

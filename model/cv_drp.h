@@ -56,6 +56,13 @@ class CvDrp {
   // call before it.
   int allocations() const { return allocations_; }
 
+  // The scratch floats a call over `views` views (`pairs` view pairs) at n tokens a view
+  // allocates (ping, pong, pair tokens, pair logits; what planScratch and forward allocate),
+  // and the pairs of a subset of `views` views in a mode: for the memory estimate
+  // (model/memory_estimate.h).
+  static int64_t scratchFloats(int64_t d, int64_t views, int64_t pairs, int64_t n);
+  static int64_t pairCount(int64_t views, CvDrpMode mode);
+
  private:
   struct UpBlock {
     Tensor upW, upB, convW, convB;  // ConvTranspose(k2, s2) and Conv3x3, BN folded

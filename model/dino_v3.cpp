@@ -174,6 +174,13 @@ const DinoV3::RopeTables& DinoV3::ropeTables(int64_t h, int64_t w) {
       .first->second;
 }
 
+int64_t DinoV3::ownFloats(const DinoConfig& c, int64_t views, int64_t height, int64_t width) {
+  const int64_t E = c.embedDim, p = c.patchSize, P = 1 + c.storageTokens, n = (height / p) * (width / p);
+  const int64_t derived = 6 + E * p * p * 3 + P * E;                       // mean / std, patchWeight_, prefixTokens_
+  const int64_t buffers = views * (3 * height * width + n * p * p * 3 + n * E + P * E + (P + n) * E);  // buffers()
+  return derived + buffers + 2 * n * c.headDim();                          // + ropeTables()
+}
+
 DinoV3::Buffers& DinoV3::buffers(int64_t views, int64_t height, int64_t width) {
   Buffers& b = buffers_;
   if (b.views == views && b.height == height && b.width == width) return b;

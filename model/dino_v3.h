@@ -47,6 +47,11 @@ class DinoV3 {
   static std::vector<double> ropeAngles(const DinoConfig& config, const std::vector<double>& periods, int64_t h,
                                         int64_t w);
 
+  // Device floats an encoder allocates beside the weight set for one call of [V, 3, H, W]:
+  // what construction derives from weights, the buffers of that size (buffers()) and its RoPE
+  // tables; for the memory estimate (model/memory_estimate.h).
+  static int64_t ownFloats(const DinoConfig& config, int64_t views, int64_t height, int64_t width);
+
  private:
   struct RopeTables {
     Tensor sin, cos;  // [h * w, dh] f32

@@ -295,6 +295,27 @@ LSegEncoder::Buffers& LSegEncoder::buffers(int64_t views, int64_t height, int64_
   return b;
 }
 
+int64_t LSegEncoder::ownFloats(const LSegConfig& c, int64_t views, int64_t height, int64_t width) {
+  const int64_t V = views, W = c.width, p = c.patchSize, f = c.features, g = c.pretrainGrid();
+  const int64_t gh = height / p, gw = width / p, n = gh * gw;
+  const int64_t rMax = *std::max_element(c.reassemble.begin(), c.reassemble.end());
+  // construction: patchWeight_, posCls_, posGrid_, and each hook's readPatchW / readClsW
+  int64_t floats = W * p * p * 3 + W + W * g * g + 4 * 2 * W * W;
+  floats += (1 + n) * W + W * n;  // positions(): the table and the resized grid it is made from
+  // buffers(): the same shapes
+  if (c.inputNorm != "none") floats += V * 3 * height * width;
+  floats += V * n * p * p * 3 + V * n * W + V * W + V * (1 + n) * W + 2 * V * W + V * n * W + 2 * V * n * rMax;
+  int64_t tail = 1;
+  for (int k = 0; k < 4; ++k)
+    if (kTails[k].kind != Tail::None)
+      tail = std::max(tail, V * c.reassemble[size_t(k)] * (gh * kTails[k].up / kTails[k].down) *
+                                (gw * kTails[k].up / kTails[k].down));
+  floats += tail;
+  for (int k = 0; k < 4; ++k) floats += V * f * (gh * kTails[k].up / kTails[k].down) * (gw * kTails[k].up / kTails[k].down);
+  floats += 2 * V * 16 * n * f + V * 16 * n * std::max(f, c.featureDim);
+  return floats;
+}
+
 // Hook k's residual stream (b.x) -> readout -> 1x1 conv -> channel-major -> tail -> layerN_rn.
 void LSegEncoder::reassemble(Recorder& rec, Buffers& b, int k, int64_t gh, int64_t gw) {
   const Hook& h = hooks_[size_t(k)];

@@ -73,6 +73,11 @@ class LSegEncoder {
 
   const LSegConfig& config() const { return config_; }
   const TransformerBlockOptions& blockOptions() const { return options_; }
+  // Device floats an encoder allocates beside the weight set for one forward of [V, 3, H, W]:
+  // what construction derives from weights, the buffers of that size (buffers()) and its
+  // position table (positions(), with the resized grid it is made from); for the memory
+  // estimate (model/memory_estimate.h).
+  static int64_t ownFloats(const LSegConfig& config, int64_t views, int64_t height, int64_t width);
   // Floating-point operations of one forward at [V, 3, H, W] (multiply-add = 2), for reports.
   double flops(int64_t views, int64_t height, int64_t width) const;
 

@@ -1,11 +1,22 @@
-// How much device memory a request needs at least, before any work: the weights it will load
-// (exact, from the packed file's tensors of the stages the request runs, at the precision they
-// reach the device) plus the activations the pipeline keeps alive through an encode and one
-// render chunk (the tensors SparPipeline::encode and Renderer::batch allocate, from the same
-// shapes). Stage-internal scratch (transformer workspaces, convolution buffers) is not counted,
-// so this is a lower bound: report.json's device_memory.peak_bytes is the measured total
-// (tests/test_spar_faults.cpp checks estimate <= peak, and how close). A request whose lower
-// bound exceeds the device's memory cannot run and is refused before work with this figure.
+// How much device memory a request needs, before any work: two bounds of the device peak that
+// report.json's device_memory.peak_bytes measures (tests/test_spar_faults.cpp,
+// tests/test_spar_render.cpp and tests/test_spar_full.cpp check lower <= peak <= upper, and how
+// close each is).
+//
+// - The lower bound: the weights the request's stages load (exact: the packed file's tensors
+//   of the stages the request runs, at the precision they reach the device) plus the
+//   activations the pipeline keeps alive through an encode and one render call. A request
+//   whose lower bound exceeds the device's memory cannot run and is refused before work.
+// - The upper bound: the weights again, what the stages derive from them and keep (split or
+//   repacked copies, position and RoPE tables), each stage's buffers at the request's sizes
+//   (the transformer workspace at its largest reservation, CV-DRP's, DINOv3's and LSeg's
+//   buffers), plus the largest of the moments when the most is alive at once: the end of the
+//   encode (every encode-scope tensor and every stage's transients, as one submission keeps
+//   what it recorded until it finishes), a SAM2.1 refinement of one view (the Hiera block with
+//   the largest transients, or the neck and mask decoder), CLIP's text encoder, a render call
+//   (all its views' transients at once, as its batches share one submission) and its label
+//   maps. Each term follows the code that allocates it (named beside it in the .cpp), so
+//   a request whose upper bound fits the device's memory runs without running out.
 #pragma once
 #include <cstdint>
 
@@ -17,8 +28,9 @@ namespace spar {
 
 struct MemoryNeed {
   uint64_t weightBytes = 0;      // what the request's stages load
-  uint64_t activationBytes = 0;  // what the encode keeps, plus one render chunk
-  uint64_t total() const { return weightBytes + activationBytes; }
+  uint64_t activationBytes = 0;  // what the encode keeps, plus one render call's outputs
+  uint64_t upperBytes = 0;       // the upper bound of the whole peak (weights included)
+  uint64_t total() const { return weightBytes + activationBytes; }  // the lower bound
 };
 
 struct MemoryQuery {
@@ -28,11 +40,23 @@ struct MemoryQuery {
   bool assumeStatic = false;
   bool semantic = false;    // semantic features rendered (models with the semantic branch)
   bool labels = false;      // CLIP's text encoder loaded (prompts)
+  int64_t prompts = 0;      // how many label prompts (with labels)
   bool refine = false;      // SAM2.1's refinement (a model packed with it): its weights and maps
   bool targetMotion = false;  // the targets' masks too (refined with them)
   DType matrixType = DType::F32;
+  // The device copies uploads and downloads through staging buffers of their size (no memory
+  // both device-local and mappable): the largest such copy is added to the upper bound.
+  bool staging = false;
+  // What the engine's memory peaked at before the request (the kernel tuner's measurement on
+  // a GPU): the upper bound is at least that, as the measured peak never resets.
+  uint64_t peakBefore = 0;
 };
 
 MemoryNeed estimateMemory(const PackedModel& model, const SparConfig& config, const MemoryQuery& query);
+
+// The bytes tensor `name` of `model` takes on the device under the matrix type `matrixType`
+// (WeightSet::uploadType's rule, and the tensors stages read as f32 whatever the matrix type);
+// 0 for host data (CLIP's BPE table) and for a quantized matrix's scales (counted with its codes).
+uint64_t deviceWeightBytes(const PackedModel& model, const std::string& name, DType matrixType);
 
 }  // namespace spar

@@ -19,6 +19,7 @@
 #include <nlohmann/json.hpp>
 
 #include "engine/half.h"
+#include "model/memory_estimate.h"
 #include "model/packed_model.h"
 #include "model/quantized_matrices.h"
 #include "pipeline_check.h"
@@ -102,6 +103,30 @@ Outputs runInterleaved(Engine& engine, const std::string& modelPath, DType weigh
   return r;
 }
 
+// The memory estimate's weights (model/memory_estimate.h) for runInterleaved's request: what the
+// run loads, byte for byte (its rule is WeightSet's, and the tensors stages read as f32).
+uint64_t estimatedWeightBytes(const std::string& modelPath, DType weightType) {
+  const PackedModel model = PackedModel::open(modelPath);
+  const SparConfig c = SparConfig::fromJson(model.config(), modelPath);
+  const GoldenCase g("interleaved");
+  MemoryQuery q;
+  q.views = int64_t(g.files().size());
+  q.inputs = int64_t(g.inputs().size());
+  q.targets = q.renderChunk = int64_t(g.targets().size());
+  q.height = c.imageHeight;
+  q.width = c.imageWidth;
+  q.targetMotion = true;
+  q.matrixType = weightType;
+  return estimateMemory(model, c, q).weightBytes;
+}
+
+// The same on the semantic model under fp16 (LSeg's projections read as linear layers in f16,
+// its readouts and convolutions in f32).
+TEST_F(SparPrecisionTest, EstimatedWeightsAreTheLoadedOnesOnTheSemanticModel) {
+  const std::string model = semanticGoldenPath("tiny_semantic.spar");
+  EXPECT_EQ(runInterleaved(eng(), model, DType::F16, false).bytes, estimatedWeightBytes(model, DType::F16));
+}
+
 // ---- Quantized matrices (converter/FORMAT.md, "Quantized matrices")
 
 std::string quantizedPack(DType q) { return goldenPath(q == DType::Q8 ? "tiny_q8.spar" : "tiny_q4.spar"); }
@@ -148,6 +173,8 @@ TEST_F(SparPrecisionTest, QuantizedPackEqualsUpload) {
     EXPECT_EQ(pack.motionInput, upload.motionInput);
     EXPECT_EQ(pack.motionTarget, upload.motionTarget);
     EXPECT_EQ(pack.bytes, upload.bytes);
+    EXPECT_EQ(upload.bytes, estimatedWeightBytes(tinyModelPath(), q));
+    EXPECT_EQ(pack.bytes, estimatedWeightBytes(quantizedPack(q), DType::F32));
   }
 }
 
@@ -225,6 +252,10 @@ TEST_F(SparPrecisionTest, Fp16PackEqualsF16AtUploadAndWidensAtFp32) {
   const Outputs wide = runInterleaved(eng(), fp16Pack(), DType::F32);
   expectPackEqualsUpload(pack, upload, fp32);
   expectPackWidenedAtFp32(wide, pack, fp32);
+  EXPECT_EQ(upload.bytes, estimatedWeightBytes(tinyModelPath(), DType::F16));
+  EXPECT_EQ(pack.bytes, estimatedWeightBytes(fp16Pack(), DType::F16));
+  EXPECT_EQ(fp32.bytes, estimatedWeightBytes(tinyModelPath(), DType::F32));
+  EXPECT_EQ(wide.bytes, estimatedWeightBytes(fp16Pack(), DType::F32));
 }
 
 // A copy of the tiny F32 file with one element of `name` set to `value` (the data area starts

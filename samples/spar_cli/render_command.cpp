@@ -256,18 +256,23 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
     mq.assumeStatic = a.assumeStatic;
     mq.semantic = a.labels.has_value() || a.features;
     mq.labels = a.labels.has_value();
+    mq.prompts = int64_t(v.labels.size());
     mq.refine = a.refine || a.maskSource == "refined";
     mq.matrixType = po.weightType;
+    mq.staging = !engine.caps().hostVisibleDeviceLocal;
+    engine.plan();  // a GPU measures its kernel choice now (once), not inside the request
+    mq.peakBefore = engine.memory().peakBytes();
     const MemoryNeed need = estimateMemory(*v.model, cfg, mq);
     const uint64_t budget = engine.memory().budget();
-    // The most input views this device could take at this size (the need grows by the same
-    // amount with each one): an upper limit, since the need is a lower bound.
+    // The most input views this device surely takes at this size: the upper bound grows by
+    // about the same amount with each one.
     MemoryQuery more = mq;
     ++more.views;
     ++more.inputs;
-    const uint64_t perInput = estimateMemory(*v.model, cfg, more).total() - need.total();
-    const int64_t maxInputs =
-        budget > need.total() ? mq.inputs + int64_t((budget - need.total()) / std::max<uint64_t>(perInput, 1)) : 0;
+    const uint64_t perInput = estimateMemory(*v.model, cfg, more).upperBytes - need.upperBytes;
+    const int64_t maxInputs = budget > need.upperBytes
+                                  ? mq.inputs + int64_t((budget - need.upperBytes) / std::max<uint64_t>(perInput, 1))
+                                  : 0;
     if (budget && need.total() > budget) {
       auto mib = [](uint64_t b) { return std::to_string((b + (1 << 20) - 1) >> 20) + " MiB"; };
       throw Error("this request needs at least " + mib(need.total()) + " of device memory (weights " +
@@ -275,6 +280,11 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
                   " at " + std::to_string(h) + "x" + std::to_string(w) + "), more than the " + mib(budget) +
                   " available (" + engine.memory().budgetSource() +
                   "): fewer views, a smaller --size or --precision fp16");
+    }
+    if (budget && need.upperBytes > budget) {
+      auto mib = [](uint64_t b) { return std::to_string((b + (1 << 20) - 1) >> 20) + " MiB"; };
+      warn("this request may need up to " + mib(need.upperBytes) + " of device memory, more than the " + mib(budget) +
+           " available (" + engine.memory().budgetSource() + "): it may run out midway (fewer views or a smaller --size fit)");
     }
     SparPipeline pipeline(engine, *v.model, po);
     SparRequest req;
@@ -298,9 +308,12 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
     // loaded only now, for this request.
     PromptEmbeddings text;
     double labelGpuMs = 0, labelWallMs = 0, labelBuildMs = 0;
+    uint64_t textBytesAfter = 0, textPeak = 0, labelBytesAfter = 0, labelPeak = 0;  // as the stages report them
     if (a.labels) {
       progress.step("encoding " + std::to_string(v.labels.size()) + " label prompts");
       text = encodePrompts(engine, *v.model, cfg, po.weightType, v.labelIds, int64_t(v.labels.size()));
+      textBytesAfter = engine.memory().bytesInUse();
+      textPeak = engine.memory().peakBytes();
     }
     RenderCameras renderCams;
     if (mode == "path") renderCams = toRenderCameras(inputCameraPath(enc, v.views.inputs, *a.path));
@@ -338,6 +351,8 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
           labelGpuMs += out.gpuMs;
           labelBuildMs += out.buildMs;
           labelWallMs += msSince(tl);
+          labelBytesAfter = std::max<uint64_t>(labelBytesAfter, engine.memory().bytesInUse());
+          labelPeak = engine.memory().peakBytes();
         }
       }
       const auto tw = Clock::now();
@@ -407,10 +422,10 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
       stages.push_back({{"name", s.name}, {"gpu_ms", s.gpuMs}, {"build_ms", s.buildMs}, {"wall_ms", s.wallMs},
                         {"device_bytes_after", s.deviceBytesAfter}, {"device_peak_bytes", s.devicePeakBytes}});
     if (a.labels) {
-      stages.push_back(
-          {{"name", "text_encoder"}, {"gpu_ms", text.gpuMs}, {"build_ms", text.buildMs}, {"wall_ms", text.wallMs}});
-      stages.push_back(
-          {{"name", "labels"}, {"gpu_ms", labelGpuMs}, {"build_ms", labelBuildMs}, {"wall_ms", labelWallMs}});
+      stages.push_back({{"name", "text_encoder"}, {"gpu_ms", text.gpuMs}, {"build_ms", text.buildMs},
+                        {"wall_ms", text.wallMs}, {"device_bytes_after", textBytesAfter}, {"device_peak_bytes", textPeak}});
+      stages.push_back({{"name", "labels"}, {"gpu_ms", labelGpuMs}, {"build_ms", labelBuildMs}, {"wall_ms", labelWallMs},
+                        {"device_bytes_after", labelBytesAfter}, {"device_peak_bytes", labelPeak}});
     }
     nlohmann::ordered_json report = {
         {"tool", "spar"},
@@ -439,9 +454,11 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
         // EngineOptions::faults numbers: tests/test_spar_faults.cpp)
         {"device_memory",
          {{"peak_bytes", engine.memory().peakBytes()},
-          {"estimated_min_bytes", need.total()},  // model/memory_estimate.h: weights + kept activations
+          {"estimated_min_bytes", need.total()},       // model/memory_estimate.h: the lower bound
+          {"estimated_max_bytes", need.upperBytes},    // and the upper bound
+          {"estimated_weight_bytes", need.weightBytes},  // of which weights (as weights_bytes_loaded)
           {"budget_bytes", budget},
-          {"max_input_views", maxInputs},  // at most this many input views fit budget_bytes at this size
+          {"max_input_views", maxInputs},  // this many input views surely fit budget_bytes at this size
           {"allocations", engine.memory().allocations()},
           {"submissions", engine.submissions()}}},
         {"weights_bytes_loaded", pipeline.weightBytesLoaded() + (text.weights ? text.weights->bytesLoaded() : 0)},
