@@ -4,7 +4,7 @@
 //   spar render --model M.spar --jobs JOBS.jsonl [--shard I/N] [common options]
 //   spar eval --model M.spar --scenes DIR [--views 2,3,4] [--precision fp32|fp16] [--size HxW]
 //             [--no-gating | --assume-static] [--max-scenes N] [--device D] --out result.json
-//   spar selftest [--device D] [--json]   (exit 0 only if every check passed)
+//   spar selftest [--device D] [--json] [--junit FILE]   (exit 0 only if every check passed)
 // Exit codes: 0 done, 1 something found wrong on the way (files, model, device), 2 a command
 // line that cannot mean anything. Every error is one line "spar: error: <message>" on stderr.
 #include <CLI/CLI.hpp>
@@ -196,6 +196,10 @@ int main(int argc, char** argv) {
       "passed");
   selftest->add_option("--device", st.device, "Vulkan device index or part of its name");
   selftest->add_flag("--json", st.json, "the report as JSON on stdout");
+  selftest->add_option("--junit", st.junit,
+                       "also write the checks as a JUnit XML report to FILE (one testcase per check, failures as "
+                       "failures; written whole)")
+      ->type_name("FILE");
   selftest->add_option("--model-dir", st.model,
                        "the self-test model's directory (default: $SPAR_SELFTEST_DATA, else share/spar/selftest "
                        "of the installed package, else the source tree's samples/data/selftest)");

@@ -1,7 +1,7 @@
 // spar selftest (samples/spar_cli/selftest_command.h): on this device it passes (exit 0, every
 // op check and every stage of the self-test model within its threshold, no validation message)
 // as it is and under a device-limit profile, prints the device, limits, plan and a verdict,
-// gives the same as JSON, and fails (exit 1, the verdict FAIL, the failing check named) when an
+// gives the same as JSON and as a JUnit report (--junit), and fails (exit 1, the verdict FAIL, the failing check named) when an
 // op cannot run, when a stage's output is off, and when the self-test model is missing.
 #include <gtest/gtest.h>
 
@@ -16,9 +16,31 @@ namespace {
 
 const std::filesystem::path& scratch() { return scratchDir("spar_selftest"); }
 
+// `--junit FILE`'s report: how many testcases, failures and <failure> elements it holds.
+struct Junit {
+  size_t testcases = 0, failureElements = 0;
+  std::string text;
+};
+Junit readJunit(const std::filesystem::path& file) {
+  Junit j;
+  j.text = readText(file);
+  for (size_t at = j.text.find("<testcase "); at != std::string::npos; at = j.text.find("<testcase ", at + 1)) ++j.testcases;
+  for (size_t at = j.text.find("<failure "); at != std::string::npos; at = j.text.find("<failure ", at + 1)) ++j.failureElements;
+  return j;
+}
+
 TEST(spar_selftest, PassesAndPrintsTheDeviceLimitsPlanAndVerdict) {
-  const CommandResult r = runValidated({SPAR_CLI, "selftest"}, scratch());
+  const std::filesystem::path junit = scratch() / "passing.xml";
+  std::filesystem::remove(junit);
+  const CommandResult r = runValidated({SPAR_CLI, "selftest", "--junit", junit.string()}, scratch());
   ASSERT_EQ(r.code, 0) << r.out << r.err;
+  // the JUnit report: a testcase per check and one for the validation layer, none failed
+  const Junit j = readJunit(junit);
+  EXPECT_EQ(j.testcases, 38u) << j.text;
+  EXPECT_EQ(j.failureElements, 0u) << j.text;
+  EXPECT_NE(j.text.find("<testsuites name=\"spar selftest\" tests=\"38\" failures=\"0\""), std::string::npos) << j.text;
+  EXPECT_NE(j.text.find("name=\"linear 67x130x96, q8 weights, stiff blocks\""), std::string::npos) << j.text;
+  EXPECT_NE(j.text.find("name=\"validation layer messages\""), std::string::npos) << j.text;
   for (const char* part : {"device ", "limits ", "plan\n", "linear 130x768x518", "softmax 33x1001", "conv2d 3x3",
                            "validation layer: on, 0 messages", "linear 67x130x96, fp16 weights",
                            "linear 67x130x96, q8 weights, stiff blocks", "linear 67x130x96, q4 weights, stiff blocks",
@@ -76,6 +98,16 @@ TEST(spar_selftest, JsonUnderARaspberryPiProfile) {
 // without the model is one failing line naming where it looked; a failing op fails its line
 // and the verdict (the first device allocation fails: the first check cannot run; in the run
 // without the model, which skips the model's stages).
+// A JUnit report that cannot be written is one line before any work (no device opened).
+TEST(spar_selftest, UnwritableJunitReportIsRefusedBeforeWork) {
+  const std::string file = (scratch() / "no_such_dir" / "report.xml").string();
+  const CommandResult r = runValidated({SPAR_CLI, "selftest", "--junit", file}, scratch());
+  EXPECT_EQ(r.code, 1) << r.out << r.err;
+  EXPECT_EQ(r.errLines().size(), 1u) << r.err;
+  EXPECT_NE(r.err.find("spar: error: cannot write the JUnit report " + file + ": no directory"), std::string::npos) << r.err;
+  EXPECT_EQ(r.out.find("device "), std::string::npos) << r.out;
+}
+
 TEST(spar_selftest, AStageOffItsReferenceAMissingModelOrAFailingOpFailsTheVerdict) {
   const std::filesystem::path model = scratch() / "off_model";
   std::filesystem::remove_all(model);
@@ -87,8 +119,16 @@ TEST(spar_selftest, AStageOffItsReferenceAMissingModelOrAFailingOpFailsTheVerdic
     for (double& x : v) x *= 1.01;
     writeNpy(file, golden.shape, v.data());
   }
-  CommandResult r = runValidated({SPAR_CLI, "selftest", "--model-dir", model.string()}, scratch());
+  const std::filesystem::path junit = scratch() / "failing.xml";
+  std::filesystem::remove(junit);
+  CommandResult r = runValidated({SPAR_CLI, "selftest", "--model-dir", model.string(), "--junit", junit.string()}, scratch());
   EXPECT_EQ(r.code, 1) << r.out << r.err;
+  // the two failing stages are failures in the JUnit report too, with what was measured
+  const Junit j = readJunit(junit);
+  EXPECT_EQ(j.testcases, 38u) << j.text;
+  EXPECT_EQ(j.failureElements, 2u) << j.text;
+  EXPECT_NE(j.text.find("tests=\"38\" failures=\"2\""), std::string::npos) << j.text;
+  EXPECT_NE(j.text.find("<failure message=\"family "), std::string::npos) << j.text;
   EXPECT_NE(r.out.find("FAIL  model rgb 1x2x3x64x64"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("FAIL  model refine_iou 5x3"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("pass  model decoder_out"), std::string::npos) << r.out;

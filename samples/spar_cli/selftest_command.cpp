@@ -9,6 +9,7 @@
 
 #include "engine/engine.h"
 #include "samples/spar_cli/selftest_checks.h"
+#include "samples/spar_cli/selftest_junit.h"
 #include "samples/spar_cli/selftest_model.h"
 
 namespace spar::cli {
@@ -61,6 +62,7 @@ nlohmann::ordered_json limitsJson(const DeviceCaps& c) {
 }  // namespace
 
 bool runSelftest(const SelftestArgs& args) {
+  if (!args.junit.empty()) checkJunitWritable(args.junit);  // before any work
   EngineOptions base;
   base.device = args.device;
   base.pipelineCacheFile = EngineOptions::defaultPipelineCacheFile();
@@ -96,6 +98,8 @@ bool runSelftest(const SelftestArgs& args) {
   for (const SelftestCheck& c : modelChecks) passed += c.passed();
   const size_t total = checks.size() + modelChecks.size();
   const bool ok = passed == total && messages == 0;
+  if (!args.junit.empty())
+    writeSelftestJunit(args.junit, {caps.name + ", " + caps.driverInfo, checks, modelChecks, options.validation, messages});
 
   if (args.json) {
     nlohmann::ordered_json doc;

@@ -14,6 +14,7 @@ struct SelftestArgs {
   std::string device;  // --device
   bool json = false;   // --json: the report as JSON on stdout instead of the table
   std::string model;   // --model-dir: the self-test model's directory ("" = findSelftestModel's places)
+  std::string junit;   // --junit FILE: the checks as JUnit XML too (selftest_junit.h)
 };
 
 // Returns true when everything passed.

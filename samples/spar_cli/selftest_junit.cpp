@@ -1,0 +1,111 @@
+// spar selftest --junit (selftest_junit.h).
+#include "samples/spar_cli/selftest_junit.h"
+
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "engine/error.h"
+
+namespace spar::cli {
+namespace {
+
+std::string xml(const std::string& s) {
+  std::string out;
+  for (char ch : s) {
+    switch (ch) {
+      case '&': out += "&amp;"; break;
+      case '<': out += "&lt;"; break;
+      case '>': out += "&gt;"; break;
+      case '"': out += "&quot;"; break;
+      default: out += ch;
+    }
+  }
+  return out;
+}
+
+std::string number(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, "%.3e", v);
+  return b;
+}
+
+// What was measured against what was allowed, in words (the failure's message, and the
+// passing check's output).
+std::string measured(const SelftestCheck& c) {
+  if (!c.error.empty()) return "error: " + c.error;
+  std::string s = "family " + c.family + "; ";
+  if (!c.detail.empty()) s += c.detail;
+  else
+    s += "nmse " + number(c.nmse) + " (limit " + number(c.maxNmse) + "), max abs " + number(c.maxAbs) + " (limit " +
+         (std::isinf(c.maxAbsLimit) ? std::string("none") : number(c.maxAbsLimit)) + ")";
+  if (!c.finite) s += "; non-finite values";
+  return s;
+}
+
+void testcase(std::ostringstream& o, const std::string& suite, const SelftestCheck& c) {
+  char time[32];
+  std::snprintf(time, sizeof time, "%.4f", c.ms / 1000.0);
+  o << "    <testcase classname=\"" << suite << "\" name=\"" << xml(c.name) << "\" time=\"" << time << "\">\n";
+  if (!c.passed()) o << "      <failure message=\"" << xml(measured(c)) << "\"/>\n";
+  o << "      <system-out>" << xml(measured(c)) << "</system-out>\n    </testcase>\n";
+}
+
+}  // namespace
+
+void checkJunitWritable(const std::string& path) {
+  namespace fs = std::filesystem;
+  fs::path dir = fs::path(path).parent_path();
+  if (dir.empty()) dir = ".";
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec)) throw Error("cannot write the JUnit report " + path + ": no directory " + dir.string());
+  if (::access(dir.c_str(), W_OK) != 0) throw Error("cannot write the JUnit report " + path + ": " + dir.string() + " is not writable");
+  if (fs::is_directory(path, ec)) throw Error("cannot write the JUnit report " + path + ": it is a directory");
+}
+
+void writeSelftestJunit(const std::string& path, const SelftestReport& r) {
+  size_t tests = r.opChecks.size() + r.modelChecks.size() + 1, failures = r.validationMessages > 0;
+  double seconds = 0;
+  for (const auto* list : {&r.opChecks, &r.modelChecks})
+    for (const SelftestCheck& c : *list) {
+      failures += !c.passed();
+      seconds += c.ms / 1000.0;
+    }
+  std::ostringstream o;
+  char time[32];
+  std::snprintf(time, sizeof time, "%.4f", seconds);
+  o << "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<testsuites name=\"spar selftest\" tests=\"" << tests
+    << "\" failures=\"" << failures << "\" errors=\"0\" time=\"" << time << "\">\n  <testsuite name=\"spar selftest on "
+    << xml(r.device) << "\" tests=\"" << tests << "\" failures=\"" << failures << "\" errors=\"0\" time=\"" << time
+    << "\">\n";
+  for (const SelftestCheck& c : r.opChecks) testcase(o, "selftest.ops", c);
+  for (const SelftestCheck& c : r.modelChecks) testcase(o, "selftest.model", c);
+  o << "    <testcase classname=\"selftest.validation\" name=\"validation layer messages\" time=\"0\">\n";
+  const std::string said = r.validation ? std::to_string(r.validationMessages) + " messages" : "the layer is not installed";
+  if (r.validationMessages) o << "      <failure message=\"" << xml(said) << "\"/>\n";
+  o << "      <system-out>" << xml(said) << "</system-out>\n    </testcase>\n  </testsuite>\n</testsuites>\n";
+
+  const std::string tmp = path + ".tmp-" + std::to_string(::getpid());
+  {
+    std::ofstream f(tmp, std::ios::binary);
+    f << o.str();
+    f.close();
+    if (!f) {
+      std::error_code ec;
+      std::filesystem::remove(tmp, ec);
+      throw Error("cannot write the JUnit report " + path);
+    }
+  }
+  std::error_code ec;
+  std::filesystem::rename(tmp, path, ec);
+  if (ec) {
+    std::filesystem::remove(tmp, ec);
+    throw Error("cannot write the JUnit report " + path);
+  }
+}
+
+}  // namespace spar::cli
