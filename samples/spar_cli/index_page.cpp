@@ -11,6 +11,7 @@
 
 #include "engine/error.h"
 #include "model/model_card.h"
+#include "samples/spar_cli/markup_escape.h"
 
 namespace spar::cli {
 namespace {
@@ -18,19 +19,7 @@ namespace {
 namespace fs = std::filesystem;
 using json = nlohmann::ordered_json;
 
-std::string esc(const std::string& s) {
-  std::string o;
-  for (char c : s) {
-    switch (c) {
-      case '&': o += "&amp;"; break;
-      case '<': o += "&lt;"; break;
-      case '>': o += "&gt;"; break;
-      case '"': o += "&quot;"; break;
-      default: o += c;
-    }
-  }
-  return o;
-}
+std::string esc(const std::string& s) { return escapeMarkup(s); }
 
 std::string num(double v, const char* fmt = "%.1f") {
   char b[64];

@@ -10,23 +10,12 @@
 #include <sstream>
 
 #include "engine/error.h"
+#include "samples/spar_cli/markup_escape.h"
 
 namespace spar::cli {
 namespace {
 
-std::string xml(const std::string& s) {
-  std::string out;
-  for (char ch : s) {
-    switch (ch) {
-      case '&': out += "&amp;"; break;
-      case '<': out += "&lt;"; break;
-      case '>': out += "&gt;"; break;
-      case '"': out += "&quot;"; break;
-      default: out += ch;
-    }
-  }
-  return out;
-}
+std::string xml(const std::string& s) { return escapeMarkup(s); }
 
 std::string number(double v) {
   char b[32];
