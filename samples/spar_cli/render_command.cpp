@@ -273,8 +273,8 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
     const int64_t maxInputs = budget > need.upperBytes
                                   ? mq.inputs + int64_t((budget - need.upperBytes) / std::max<uint64_t>(perInput, 1))
                                   : 0;
+    auto mib = [](uint64_t b) { return std::to_string((b + (1 << 20) - 1) >> 20) + " MiB"; };
     if (budget && need.total() > budget) {
-      auto mib = [](uint64_t b) { return std::to_string((b + (1 << 20) - 1) >> 20) + " MiB"; };
       throw Error("this request needs at least " + mib(need.total()) + " of device memory (weights " +
                   mib(need.weightBytes) + ", activations " + mib(need.activationBytes) + " for " + viewsText(v.views) +
                   " at " + std::to_string(h) + "x" + std::to_string(w) + "), more than the " + mib(budget) +
@@ -282,7 +282,6 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
                   "): fewer views, a smaller --size or --precision fp16");
     }
     if (budget && need.upperBytes > budget) {
-      auto mib = [](uint64_t b) { return std::to_string((b + (1 << 20) - 1) >> 20) + " MiB"; };
       warn("this request may need up to " + mib(need.upperBytes) + " of device memory, more than the " + mib(budget) +
            " available (" + engine.memory().budgetSource() + "): it may run out midway (fewer views or a smaller --size fit)");
     }
