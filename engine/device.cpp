@@ -10,6 +10,7 @@
 
 #include "engine/coopmat_khr.h"
 #include "engine/error.h"
+#include "engine/extra_drivers.h"
 
 namespace spar {
 namespace {
@@ -53,7 +54,10 @@ std::string lower(std::string s) {
   return s;
 }
 
-VkInstance createBareInstance(bool validation, bool debugUtils) {
+// `select` (DeviceOptions::select): the drivers outside the loader's paths that it names join
+// this instance (extra_drivers.h).
+VkInstance createBareInstance(bool validation, bool debugUtils, const std::string& select) {
+  const ScopedExtraDrivers extra(extraDriverManifests(select));
   VkApplicationInfo app{VK_STRUCTURE_TYPE_APPLICATION_INFO};
   app.pApplicationName = "spar";
   app.pEngineName = "spar-vulkan";
@@ -136,15 +140,16 @@ bool texelFormatSupported(VkPhysicalDevice device, VkFormat format) {
 
 }  // namespace
 
-std::vector<std::string> Device::listDevices() {
-  VkInstance instance = createBareInstance(false, false);
-  std::vector<std::string> out;
+namespace {
+
+// Every device's properties, in the loader's order.
+std::vector<VkPhysicalDeviceProperties> deviceProperties(bool extraDrivers) {
+  VkInstance instance = createBareInstance(false, false, extraDrivers ? "*" : "");
+  std::vector<VkPhysicalDeviceProperties> out;
   try {
-    auto devices = physicalDevices(instance);
-    for (size_t i = 0; i < devices.size(); ++i) {
-      VkPhysicalDeviceProperties props;
-      vkGetPhysicalDeviceProperties(devices[i], &props);
-      out.push_back(std::to_string(i) + ": " + props.deviceName + " (" + typeName(props.deviceType) + ")");
+    for (VkPhysicalDevice d : physicalDevices(instance)) {
+      out.emplace_back();
+      vkGetPhysicalDeviceProperties(d, &out.back());
     }
   } catch (...) {
     vkDestroyInstance(instance, nullptr);
@@ -154,9 +159,26 @@ std::vector<std::string> Device::listDevices() {
   return out;
 }
 
+}  // namespace
+
+std::vector<std::string> Device::listDevices(bool extraDrivers) {
+  std::vector<std::string> out;
+  const auto props = deviceProperties(extraDrivers);
+  for (size_t i = 0; i < props.size(); ++i)
+    out.push_back(std::to_string(i) + ": " + props[i].deviceName + " (" + typeName(props[i].deviceType) + ")");
+  return out;
+}
+
+std::vector<std::string> Device::deviceNames(bool extraDrivers) {
+  std::vector<std::string> out;
+  for (const auto& p : deviceProperties(extraDrivers))
+    if (std::find(out.begin(), out.end(), p.deviceName) == out.end()) out.push_back(p.deviceName);
+  return out;
+}
+
 Device::Device(const DeviceOptions& options) {
   try {
-    createInstance(options.validation);
+    createInstance(options.validation, options.select);
     pickPhysicalDevice(options.select);
     readCaps();
     tightenCaps(caps_, options.limits);
@@ -200,10 +222,10 @@ Device::~Device() {
   if (instance_) vkDestroyInstance(instance_, nullptr);
 }
 
-void Device::createInstance(bool validation) {
+void Device::createInstance(bool validation, const std::string& select) {
   if (validation && !layerAvailable(kValidationLayer))
     throw Error("validation requested but VK_LAYER_KHRONOS_validation is not installed (apt-get install vulkan-validationlayers)");
-  instance_ = createBareInstance(validation, validation);
+  instance_ = createBareInstance(validation, validation, select);
   if (!validation) return;
   VkDebugUtilsMessengerCreateInfoEXT info{VK_STRUCTURE_TYPE_DEBUG_UTILS_MESSENGER_CREATE_INFO_EXT};
   info.messageSeverity = VK_DEBUG_UTILS_MESSAGE_SEVERITY_WARNING_BIT_EXT | VK_DEBUG_UTILS_MESSAGE_SEVERITY_ERROR_BIT_EXT;
@@ -235,7 +257,9 @@ void Device::pickPhysicalDevice(const std::string& select) {
     }
     std::string names;
     for (size_t i = 0; i < devices.size(); ++i) names += (i ? ", " : "") + std::to_string(i) + ": " + props[i].deviceName;
-    throw Error("no Vulkan device matches '" + select + "' (available: " + names + ")");
+    const std::string missing = missingExtraDriver(select);
+    throw Error("no Vulkan device matches '" + select + "' (available: " + names + ")" +
+                (missing.empty() ? "" : ": " + missing));
   }
   int best = -1;
   for (size_t i = 0; i < devices.size(); ++i) {
@@ -267,6 +291,12 @@ void Device::readCaps() {
   caps_.driverId = driver.driverID;
   caps_.driverInfo = driver.driverInfo;
   caps_.driverVersion = p.driverVersion;
+  // A driver that leaves its info empty (SwiftShader) is named by its name and version (in
+  // Vulkan's own encoding, which SwiftShader uses: 5.0.0).
+  if (caps_.driverInfo.empty() && driver.driverName[0])
+    caps_.driverInfo = std::string(driver.driverName) + " " + std::to_string(VK_API_VERSION_MAJOR(p.driverVersion)) +
+                       "." + std::to_string(VK_API_VERSION_MINOR(p.driverVersion)) + "." +
+                       std::to_string(VK_API_VERSION_PATCH(p.driverVersion));
   if (caps_.driverInfo.rfind("Mesa ", 0) == 0) caps_.mesaMajor = static_cast<uint32_t>(std::atoi(caps_.driverInfo.c_str() + 5));
   caps_.vendorId = p.vendorID;
   caps_.deviceId = p.deviceID;

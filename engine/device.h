@@ -12,7 +12,9 @@
 namespace spar {
 
 struct DeviceOptions {
-  // Which device: an index from listDevices() or a case-insensitive part of its name.
+  // Which device: an index from listDevices() or a case-insensitive part of its name; a name
+  // of a driver installed outside the loader's paths (SwiftShader: engine/extra_drivers.h)
+  // brings that driver in.
   // Empty: the first discrete, integrated, virtual, then CPU device (EngineOptions::
   // fromEnvironment reads SPAR_DEVICE into it).
   std::string select;
@@ -81,8 +83,12 @@ class Device {
   Device(const Device&) = delete;
   Device& operator=(const Device&) = delete;
 
-  // "index: name (type)" for every Vulkan device on this machine.
-  static std::vector<std::string> listDevices();
+  // "index: name (type)" for every Vulkan device on this machine; with `extraDrivers`, those of
+  // the drivers installed outside the loader's paths too (their indices count only in such a
+  // list: select them by name).
+  static std::vector<std::string> listDevices(bool extraDrivers = false);
+  // The devices' names, each once (identical devices share one), for DeviceOptions::select.
+  static std::vector<std::string> deviceNames(bool extraDrivers = false);
 
   VkInstance instance() const { return instance_; }
   VkPhysicalDevice physical() const { return physical_; }
@@ -104,7 +110,7 @@ class Device {
   bool validationEnabled() const { return messenger_ != VK_NULL_HANDLE; }
 
  private:
-  void createInstance(bool validation);
+  void createInstance(bool validation, const std::string& select);
   void pickPhysicalDevice(const std::string& select);
   void readCaps();
   void createLogicalDevice();

@@ -75,9 +75,14 @@ struct KernelPlan {
   // fill the device, gemmSmallTiles otherwise.
   const TiledGemmTiles& tilesFor(int64_t m, int64_t n, int64_t batch) const;
   // The families that read block-quantized weights (DType::Q8 / Q4), dequantizing as they load
-  // them: the tiled one where the plan's f32 family for the op is tiled, else the register
-  // blocks (the cooperative-matrix kernels read fp16 only; conv is never CoopMat).
-  KernelFamily quantizedGemm() const { return gemm == KernelFamily::Tiled ? KernelFamily::Tiled : KernelFamily::CpuBlocks; }
+  // them: the cooperative-matrix kernel where fp16 weights take it (dequantized into its fp16
+  // slices, as llama.cpp's Vulkan backend does; its activations are fp16 there too), else the
+  // tiled one where the plan's f32 family for the op is tiled, else the register blocks (conv is
+  // never CoopMat).
+  KernelFamily quantizedGemm() const {
+    if (gemmF16 == KernelFamily::CoopMat) return KernelFamily::CoopMat;
+    return gemm == KernelFamily::Tiled ? KernelFamily::Tiled : KernelFamily::CpuBlocks;
+  }
   KernelFamily quantizedConv() const { return conv; }
 };
 

@@ -4,7 +4,7 @@
 //   spar render --model M.spar --jobs JOBS.jsonl [--shard I/N] [common options]
 //   spar eval --model M.spar --scenes DIR [--views 2,3,4] [--precision fp32|fp16] [--size HxW]
 //             [--no-gating | --assume-static] [--max-scenes N] [--device D] --out result.json
-//   spar selftest [--device D] [--json] [--junit FILE]   (exit 0 only if every check passed)
+//   spar selftest [--device D | --all-devices] [--json] [--junit FILE]   (exit 0 only if every check passed)
 // Exit codes: 0 done, 1 something found wrong on the way (files, model, device), 2 a command
 // line that cannot mean anything. Every error is one line "spar: error: <message>" on stderr.
 #include <CLI/CLI.hpp>
@@ -194,7 +194,13 @@ int main(int argc, char** argv) {
       "plan, every op family on odd and stiff shapes against float64 on the host, the self-test model stage by "
       "stage against its float64 reference outputs, the validation layer's messages; exit 0 only if everything "
       "passed");
-  selftest->add_option("--device", st.device, "Vulkan device index or part of its name");
+  CLI::Option* selftestDevice = selftest->add_option(
+      "--device", st.device,
+      "Vulkan device index or part of its name (\"swiftshader\": SwiftShader where a browser package installed it)");
+  selftest->add_flag("--all-devices", st.allDevices,
+                     "every Vulkan device, SwiftShader's too where installed: one table with a column per device; "
+                     "exit 0 only if every device passed")
+      ->excludes(selftestDevice);
   selftest->add_flag("--json", st.json, "the report as JSON on stdout");
   selftest->add_option("--junit", st.junit,
                        "also write the checks as a JUnit XML report to FILE (one testcase per check, failures as "

@@ -1,7 +1,11 @@
 #version 450
 // GEMM on cooperative matrices (VK_KHR_cooperative_matrix): fp16 inputs, fp32 accumulation.
-// Host side: engine/ops/linear.cpp (linear layers whose weights are fp16; the plan in
+// Host side: engine/ops/linear.cpp (linear layers whose weights are fp16, q8 or q4; the plan in
 // engine/kernel_plan.cpp picks this where the device reports an fp16 x fp16 + fp32 size).
+// W_QUANT: w is a block-quantized matrix (q8 / q4 by W_BITS, shaders/quant.glsl), its rows read
+// as 32-bit words and dequantized into the fp16 slice as it is staged (TEXEL_K 4: K is whole
+// blocks of 32), never expanded in device memory; a dequantized value beyond fp16's range
+// saturates like an fp32 one, one below its smallest subnormal becomes 0.
 //   y[b][m][n] = act(sum_k x[b][m][k] * w[b][n][k] + bias[n])
 // A workgroup of SG_M x SG_N subgroups computes (CM_M*WM*SG_M) x (CM_N*WN*SG_N) outputs; each
 // subgroup owns WM x WN accumulators of the device's CM_M x CM_N x CM_K multiply-add. Per step
@@ -14,8 +18,10 @@
 // Written against GL_NV_cooperative_matrix, which Debian 12's glslang compiles, and rewritten
 // into SPV_KHR_cooperative_matrix at build time (cmake/coopmat_nv_to_khr.py: the use of each
 // matrix type is read off its shape, so A is CM_M x CM_K, B CM_K x CM_N, C CM_M x CM_N).
-//! variant gemm_coopmat_f32 OUT_F16=0
-//! variant gemm_coopmat_f16out OUT_F16=1
+//! variant gemm_coopmat_f32 OUT_F16=0 W_QUANT=0
+//! variant gemm_coopmat_f16out OUT_F16=1 W_QUANT=0
+//! variant gemm_coopmat_q_f32 OUT_F16=0 W_QUANT=1
+//! variant gemm_coopmat_q_f16out OUT_F16=1 W_QUANT=1
 //! spirv coopmat-khr
 #extension GL_GOOGLE_include_directive : require
 #extension GL_NV_cooperative_matrix : require
@@ -23,6 +29,7 @@
 #extension GL_KHR_shader_subgroup_basic : require
 #extension GL_EXT_shader_explicit_arithmetic_types_float16 : require
 #include "common.glsl"
+#include "quant.glsl"
 
 layout(local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in;
 layout(constant_id = 3) const uint SG_M = 2;     // subgroups along rows
@@ -33,19 +40,24 @@ layout(constant_id = 7) const uint KSTEPS = 2;   // CM_K blocks per shared-memor
 layout(constant_id = 8) const int TEXEL_K = 4;   // k values per texel of x and w: 4 or 1
 layout(constant_id = 9) const int ACT = ACT_NONE;
 layout(constant_id = 10) const bool HAS_BIAS = false;
+layout(constant_id = 11) const int W_BITS = 8;   // W_QUANT: 8 (q8) or 4 (q4)
 // The device's multiply-add shape (ids fixed: the SPIR-V rewrite recognises them).
 layout(constant_id = 20) const uint CM_M = 16;
 layout(constant_id = 21) const uint CM_N = 16;
 layout(constant_id = 22) const uint CM_K = 16;
 
 TEXEL_INPUT(0, X, TEXEL_K)
+#if W_QUANT
+QUANT_INPUT(1, W)
+#else
 TEXEL_INPUT(1, W, TEXEL_K)
+#endif
 TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
 layout(binding = 3) writeonly buffer Y { OUT_T y[]; };
 
 layout(push_constant) uniform Push {
   int M, N, K;       // K in texels
-  int ldx, ldw;      // row strides of x and w in texels
+  int ldx, ldw;      // row strides of x and w in texels (w quantized: in 32-bit words)
   int ldy;           // row stride of y in elements
   int xBatch, wBatch, yBatch;  // batch strides (texels, texels, elements); wBatch 0 shares w
 } p;
@@ -68,7 +80,11 @@ void copySlice(bool isX, int img, int row0, int k0) {
     if (isX) {
       if (row < p.M && kt0 + kt < p.K) v = fetch_X(img * p.xBatch + row * p.ldx + kt0 + kt);
     } else {
+#if W_QUANT
+      if (row < p.N && kt0 + kt < p.K) v = fetchq_W(img * p.wBatch + row * p.ldw, kt0 + kt, p.K);
+#else
       if (row < p.N && kt0 + kt < p.K) v = fetch_W(img * p.wBatch + row * p.ldw + kt0 + kt);
+#endif
     }
     v = clamp(v, vec4(-65504.0), vec4(65504.0));
     [[unroll]] for (int c = 0; c < TEXEL_K; ++c) {

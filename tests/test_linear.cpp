@@ -160,7 +160,9 @@ TEST_F(EngineTest, LinearOutputAboveStorageRange) {
 }
 
 // ---- Quantized weights (engine/tensor.h DType::Q8 / Q4, shaders/quant.glsl), against float64
-// of the dequantized weights: the kernel adds no error of its own beyond fp32 accumulation.
+// of the dequantized weights: the kernel adds no error of its own beyond fp32 accumulation. On
+// cooperative matrices (the plan's quantizedGemm() CoopMat: ctest's coopmat_linear) the kernel
+// stages x and the dequantized weights as fp16, so the reference rounds both as it does.
 
 void expectQuantizedLinear(Engine& engine, const std::vector<float>& w, int64_t M, int64_t N, int64_t K, int bits,
                            bool bias, Activation act, const std::string& what) {
@@ -173,7 +175,9 @@ void expectQuantizedLinear(Engine& engine, const std::vector<float>& w, int64_t 
   Recorder rec(engine);
   linear(rec, tx, tw, tb, y.tensor(), act);
   rec.run();
-  const auto ref = linearRef(x, q.values, b, 1, M, N, K, false, act);
+  const bool viaFp16 = engine.plan().quantizedGemm() == KernelFamily::CoopMat;
+  const auto ref = viaFp16 ? linearRef(roundToHalf(x), roundToHalf(q.values), b, 1, M, N, K, false, act)
+                           : linearRef(x, q.values, b, 1, M, N, K, false, act);
   double peak = 0;
   for (double v : ref) peak = std::max(peak, std::abs(v));
   expectClose(y.read(), ref, 1e-10 * std::max<int64_t>(1, K / 16), 1e-6 * std::max(1.0, peak), what);

@@ -1,7 +1,8 @@
 // spar selftest (samples/spar_cli/selftest_command.h): on this device it passes (exit 0, every
 // op check and every stage of the self-test model within its threshold, no validation message)
 // as it is and under a device-limit profile, prints the device, limits, plan and a verdict,
-// gives the same as JSON and as a JUnit report (--junit), and fails (exit 1, the verdict FAIL, the failing check named) when an
+// gives the same as JSON and as a JUnit report (--junit), runs on every device at once
+// (--all-devices, SwiftShader's found by name), and fails (exit 1, the verdict FAIL, the failing check named) when an
 // op cannot run, when a stage's output is off, and when the self-test model is missing.
 #include <gtest/gtest.h>
 
@@ -106,6 +107,58 @@ TEST(spar_selftest, UnwritableJunitReportIsRefusedBeforeWork) {
   EXPECT_EQ(r.errLines().size(), 1u) << r.err;
   EXPECT_NE(r.err.find("spar: error: cannot write the JUnit report " + file + ": no directory"), std::string::npos) << r.err;
   EXPECT_EQ(r.out.find("device "), std::string::npos) << r.out;
+}
+
+// --all-devices: every device of this machine, SwiftShader's among them (chromium's, which
+// scripts/setup/install-deps.sh installs; found without loader variables), a column each, and a
+// JUnit testsuite each. Without the self-test model (the op checks only: SwiftShader's whole
+// self-test is the CTest entry swiftshader.spar_selftest), so every verdict is FAIL, exit 1.
+TEST(spar_selftest, AllDevicesIsOneTableWithAColumnPerDevice) {
+  const std::filesystem::path junit = scratch() / "all_devices.xml";
+  std::filesystem::remove(junit);
+  const CommandResult r = runValidated({SPAR_CLI, "selftest", "--all-devices", "--model-dir",
+                                        (scratch() / "nowhere").string(), "--junit", junit.string()}, scratch());
+  EXPECT_EQ(r.code, 1) << r.out << r.err;
+  EXPECT_NE(r.out.find("spar selftest --all-devices: "), std::string::npos) << r.out;
+  const size_t swiftshader = r.out.find("] SwiftShader Device (Subzero), "), llvmpipe = r.out.find("] llvmpipe (");
+  ASSERT_NE(swiftshader, std::string::npos) << r.out;
+  ASSERT_NE(llvmpipe, std::string::npos) << r.out;
+  // each op check passed on both devices, the missing model failed on both
+  auto line = [&](const std::string& start) {
+    const size_t at = r.out.find("\n" + start);
+    return at == std::string::npos ? std::string() : r.out.substr(at + 1, r.out.find('\n', at + 1) - at - 1);
+  };
+  auto count = [](const std::string& text, const std::string& what) {
+    size_t n = 0;
+    for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
+    return n;
+  };
+  for (const char* check : {"linear 77x150x72", "softmax 33x1001", "conv2d 3x3"}) {
+    const std::string row = line(check);
+    EXPECT_GE(count(row, "pass "), 2u) << check << "\n" << r.out;
+    EXPECT_EQ(count(row, "FAIL"), 0u) << check << "\n" << r.out;
+  }
+  EXPECT_GE(count(line("model "), "FAIL (error)"), 2u) << r.out;
+  EXPECT_EQ(line("validation messages").find_first_not_of("validation messages 0"), std::string::npos) << r.out;
+  EXPECT_GE(count(line("verdict"), "FAIL "), 2u) << r.out;
+  const Junit j = readJunit(junit);
+  EXPECT_GE(count(j.text, "<testsuite name=\"spar selftest on "), 2u) << j.text;
+  EXPECT_NE(j.text.find("<testsuite name=\"spar selftest on SwiftShader Device (Subzero), "), std::string::npos) << j.text;
+  EXPECT_NE(j.text.find("<testsuite name=\"spar selftest on llvmpipe ("), std::string::npos) << j.text;
+}
+
+// SwiftShader joins only when named (`--device swiftshader`: the CTest entry
+// swiftshader.spar_selftest): the device list another name sees is the loader's own (lavapipe
+// here), and so is the default choice; drivers the user chose (VK_ICD_FILENAMES) stay the only ones.
+TEST(spar_selftest, SwiftShaderJoinsOnlyWhenNamed) {
+  CommandResult r = runValidated({SPAR_CLI, "selftest", "--device", "no-such-gpu"}, scratch());
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("no Vulkan device matches 'no-such-gpu' (available: 0: llvmpipe"), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("SwiftShader"), std::string::npos) << r.err;
+  r = runValidated({SPAR_CLI, "selftest", "--device", "swiftshader"}, scratch(),
+                   "VK_ICD_FILENAMES=/usr/share/vulkan/icd.d/lvp_icd.x86_64.json");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("no Vulkan device matches 'swiftshader' (available: 0: llvmpipe"), std::string::npos) << r.err;
 }
 
 TEST(spar_selftest, AStageOffItsReferenceAMissingModelOrAFailingOpFailsTheVerdict) {

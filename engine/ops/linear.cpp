@@ -27,14 +27,15 @@ struct GemmLaunch {
 
 // By the device's plan (engine/kernel_plan.h): gemm.comp's register blocks on CPU devices,
 // gemm_tiled.comp's shared-memory tiles on GPUs (fp16 arithmetic for fp16 weights where the
-// plan says so), gemm_coopmat.comp for fp16 weights where the device has cooperative matrices.
+// plan says so), gemm_coopmat.comp for fp16 and quantized weights where the device has
+// cooperative matrices.
 GemmLaunch gemmLaunch(Engine& engine, DType wType, DType yType, int64_t M, int64_t N, int64_t B, int64_t K, int texelK,
                       Activation act, bool hasBias) {
   const DeviceCaps& caps = engine.caps();
   const KernelPlan& plan = engine.plan();
   const bool f16Out = yType == DType::F16;
-  // Quantized weights: gemm.comp's register blocks or gemm_tiled.comp's tiles dequantize them
-  // as they read them (KernelPlan::quantizedGemm; the cooperative-matrix kernels read fp16 only).
+  // Quantized weights: gemm.comp's register blocks, gemm_tiled.comp's tiles or gemm_coopmat.comp's
+  // fp16 slices dequantize them as they read them (KernelPlan::quantizedGemm).
   const KernelFamily family = isQuantized(wType)    ? plan.quantizedGemm()
                               : wType == DType::F16 ? plan.gemmF16
                                                     : plan.gemm;
@@ -46,9 +47,12 @@ GemmLaunch gemmLaunch(Engine& engine, DType wType, DType yType, int64_t M, int64
     const int local = int(subgroup) * c.sgM * c.sgN;
     std::vector<int32_t> constants = {local, 1, 1, c.sgM, c.sgN, c.wm, c.wn, c.kSteps, texelK, static_cast<int>(act),
                                       hasBias};
-    constants.resize(20, 0);  // ids 11-19 unused; 20-22 the multiply-add shape
+    if (isQuantized(wType)) constants.push_back(wType == DType::Q8 ? 8 : 4);  // W_BITS
+    constants.resize(20, 0);  // ids 12-19 unused; 20-22 the multiply-add shape
     constants.insert(constants.end(), {c.m, c.n, c.k});
-    const Kernel& k = engine.kernel({f16Out ? "gemm_coopmat_f16out" : "gemm_coopmat_f32",
+    const std::string name = std::string(isQuantized(wType) ? "gemm_coopmat_q" : "gemm_coopmat") +
+                             (f16Out ? "_f16out" : "_f32");
+    const Kernel& k = engine.kernel({name,
                                      {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write}, sizeof(GemmPush), constants,
                                      subgroup});
     return {&k, c.rows(), c.cols()};

@@ -11,6 +11,8 @@
 #include "samples/spar_cli/selftest_checks.h"
 #include "samples/spar_cli/selftest_junit.h"
 #include "samples/spar_cli/selftest_model.h"
+#include "samples/spar_cli/selftest_run.h"
+#include "samples/spar_cli/selftest_table.h"
 
 namespace spar::cli {
 namespace {
@@ -59,69 +61,31 @@ nlohmann::ordered_json limitsJson(const DeviceCaps& c) {
           {"cooperative_matrix", c.cooperativeMatrix}};
 }
 
-}  // namespace
+nlohmann::ordered_json reportJson(const SelftestReport& r) {
+  nlohmann::ordered_json doc;
+  if (!r.error.empty()) return {{"device", r.device}, {"error", r.error}, {"passed", false}};
+  const DeviceCaps& caps = r.caps;
+  doc["device"] = caps.name;
+  doc["driver"] = caps.driverInfo;
+  doc["vulkan"] = std::to_string(VK_API_VERSION_MAJOR(caps.apiVersion)) + "." + std::to_string(VK_API_VERSION_MINOR(caps.apiVersion));
+  doc["profile"] = r.profile.empty() ? nlohmann::ordered_json() : nlohmann::ordered_json(r.profile);
+  doc["limits"] = limitsJson(caps);
+  doc["plan"] = r.plan;
+  doc["checks"] = nlohmann::ordered_json::array();
+  for (const SelftestCheck& c : r.opChecks) doc["checks"].push_back(checkJson(c));
+  doc["model"] = {{"dir", r.modelDir}, {"checks", nlohmann::ordered_json::array()}};
+  for (const SelftestCheck& c : r.modelChecks) doc["model"]["checks"].push_back(checkJson(c));
+  doc["validation"] = {{"enabled", r.validation}, {"messages", r.validationMessages}};
+  doc["passed"] = r.ok();
+  return doc;
+}
 
-bool runSelftest(const SelftestArgs& args) {
-  if (!args.junit.empty()) checkJunitWritable(args.junit);  // before any work
-  EngineOptions base;
-  base.device = args.device;
-  base.pipelineCacheFile = EngineOptions::defaultPipelineCacheFile();
-  EngineOptions options = EngineOptions::fromEnvironment(base);
-  // The validation layer where it is installed (its messages count against the verdict).
-  options.validation = true;
-  std::string validationNote;
-  std::unique_ptr<Engine> engine;
-  try {
-    engine = std::make_unique<Engine>(options);
-  } catch (const std::exception& e) {
-    if (std::string(e.what()).find("VK_LAYER_KHRONOS_validation is not installed") == std::string::npos) throw;
-    options.validation = false;
-    validationNote = "not installed (apt-get install vulkan-validationlayers to check the engine's Vulkan use)";
-    engine = std::make_unique<Engine>(options);
-  }
-  const DeviceCaps& caps = engine->caps();
-  const std::vector<std::string> plan = describePlan(engine->plan(), caps);
-  const std::vector<SelftestCheck> checks = runSelftestChecks(*engine);
-  const std::string modelDir = findSelftestModel(args.model);
-  std::vector<SelftestCheck> modelChecks;
-  if (modelDir.empty()) {
-    SelftestCheck missing{"model", "-"};
-    missing.error = "the self-test model is not in " + selftestModelSearchPath(args.model) +
-                    " (reinstall the package, or --model-dir DIR)";
-    modelChecks.push_back(std::move(missing));
-  } else {
-    modelChecks = runSelftestModel(*engine, modelDir);
-  }
-  const size_t messages = engine->device().validationMessageCount();
-  size_t passed = 0;
-  for (const SelftestCheck& c : checks) passed += c.passed();
-  for (const SelftestCheck& c : modelChecks) passed += c.passed();
-  const size_t total = checks.size() + modelChecks.size();
-  const bool ok = passed == total && messages == 0;
-  if (!args.junit.empty())
-    writeSelftestJunit(args.junit, {caps.name + ", " + caps.driverInfo, checks, modelChecks, options.validation, messages});
-
-  if (args.json) {
-    nlohmann::ordered_json doc;
-    doc["device"] = caps.name;
-    doc["driver"] = caps.driverInfo;
-    doc["vulkan"] = std::to_string(VK_API_VERSION_MAJOR(caps.apiVersion)) + "." + std::to_string(VK_API_VERSION_MINOR(caps.apiVersion));
-    doc["profile"] = caps.limitsProfile.empty() ? nlohmann::ordered_json() : nlohmann::ordered_json(options.limits.describe());
-    doc["limits"] = limitsJson(caps);
-    doc["plan"] = plan;
-    doc["checks"] = nlohmann::ordered_json::array();
-    for (const SelftestCheck& c : checks) doc["checks"].push_back(checkJson(c));
-    doc["model"] = {{"dir", modelDir}, {"checks", nlohmann::ordered_json::array()}};
-    for (const SelftestCheck& c : modelChecks) doc["model"]["checks"].push_back(checkJson(c));
-    doc["validation"] = {{"enabled", options.validation}, {"messages", messages}};
-    doc["passed"] = ok;
-    std::cout << doc.dump(1) << "\n";
-    return ok;
-  }
+void printReport(const SelftestReport& r) {
+  const DeviceCaps& caps = r.caps;
   std::printf("spar selftest\n");
   std::printf("device     %s, %s, Vulkan %u.%u\n", caps.name.c_str(), caps.driverInfo.c_str(),
               VK_API_VERSION_MAJOR(caps.apiVersion), VK_API_VERSION_MINOR(caps.apiVersion));
-  std::printf("profile    %s\n", caps.limitsProfile.empty() ? "none (the device's own limits)" : options.limits.describe().c_str());
+  std::printf("profile    %s\n", r.profile.empty() ? "none (the device's own limits)" : r.profile.c_str());
   std::printf("limits     texel buffer %llu texels, storage binding %s, shared memory %u KiB, %u invocations, push %u B,\n"
               "           %u storage / %u texel buffers a stage, alignments %llu / %llu B, fp16 arithmetic %s, fp16 storage %s,\n"
               "           subgroup size %u, subgroup arithmetic %s, cooperative matrices %s\n",
@@ -132,18 +96,64 @@ bool runSelftest(const SelftestArgs& args) {
               caps.supportsFp16Storage() ? "yes" : "no", caps.subgroupSize, caps.subgroupArithmetic ? "yes" : "no",
               caps.cooperativeMatrix ? "yes" : "no");
   std::printf("plan\n");
-  for (const std::string& line : plan) std::printf("  %s\n", line.c_str());
+  for (const std::string& line : r.plan) std::printf("  %s\n", line.c_str());
   std::printf("checks (against float64 on the host)\n");
-  for (const SelftestCheck& c : checks) printCheck(c);
+  for (const SelftestCheck& c : r.opChecks) printCheck(c);
   std::printf("model %s (stage by stage against the PyTorch reference in float64; time: the stage's)\n",
-              modelDir.empty() ? "not found" : modelDir.c_str());
-  for (const SelftestCheck& c : modelChecks) printCheck(c);
-  if (options.validation)
-    std::printf("validation layer: on, %zu message%s\n", messages, messages == 1 ? "" : "s");
+              r.modelDir.empty() ? "not found" : r.modelDir.c_str());
+  for (const SelftestCheck& c : r.modelChecks) printCheck(c);
+  if (r.validation)
+    std::printf("validation layer: on, %zu message%s\n", r.validationMessages, r.validationMessages == 1 ? "" : "s");
   else
-    std::printf("validation layer: %s\n", validationNote.c_str());
-  std::printf("verdict: %s (%zu of %zu checks passed%s)\n", ok ? "PASS" : "FAIL", passed, total,
-              messages ? ", validation messages" : "");
+    std::printf("validation layer: %s\n", r.validationNote.c_str());
+  std::printf("verdict: %s (%zu of %zu checks passed%s)\n", r.ok() ? "PASS" : "FAIL", r.passed(), r.total(),
+              r.validationMessages ? ", validation messages" : "");
+}
+
+// Every device's self-test, one after another: a device that cannot be used is a failed column,
+// not the end of the run.
+std::vector<SelftestReport> runOnEveryDevice(const SelftestArgs& args) {
+  std::vector<SelftestReport> reports;
+  for (const std::string& name : Device::deviceNames(true)) {
+    if (!args.json) std::fprintf(stderr, "spar selftest: %s\n", name.c_str());
+    try {
+      reports.push_back(runSelftestOn(name, args.model));
+    } catch (const std::exception& e) {
+      SelftestReport failed;
+      failed.device = name;
+      failed.error = e.what();
+      reports.push_back(std::move(failed));
+    }
+  }
+  return reports;
+}
+
+}  // namespace
+
+bool runSelftest(const SelftestArgs& args) {
+  if (!args.junit.empty()) checkJunitWritable(args.junit);  // before any work
+  std::vector<SelftestReport> reports;
+  if (args.allDevices)
+    reports = runOnEveryDevice(args);
+  else
+    reports.push_back(runSelftestOn(args.device, args.model));
+  bool ok = !reports.empty();
+  for (const SelftestReport& r : reports) ok = ok && r.ok();
+  if (!args.junit.empty()) writeSelftestJunit(args.junit, reports);
+  if (args.json) {
+    if (!args.allDevices) {
+      std::cout << reportJson(reports[0]).dump(1) << "\n";
+      return ok;
+    }
+    nlohmann::ordered_json doc = {{"devices", nlohmann::ordered_json::array()}, {"passed", ok}};
+    for (const SelftestReport& r : reports) doc["devices"].push_back(reportJson(r));
+    std::cout << doc.dump(1) << "\n";
+    return ok;
+  }
+  if (args.allDevices)
+    printDeviceTable(reports);
+  else
+    printReport(reports[0]);
   return ok;
 }
 

@@ -15,9 +15,11 @@ struct SelftestArgs {
   bool json = false;   // --json: the report as JSON on stdout instead of the table
   std::string model;   // --model-dir: the self-test model's directory ("" = findSelftestModel's places)
   std::string junit;   // --junit FILE: the checks as JUnit XML too (selftest_junit.h)
+  bool allDevices = false;  // --all-devices: every device, SwiftShader's too where installed, as
+                            // one table with a column per device (selftest_table.h)
 };
 
-// Returns true when everything passed.
+// Returns true when everything passed (on every device).
 bool runSelftest(const SelftestArgs& args);
 
 }  // namespace spar::cli

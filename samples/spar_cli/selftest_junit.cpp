@@ -44,6 +44,39 @@ void testcase(std::ostringstream& o, const std::string& suite, const SelftestChe
   o << "      <system-out>" << xml(measured(c)) << "</system-out>\n    </testcase>\n";
 }
 
+// One device's <testsuite>; adds its tests, failures and seconds to the totals.
+void testsuite(std::ostringstream& o, const SelftestReport& r, size_t& allTests, size_t& allFailures,
+               double& allSeconds) {
+  char time[32];
+  if (!r.error.empty()) {
+    o << "  <testsuite name=\"spar selftest on " << xml(r.device) << "\" tests=\"1\" failures=\"1\" errors=\"0\" "
+      << "time=\"0\">\n    <testcase classname=\"selftest.device\" name=\"device\" time=\"0\">\n"
+      << "      <failure message=\"" << xml("could not be used: " + r.error) << "\"/>\n    </testcase>\n"
+      << "  </testsuite>\n";
+    allTests += 1, allFailures += 1;
+    return;
+  }
+  size_t tests = r.total() + 1, failures = (r.total() - r.passed()) + (r.validationMessages > 0);
+  // The suite's time: a model stage with several outputs gives each of its checks the stage's
+  // time (the same value, one after another), counted once here.
+  double seconds = 0, previous = -1;
+  for (const auto* list : {&r.opChecks, &r.modelChecks})
+    for (const SelftestCheck& c : *list) {
+      if (c.ms != previous) seconds += c.ms / 1000.0;
+      previous = c.ms;
+    }
+  std::snprintf(time, sizeof time, "%.4f", seconds);
+  o << "  <testsuite name=\"spar selftest on " << xml(r.device) << "\" tests=\"" << tests << "\" failures=\""
+    << failures << "\" errors=\"0\" time=\"" << time << "\">\n";
+  for (const SelftestCheck& c : r.opChecks) testcase(o, "selftest.ops", c);
+  for (const SelftestCheck& c : r.modelChecks) testcase(o, "selftest.model", c);
+  o << "    <testcase classname=\"selftest.validation\" name=\"validation layer messages\" time=\"0\">\n";
+  const std::string said = r.validation ? std::to_string(r.validationMessages) + " messages" : "the layer is not installed";
+  if (r.validationMessages) o << "      <failure message=\"" << xml(said) << "\"/>\n";
+  o << "      <system-out>" << xml(said) << "</system-out>\n    </testcase>\n  </testsuite>\n";
+  allTests += tests, allFailures += failures, allSeconds += seconds;
+}
+
 }  // namespace
 
 void checkJunitWritable(const std::string& path) {
@@ -56,27 +89,17 @@ void checkJunitWritable(const std::string& path) {
   if (fs::is_directory(path, ec)) throw Error("cannot write the JUnit report " + path + ": it is a directory");
 }
 
-void writeSelftestJunit(const std::string& path, const SelftestReport& r) {
-  size_t tests = r.opChecks.size() + r.modelChecks.size() + 1, failures = r.validationMessages > 0;
+void writeSelftestJunit(const std::string& path, const std::vector<SelftestReport>& reports) {
+  std::ostringstream suites;
+  size_t tests = 0, failures = 0;
   double seconds = 0;
-  for (const auto* list : {&r.opChecks, &r.modelChecks})
-    for (const SelftestCheck& c : *list) {
-      failures += !c.passed();
-      seconds += c.ms / 1000.0;
-    }
+  for (const SelftestReport& r : reports) testsuite(suites, r, tests, failures, seconds);
   std::ostringstream o;
   char time[32];
   std::snprintf(time, sizeof time, "%.4f", seconds);
   o << "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n<testsuites name=\"spar selftest\" tests=\"" << tests
-    << "\" failures=\"" << failures << "\" errors=\"0\" time=\"" << time << "\">\n  <testsuite name=\"spar selftest on "
-    << xml(r.device) << "\" tests=\"" << tests << "\" failures=\"" << failures << "\" errors=\"0\" time=\"" << time
-    << "\">\n";
-  for (const SelftestCheck& c : r.opChecks) testcase(o, "selftest.ops", c);
-  for (const SelftestCheck& c : r.modelChecks) testcase(o, "selftest.model", c);
-  o << "    <testcase classname=\"selftest.validation\" name=\"validation layer messages\" time=\"0\">\n";
-  const std::string said = r.validation ? std::to_string(r.validationMessages) + " messages" : "the layer is not installed";
-  if (r.validationMessages) o << "      <failure message=\"" << xml(said) << "\"/>\n";
-  o << "      <system-out>" << xml(said) << "</system-out>\n    </testcase>\n  </testsuite>\n</testsuites>\n";
+    << "\" failures=\"" << failures << "\" errors=\"0\" time=\"" << time << "\">\n"
+    << suites.str() << "</testsuites>\n";
 
   const std::string tmp = path + ".tmp-" + std::to_string(::getpid());
   {

@@ -3,23 +3,16 @@
 // is a <failure>; the validation layer's messages are one more testcase). Written whole: a
 // temporary name beside FILE, then a rename.
 #pragma once
-#include <cstddef>
 #include <string>
 #include <vector>
 
-#include "samples/spar_cli/selftest_checks.h"
+#include "samples/spar_cli/selftest_run.h"
 
 namespace spar::cli {
 
-struct SelftestReport {
-  std::string device;                                   // the device's name and driver
-  std::vector<SelftestCheck> opChecks, modelChecks;
-  bool validation = false;                              // the validation layer was on
-  size_t validationMessages = 0;
-};
-
-// Throws spar::Error naming the file when it cannot be written.
-void writeSelftestJunit(const std::string& path, const SelftestReport& report);
+// One <testsuite> per device (--all-devices: several); a device that could not be used is one
+// failing testcase in its suite. Throws spar::Error naming the file when it cannot be written.
+void writeSelftestJunit(const std::string& path, const std::vector<SelftestReport>& reports);
 // Throws the same error before any work when `path`'s directory is missing or not writable.
 void checkJunitWritable(const std::string& path);
 
