@@ -1,13 +1,14 @@
 #!/usr/bin/env bash
-# Runs `spar selftest` on every lavapipe here under every device-limit profile: one table.
+# Runs `spar selftest` on every CPU Vulkan driver here under every device-limit profile: one table.
 #
 # `spar selftest` on each lavapipe this machine can run (the system's Mesa 22.3, 25.0 from
 # bookworm-backports: scripts/portability/newer-lavapipe.sh, 26.1 from trixie-backports with cooperative
-# matrices: scripts/portability/coopmat-lavapipe.sh) and under each device-limit profile: one markdown table
-# row each (verdict, checks passed: the op checks and the self-test model's stages, validation
-# messages, wall time).
+# matrices: scripts/portability/coopmat-lavapipe.sh) and on SwiftShader (chromium's, `--device
+# swiftshader`), under each device-limit profile: one markdown table row each (verdict, checks
+# passed: the op checks and the self-test model's stages, validation messages, wall time).
 #
 #   bash scripts/portability/selftest-table.sh [SPAR]     (default build/samples/spar; network for the drivers)
+#   DRIVERS="swiftshader" bash scripts/portability/selftest-table.sh   (some of: system newer coopmat swiftshader)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 spar=$(realpath "${1:-build/samples/spar}")
@@ -15,16 +16,19 @@ tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 echo "| driver | profile | verdict | checks | validation messages | wall |"
 echo "|---|---|---|---|---|---|"
-for driver in system newer coopmat; do
+for driver in ${DRIVERS:-system newer coopmat swiftshader}; do
   for profile in "" vulkan-1.2-min android-baseline-2022 raspberry-pi-5 mali-g610 adreno-610; do
+    device=()
     case $driver in
       system) run=();;
       newer) run=(bash scripts/portability/newer-lavapipe.sh run);;
       coopmat) run=(env DIR="${COOPMAT_DIR:-build/tests/mesa-trixie}" bash scripts/portability/coopmat-lavapipe.sh run);;
+      swiftshader) run=(); device=(--device swiftshader);;
+      *) echo "selftest-table.sh: unknown driver '$driver' (system, newer, coopmat, swiftshader)" >&2; exit 2;;
     esac
     start=$(date +%s.%N)
     code=0
-    SPAR_DEVICE_LIMITS=$profile "${run[@]}" "$spar" selftest --json > "$tmp/out.json" 2> "$tmp/err.txt" || code=$?
+    SPAR_DEVICE_LIMITS=$profile "${run[@]}" "$spar" selftest "${device[@]}" --json > "$tmp/out.json" 2> "$tmp/err.txt" || code=$?
     wall=$(echo "$(date +%s.%N) - $start" | bc)
     /usr/bin/python3 - "$tmp/out.json" "$code" "${profile:-none}" "$wall" <<'PY'
 import json, sys
