@@ -138,10 +138,6 @@ bool texelFormatSupported(VkPhysicalDevice device, VkFormat format) {
   return (props.bufferFeatures & VK_FORMAT_FEATURE_UNIFORM_TEXEL_BUFFER_BIT) != 0;
 }
 
-}  // namespace
-
-namespace {
-
 // Every device's properties, in the loader's order.
 std::vector<VkPhysicalDeviceProperties> deviceProperties(bool extraDrivers) {
   VkInstance instance = createBareInstance(false, false, extraDrivers ? "*" : "");

@@ -22,11 +22,18 @@ struct Junit {
   size_t testcases = 0, failureElements = 0;
   std::string text;
 };
+// How often `what` occurs in `text`.
+size_t occurrences(const std::string& text, const std::string& what) {
+  size_t n = 0;
+  for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
+  return n;
+}
+
 Junit readJunit(const std::filesystem::path& file) {
   Junit j;
   j.text = readText(file);
-  for (size_t at = j.text.find("<testcase "); at != std::string::npos; at = j.text.find("<testcase ", at + 1)) ++j.testcases;
-  for (size_t at = j.text.find("<failure "); at != std::string::npos; at = j.text.find("<failure ", at + 1)) ++j.failureElements;
+  j.testcases = occurrences(j.text, "<testcase ");
+  j.failureElements = occurrences(j.text, "<failure ");
   return j;
 }
 
@@ -128,21 +135,16 @@ TEST(spar_selftest, AllDevicesIsOneTableWithAColumnPerDevice) {
     const size_t at = r.out.find("\n" + start);
     return at == std::string::npos ? std::string() : r.out.substr(at + 1, r.out.find('\n', at + 1) - at - 1);
   };
-  auto count = [](const std::string& text, const std::string& what) {
-    size_t n = 0;
-    for (size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
-    return n;
-  };
   for (const char* check : {"linear 77x150x72", "softmax 33x1001", "conv2d 3x3"}) {
     const std::string row = line(check);
-    EXPECT_GE(count(row, "pass "), 2u) << check << "\n" << r.out;
-    EXPECT_EQ(count(row, "FAIL"), 0u) << check << "\n" << r.out;
+    EXPECT_GE(occurrences(row, "pass "), 2u) << check << "\n" << r.out;
+    EXPECT_EQ(occurrences(row, "FAIL"), 0u) << check << "\n" << r.out;
   }
-  EXPECT_GE(count(line("model "), "FAIL (error)"), 2u) << r.out;
+  EXPECT_GE(occurrences(line("model "), "FAIL (error)"), 2u) << r.out;
   EXPECT_EQ(line("validation messages").find_first_not_of("validation messages 0"), std::string::npos) << r.out;
-  EXPECT_GE(count(line("verdict"), "FAIL "), 2u) << r.out;
+  EXPECT_GE(occurrences(line("verdict"), "FAIL "), 2u) << r.out;
   const Junit j = readJunit(junit);
-  EXPECT_GE(count(j.text, "<testsuite name=\"spar selftest on "), 2u) << j.text;
+  EXPECT_GE(occurrences(j.text, "<testsuite name=\"spar selftest on "), 2u) << j.text;
   EXPECT_NE(j.text.find("<testsuite name=\"spar selftest on SwiftShader Device (Subzero), "), std::string::npos) << j.text;
   EXPECT_NE(j.text.find("<testsuite name=\"spar selftest on llvmpipe ("), std::string::npos) << j.text;
 }

@@ -1,5 +1,6 @@
-// spar selftest (selftest_command.h): the device and its limits, the kernel plan, the op checks
-// (selftest_checks.cpp) and a verdict, as a table or as JSON.
+// spar selftest (selftest_command.h): one device's run (selftest_run.h: its limits, kernel plan,
+// op checks and model stages) or every device's (--all-devices, selftest_table.h), printed as a
+// table or as JSON, and the JUnit report (selftest_junit.h).
 #include "samples/spar_cli/selftest_command.h"
 
 #include <cmath>
@@ -10,7 +11,6 @@
 #include "engine/engine.h"
 #include "samples/spar_cli/selftest_checks.h"
 #include "samples/spar_cli/selftest_junit.h"
-#include "samples/spar_cli/selftest_model.h"
 #include "samples/spar_cli/selftest_run.h"
 #include "samples/spar_cli/selftest_table.h"
 
