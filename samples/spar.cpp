@@ -1,9 +1,10 @@
 // spar: the command-line tool of the engine.
 //   spar render --model M.spar (--images A B [--targets C D] | --frames f0 .. --inputs 0,3,4)
 //               [--cameras transforms.json|COLMAP_DIR | --path N] [--assume-static] [--size HxW] [--device D] --out DIR
-//   spar render --model M.spar --jobs JOBS.jsonl [--shard I/N] [common options]
+//   spar render --model M.spar --jobs JOBS.jsonl [--shard I/N] [--redo] [common options]
 //   spar eval --model M.spar --scenes DIR [--views 2,3,4] [--precision fp32|fp16] [--size HxW]
-//             [--no-gating | --assume-static] [--max-scenes N] [--device D] --out result.json
+//             [--no-gating | --assume-static] [--max-scenes N] [--shard I/N] [--redo] [--device D] --out result.json
+//   spar eval --merge R1.json R2.json ... --out ALL.json
 //   spar selftest [--device D | --all-devices] [--json] [--junit FILE]   (exit 0 only if every check passed)
 // Exit codes: 0 done, 1 something found wrong on the way (files, model, device), 2 a command
 // line that cannot mean anything. Every error is one line "spar: error: <message>" on stderr.
@@ -124,6 +125,11 @@ int main(int argc, char** argv) {
   render->add_option("--shard", shardText, "with --jobs: run the jobs whose position is I modulo N")
       ->type_name("I/N")
       ->needs(jobsOpt);
+  bool redoJobs = false;
+  render->add_flag("--redo", redoJobs,
+                   "with --jobs: render every job again (by default a job whose output directory exists, which "
+                   "only a finished job leaves, is skipped: a rerun finishes what is missing)")
+      ->needs(jobsOpt);
   render->add_option("--device", a.device, "Vulkan device index or part of its name (default: SPAR_DEVICE, else "
                                            "the first GPU)");
   std::string labelsText;
@@ -153,9 +159,9 @@ int main(int argc, char** argv) {
       "eval",
       "Evaluate a model on a directory of test scenes as evaluation/PROTOCOL.md says: static-pixel "
       "PSNR / SSIM of the rendered targets, motion-mask IoU, semantic mIoU; writes result.json and prints a table");
-  evalCmd->add_option("--model", e.model, "packed model (.spar)")->required();
-  evalCmd->add_option("--scenes", e.scenes, "directory of scene_* folders (scenes/spar-scenes split --split test)")
-      ->required();
+  auto* evalModel = evalCmd->add_option("--model", e.model, "packed model (.spar)");
+  auto* evalScenes =
+      evalCmd->add_option("--scenes", e.scenes, "directory of scene_* folders (scenes/spar-scenes split --split test)");
   evalCmd->add_option("--views", e.views, "numbers of input views K, comma-separated (default 2,3,4)")
       ->type_name("\"2,3,4\"");
   evalCmd->add_option("--precision", e.precision, "fp32, fp16, q8 or q4 weight matrices on the device (see render)")
@@ -186,6 +192,17 @@ int main(int argc, char** argv) {
                                            "shard under a batch system)")
                            ->type_name("I/N");
   evalCmd->add_option("--out", e.out, "result JSON file (written whole: temporary name, then rename)")->required();
+  evalCmd->add_flag("--redo", e.redo,
+                    "evaluate every scene again (by default a rerun of the same command keeps --out when it holds "
+                    "this evaluation, and the scenes an interrupted run finished, kept in OUT.partial)");
+  std::vector<std::string> mergeFiles;
+  auto* mergeOpt = evalCmd->add_option("--merge", mergeFiles,
+                                       "combine the results of the shards of one evaluation (--shard I/N) into the "
+                                       "whole set's, exactly: pooled from their per-scene sums and counts")
+                       ->type_name("R1.json R2.json ...")
+                       ->excludes(evalModel)
+                       ->excludes(evalScenes)
+                       ->excludes(evalShardOpt);
 
   SelftestArgs st;
   CLI::App* selftest = app.add_subcommand(
@@ -224,12 +241,20 @@ int main(int argc, char** argv) {
     }
   }
   if (evalCmd->parsed()) {
+    if (mergeOpt->count() == 0 && (evalModel->count() == 0 || evalScenes->count() == 0))
+      return fail(std::string(evalModel->count() == 0 ? "--model" : "--scenes") +
+                      " is required (or --merge R1.json R2.json ...; see spar eval --help)",
+                  kExitUsage);
     if (maxScenes->count() > 0 && e.maxScenes < 1)
       return fail("--max-scenes must be at least 1 (see spar eval --help)", kExitUsage);
     if (evalSizeOpt->count() > 0 && !parseSize(evalSize, e.height, e.width))
       return fail("--size must be HxW in pixels, e.g. 128x128, got '" + evalSize + "' (see spar eval --help)",
                   kExitUsage);
     try {
+      if (mergeOpt->count() > 0) {
+        runEvalMerge(mergeFiles, e.out);
+        return kExitOk;
+      }
       if (evalShardOpt->count() > 0) std::tie(e.shard, e.shards) = parseShard(evalShard);
       runEval(e);
       return kExitOk;
@@ -252,7 +277,7 @@ int main(int argc, char** argv) {
   try {
     if (jobsOpt->count() > 0) {
       const auto [shard, shards] = parseShard(shardText);
-      return runRenderJobs(readRenderJobs(jobsFile, a), shard, shards) ? kExitRuntime : kExitOk;
+      return runRenderJobs(readRenderJobs(jobsFile, a), shard, shards, redoJobs) ? kExitRuntime : kExitOk;
     }
     runRender(a);
     return kExitOk;

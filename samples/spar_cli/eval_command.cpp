@@ -20,6 +20,7 @@
 #include "samples/spar_cli/errors.h"
 #include "samples/spar_cli/staged_dir.h"
 #include "samples/spar_cli/eval_metrics.h"
+#include "samples/spar_cli/eval_result.h"
 #include "samples/spar_cli/eval_scenes.h"
 #include "text/prompt_labels.h"
 #include "samples/spar_cli/warnings.h"
@@ -69,34 +70,85 @@ std::vector<int> parseViews(const std::string& text) {
   return out;
 }
 
-// Accumulators of one K over all scenes.
-struct KResult {
-  int k = 0;
-  std::vector<int64_t> inputs, targets;
-  double psnrSum = 0, ssimSum = 0;
-  int64_t psnrViews = 0, ssimViews = 0, targetViews = 0;
-  // PROTOCOL.md "Baselines": the nearest input copied, the inputs' mean colour (same views)
-  double copyPsnrSum = 0, copySsimSum = 0, meanPsnrSum = 0;
-  MaskCounts masks, refinedMasks;  // CV-DRP's, SAM2.1's (--refine)
-  std::unique_ptr<SemanticConfusion> semantic;
-  double seconds = 0;
-  std::vector<double> sceneMs;
-  // Means over the evaluated target views of all scenes.
-  std::optional<double> psnr() const { return psnrViews ? std::optional<double>(psnrSum / double(psnrViews)) : std::nullopt; }
-  std::optional<double> ssim() const { return ssimViews ? std::optional<double>(ssimSum / double(ssimViews)) : std::nullopt; }
-  // The baselines skip exactly the views the model's metrics skip (no static pixel / centre).
-  std::optional<double> copyPsnr() const { return psnrViews ? std::optional<double>(copyPsnrSum / double(psnrViews)) : std::nullopt; }
-  std::optional<double> copySsim() const { return ssimViews ? std::optional<double>(copySsimSum / double(ssimViews)) : std::nullopt; }
-  std::optional<double> meanPsnr() const { return psnrViews ? std::optional<double>(meanPsnrSum / double(psnrViews)) : std::nullopt; }
+// <out>.partial: the scenes an interrupted run finished, one file each (written whole), and
+// run.json, the run they belong to. Removed once result.json is written.
+fs::path partialDir(const fs::path& out) { return fs::path(out.string() + ".partial"); }
+
+// The tallies a result file or an interrupted run already holds for this run's scenes; a
+// result file of this very run makes the whole evaluation unnecessary (`complete`).
+struct Earlier {
+  Tallies tallies;
+  bool complete = false;
 };
 
-ojson orNull(std::optional<double> v) { return v && std::isfinite(*v) ? ojson(*v) : ojson(nullptr); }
+Earlier earlierWork(const fs::path& out, const EvalRun& run, const std::vector<std::string>& names, bool redo) {
+  Earlier e;
+  const fs::path partial = partialDir(out);
+  std::error_code ec;
+  if (redo) {
+    fs::remove_all(partial, ec);
+    return e;
+  }
+  if (fs::is_regular_file(out, ec)) {
+    try {  // a result of another run (or unreadable) is replaced, as before
+      std::ifstream in(out);
+      const nlohmann::json doc = nlohmann::json::parse(in);
+      const EvalRun done = runFromJson(doc, out.string());
+      if (runDifference(done, run).empty() && done.shard == run.shard &&
+          doc.at("scene_names").get<std::vector<std::string>>() == names) {
+        e.tallies = talliesFromJson(doc, done, out.string());
+        e.complete = true;
+        return e;
+      }
+    } catch (const std::exception&) {
+    }
+  }
+  if (!fs::exists(partial, ec)) return e;
+  const fs::path runFile = partial / "run.json";
+  EvalRun earlier;
+  try {
+    std::ifstream in(runFile);
+    earlier = runFromJson(nlohmann::json::parse(in), runFile.string());
+  } catch (const std::exception& err) {
+    throw Error(partial.string() + " is not an interrupted evaluation's (" + err.what() +
+                "): remove it or pass --redo");
+  }
+  std::string diff = runDifference(earlier, run);
+  if (diff.empty() && earlier.shard != run.shard)
+    diff = "shard " + std::to_string(earlier.shard) + " and " + std::to_string(run.shard);
+  if (!diff.empty())
+    throw Error(partial.string() + " holds the finished scenes of another evaluation (" + diff +
+                "): remove it or pass --redo");
+  for (const std::string& name : names) {
+    const fs::path f = partial / (name + ".json");
+    if (!fs::exists(f, ec)) continue;
+    std::ifstream in(f);
+    nlohmann::json doc;
+    try {
+      doc = nlohmann::json::parse(in);
+    } catch (const std::exception&) {
+      continue;  // written whole, so never half: but a foreign file is not trusted, only redone
+    }
+    doc["scene_names"] = {name};
+    e.tallies[name] = talliesFromJson(doc, run, f.string()).at(name);
+  }
+  return e;
+}
 
-std::string cell(std::optional<double> v, const char* format) {
-  if (!v || !std::isfinite(*v)) return "-";
-  char buf[32];
-  std::snprintf(buf, sizeof(buf), format, *v);
-  return buf;
+// One finished scene into <out>.partial (run.json first, with the first scene).
+void saveScene(const fs::path& out, const EvalRun& run, const std::string& name, const std::map<int, SceneTally>& byK) {
+  const fs::path partial = partialDir(out);
+  std::error_code ec;
+  if (!fs::exists(partial / "run.json", ec)) {
+    fs::create_directories(partial, ec);
+    if (ec) throw Error("cannot create " + partial.string() + ": " + ec.message());
+    ojson doc = {{"format", "spar-eval"}, {"version", 1}};
+    doc.update(runJson(run));
+    writeJson((partial / "run.json").string(), doc);
+  }
+  ojson doc = {{"scene", name}, {"tallies", {{name, ojson::object()}}}};
+  for (const auto& [k, t] : byK) doc["tallies"][name][std::to_string(k)] = toJson(t);
+  writeJson((partial / (name + ".json")).string(), doc);
 }
 
 }  // namespace
@@ -131,8 +183,10 @@ void runEval(const EvalArgs& a) {
   checkWritable(outPath.parent_path().string(), outPath.string());
   // --shard I/N: the scenes whose position (after --max-scenes) is I modulo N, so N processes
   // (a batch system's job array) together evaluate every scene once.
+  size_t setScenes = 0;
   const std::vector<SceneInfo> scenes = [&] {
     std::vector<SceneInfo> all = discoverScenes(a.scenes, a.maxScenes), mine;
+    setScenes = all.size();
     for (size_t k = 0; k < all.size(); ++k)
       if (int(k % size_t(a.shards)) == a.shard) mine.push_back(std::move(all[k]));
     if (mine.empty())
@@ -179,100 +233,139 @@ void runEval(const EvalArgs& a) {
     promptIds = tokenized.ids;
   }
 
+  EvalRun run;
+  run.model = absolutePath(a.model);
+  run.modelDigest = modelDigest(a.model);
+  run.modelBytes = model.fileBytes();
+  run.precision = a.precision;
+  run.mode = mode;
+  run.refine = refine;
+  run.semantic = semantic;
+  run.frames = frames;
+  run.height = h;
+  run.width = w;
+  run.views = ks;
+  run.classNames = classNames;
+  run.setScenes = int(setScenes);
+  run.shard = a.shard;
+  run.shards = a.shards;
+  std::vector<std::string> names;
+  for (const auto& s : scenes) names.push_back(s.name);
+  // What an earlier run of this command finished (docs/many-scenes.md, "Reruns"): a complete
+  // result.json of the same run, else the scenes an interrupted run left in <out>.partial.
+  Earlier earlier = earlierWork(outPath, run, names, a.redo);
+  if (earlier.complete) {
+    std::fprintf(stderr, "spar eval: %s already holds this evaluation (%zu scenes): nothing to do (--redo evaluates "
+                 "again)\n", outPath.string().c_str(), names.size());
+    printTable(run, earlier.tallies, "an earlier run");
+    return;
+  }
+  Tallies tallies = std::move(earlier.tallies);
+
   const size_t plane = size_t(h) * size_t(w);
-  std::vector<KResult> results(ks.size());
-  for (size_t i = 0; i < ks.size(); ++i) {
-    KResult& r = results[i];
-    r.k = ks[i];
-    r.inputs = inputPositions(frames, r.k);
+  struct Views {
+    std::vector<int64_t> inputs, targets;
+  };
+  std::map<int, Views> views;
+  for (int k : ks) {
+    Views& v = views[k];
+    v.inputs = inputPositions(frames, k);
     for (int64_t f = 0; f < frames; ++f)
-      if (std::find(r.inputs.begin(), r.inputs.end(), f) == r.inputs.end()) r.targets.push_back(f);
-    if (semantic) r.semantic = std::make_unique<SemanticConfusion>(int(classNames.size()));
+      if (std::find(v.inputs.begin(), v.inputs.end(), f) == v.inputs.end()) v.targets.push_back(f);
   }
 
   Progress progress;
-  std::string deviceName;
+  std::string deviceName = "-";
   try {
-    progress.step("opening the Vulkan device");
-    EngineOptions eo;
-    eo.device = a.device;
-    eo.pipelineCacheFile = pipelineCachePath();
-    eo = EngineOptions::fromEnvironment(eo);
-    Engine engine(eo);
-    deviceName = engine.caps().name;
-    SparPipelineOptions po;
-    po.profile = false;
-    po.weightType = WeightSet::precisionType(a.precision);
-    SparPipeline pipeline(engine, model, po);  // once: weights stay on the device for every scene
-    PromptEmbeddings text;
-    if (semantic) {
-      progress.step("encoding " + std::to_string(classNames.size()) + " class names");
-      text = encodePrompts(engine, model, cfg, po.weightType, promptIds, int64_t(classNames.size()));
-    }
+    for (const std::string& name : names)
+      if (tallies.count(name))
+        std::fprintf(stderr, "spar eval: %s was finished by an earlier run (%s): not evaluated again\n", name.c_str(),
+                     partialDir(outPath).string().c_str());
+    if (tallies.size() < scenes.size()) {
+      progress.step("opening the Vulkan device");
+      EngineOptions eo;
+      eo.device = a.device;
+      eo.pipelineCacheFile = pipelineCachePath();
+      eo = EngineOptions::fromEnvironment(eo);
+      Engine engine(eo);
+      deviceName = engine.caps().name;
+      SparPipelineOptions po;
+      po.profile = false;
+      po.weightType = WeightSet::precisionType(a.precision);
+      SparPipeline pipeline(engine, model, po);  // once: weights stay on the device for every scene
+      PromptEmbeddings text;
+      if (semantic) {
+        progress.step("encoding " + std::to_string(classNames.size()) + " class names");
+        text = encodePrompts(engine, model, cfg, po.weightType, promptIds, int64_t(classNames.size()));
+      }
 
-    // Scenes outer, K inner: each scene is read once.
-    for (size_t si = 0; si < scenes.size(); ++si) {
-      const SceneInfo& scene = scenes[si];
-      const SceneData data = loadScene(scene);
-      for (KResult& r : results) {
-        progress.step("scene " + std::to_string(si + 1) + "/" + std::to_string(scenes.size()) + " " + scene.name +
-                      ", K=" + std::to_string(r.k) + " (" + mode + ")");
-        // Wall time of the model's work on this scene: encode, render, label maps on the host.
-        const auto t = Clock::now();
-        SparRequest req;
-        req.images = data.rgb;
-        req.height = h;
-        req.width = w;
-        req.plan.views = frames;
-        req.plan.inputs = r.inputs;
-        req.plan.targets = r.targets;
-        req.assumeStatic = a.assumeStatic;
-        req.targetMotion = !a.assumeStatic;
-        req.gating = !a.noGating;
-        req.semanticFeatures = semantic;
-        req.refine = refine;
-        req.maskSource = a.maskSource == "refined" ? MaskSource::Refined : MaskSource::Raw;
-        const SparEncoded& enc = pipeline.encode(req);
-        const std::vector<float> rgb = pipeline.renderTargets();
-        std::vector<std::vector<int32_t>> labels;
-        if (semantic) labels = computeLabelMaps(engine, pipeline.renderedFeatures(), text).maps;
-        const double ms = msSince(t);
-        r.sceneMs.push_back(ms);
+      // Scenes outer, K inner: each scene is read once.
+      for (size_t si = 0; si < scenes.size(); ++si) {
+        const SceneInfo& scene = scenes[si];
+        if (tallies.count(scene.name)) continue;
+        const SceneData data = loadScene(scene);
+        std::map<int, SceneTally> byK;
+        for (int k : ks) {
+          const Views& v = views[k];
+          SceneTally& t = byK[k];
+          if (semantic) t.semantic.emplace(int(classNames.size()));
+          progress.step("scene " + std::to_string(si + 1) + "/" + std::to_string(scenes.size()) + " " + scene.name +
+                        ", K=" + std::to_string(k) + " (" + mode + ")");
+          // Wall time of the model's work on this scene: encode, render, label maps on the host.
+          const auto sceneStart = Clock::now();
+          SparRequest req;
+          req.images = data.rgb;
+          req.height = h;
+          req.width = w;
+          req.plan.views = frames;
+          req.plan.inputs = v.inputs;
+          req.plan.targets = v.targets;
+          req.assumeStatic = a.assumeStatic;
+          req.targetMotion = !a.assumeStatic;
+          req.gating = !a.noGating;
+          req.semanticFeatures = semantic;
+          req.refine = refine;
+          req.maskSource = a.maskSource == "refined" ? MaskSource::Refined : MaskSource::Raw;
+          const SparEncoded& enc = pipeline.encode(req);
+          const std::vector<float> rgb = pipeline.renderTargets();
+          std::vector<std::vector<int32_t>> labels;
+          if (semantic) labels = computeLabelMaps(engine, pipeline.renderedFeatures(), text).maps;
+          t.modelMs = msSince(sceneStart);
 
-        const std::vector<float> meanColour = meanColourImage(data.rgb, r.inputs, h, w);
-        for (size_t j = 0; j < r.targets.size(); ++j) {
-          const size_t f = size_t(r.targets[j]);
-          const float* gt = &data.rgb[f * 3 * plane];
-          const uint8_t* dyn = &data.dynamic[f * plane];
-          const float* copy = &data.rgb[size_t(nearestInput(r.targets[j], r.inputs)) * 3 * plane];
-          ++r.targetViews;
-          if (const auto p = staticPsnr(&rgb[j * 3 * plane], gt, dyn, h, w)) {
-            r.psnrSum += *p, ++r.psnrViews;
-            r.copyPsnrSum += *staticPsnr(copy, gt, dyn, h, w);
-            r.meanPsnrSum += *staticPsnr(meanColour.data(), gt, dyn, h, w);
+          const std::vector<float> meanColour = meanColourImage(data.rgb, v.inputs, h, w);
+          for (size_t j = 0; j < v.targets.size(); ++j) {
+            const size_t f = size_t(v.targets[j]);
+            const float* gt = &data.rgb[f * 3 * plane];
+            const uint8_t* dyn = &data.dynamic[f * plane];
+            const float* copy = &data.rgb[size_t(nearestInput(v.targets[j], v.inputs)) * 3 * plane];
+            ++t.targetViews;
+            if (const auto p = staticPsnr(&rgb[j * 3 * plane], gt, dyn, h, w)) {
+              t.psnrSum += *p, ++t.psnrViews;
+              t.copyPsnrSum += *staticPsnr(copy, gt, dyn, h, w);
+              t.meanPsnrSum += *staticPsnr(meanColour.data(), gt, dyn, h, w);
+            }
+            if (const auto s = staticSsim(&rgb[j * 3 * plane], gt, dyn, h, w)) {
+              t.ssimSum += *s, ++t.ssimViews;
+              t.copySsimSum += *staticSsim(copy, gt, dyn, h, w);
+            }
+            if (semantic) t.semantic->add(labels[j].data(), &data.classes[f * plane], dyn, h, w);
           }
-          if (const auto s = staticSsim(&rgb[j * 3 * plane], gt, dyn, h, w)) {
-            r.ssimSum += *s, ++r.ssimViews;
-            r.copySsimSum += *staticSsim(copy, gt, dyn, h, w);
-          }
-          if (semantic) r.semantic->add(labels[j].data(), &data.classes[f * plane], dyn, h, w);
+          // Masks of every frame (inputs, then targets) against the scene's ground truth.
+          auto addMasks = [&](MaskCounts& counts, const std::vector<float>& input, const std::vector<float>& target) {
+            for (size_t j = 0; j < v.inputs.size(); ++j)
+              counts.add(&input[j * plane], &data.dynamic[size_t(v.inputs[j]) * plane], plane, kMaskThreshold);
+            for (size_t j = 0; j < v.targets.size(); ++j)
+              counts.add(&target[j * plane], &data.dynamic[size_t(v.targets[j]) * plane], plane, kMaskThreshold);
+          };
+          if (!a.assumeStatic) addMasks(t.masks, enc.motionInput, enc.motionTarget);
+          // the refined masks hold 0 or 1: the same threshold reads them
+          if (refine) addMasks(t.refinedMasks, enc.refinedInput, enc.refinedTarget);
+          t.seconds = msSince(sceneStart) / 1000.0;
         }
-        if (!a.assumeStatic) {
-          for (size_t j = 0; j < r.inputs.size(); ++j)
-            r.masks.add(&enc.motionInput[j * plane], &data.dynamic[size_t(r.inputs[j]) * plane], plane, kMaskThreshold);
-          for (size_t j = 0; j < r.targets.size(); ++j)
-            r.masks.add(&enc.motionTarget[j * plane], &data.dynamic[size_t(r.targets[j]) * plane], plane,
-                        kMaskThreshold);
-        }
-        if (refine) {  // the refined masks hold 0 or 1: the same threshold reads them
-          for (size_t j = 0; j < r.inputs.size(); ++j)
-            r.refinedMasks.add(&enc.refinedInput[j * plane], &data.dynamic[size_t(r.inputs[j]) * plane], plane,
-                               kMaskThreshold);
-          for (size_t j = 0; j < r.targets.size(); ++j)
-            r.refinedMasks.add(&enc.refinedTarget[j * plane], &data.dynamic[size_t(r.targets[j]) * plane], plane,
-                               kMaskThreshold);
-        }
-        r.seconds += msSince(t) / 1000.0;
+        // Kept as soon as it is done: a run killed later (a batch system's time limit, a
+        // lost node) resumes after it.
+        saveScene(outPath, run, scene.name, byK);
+        tallies[scene.name] = std::move(byK);
       }
     }
     progress.finish();
@@ -281,46 +374,10 @@ void runEval(const EvalArgs& a) {
     throw;
   }
 
-  // result.json (PROTOCOL.md, "Output JSON").
-  ojson byK = ojson::object();
-  for (const KResult& r : results) {
-    const bool masks = !a.assumeStatic;
-    byK[std::to_string(r.k)] = {
-        {"psnr", orNull(r.psnr())},
-        {"ssim", orNull(r.ssim())},
-        {"psnr_nearest_input", orNull(r.copyPsnr())},
-        {"ssim_nearest_input", orNull(r.copySsim())},
-        {"psnr_mean_colour", orNull(r.meanPsnr())},
-        {"mask_miou", masks ? orNull(r.masks.meanIou()) : ojson(nullptr)},
-        {"mask_iou_dynamic", masks ? orNull(r.masks.iouDynamic()) : ojson(nullptr)},
-        {"mask_recall", masks ? orNull(r.masks.recall()) : ojson(nullptr)},
-        {"refined_mask_miou", refine ? orNull(r.refinedMasks.meanIou()) : ojson(nullptr)},
-        {"refined_mask_iou_dynamic", refine ? orNull(r.refinedMasks.iouDynamic()) : ojson(nullptr)},
-        {"refined_mask_recall", refine ? orNull(r.refinedMasks.recall()) : ojson(nullptr)},
-        {"sem_miou", r.semantic ? orNull(r.semantic->meanIou()) : ojson(nullptr)},
-        {"sem_accuracy", r.semantic ? orNull(r.semantic->accuracy()) : ojson(nullptr)},
-        {"target_views", r.targetViews},
-        {"seconds", r.seconds},
-        {"ms_per_scene", orNull(median(r.sceneMs))},
-    };
-  }
-  ojson doc = {{"format", "spar-eval"},
-                     {"version", 1},
-                     {"model", absolutePath(a.model)},
-                     {"runner", "engine"},
-                     {"precision", a.precision},
-                     {"mode", mode},
-                     {"refine", refine},
-                     {"scenes", scenes.size()},
-                     {"frames", frames},
-                     {"results", byK}};
-  if (a.shards > 1) {
-    // Which part of the test set this is, and its scenes, for combining shards (docs/many-scenes.md).
-    doc["shard"] = {{"index", a.shard}, {"count", a.shards}};
-    doc["scene_names"] = ojson::array();
-    for (const auto& s : scenes) doc["scene_names"].push_back(s.name);
-  }
+  // result.json (PROTOCOL.md, "Output JSON"), then the finished scenes' files are not needed.
+  const ojson doc = resultDocument(run, tallies);
   writeJson(outPath.string(), doc);
+  fs::remove_all(partialDir(outPath), ec);
   // Beside it, the same as a page (result.json -> result.html): a table to look at.
   {
     fs::path page = outPath;
@@ -330,29 +387,7 @@ void runEval(const EvalArgs& a) {
       html << evalResultsPage(doc, deviceName, takeWarnings());
     }
   }
-
-  // The table on stdout.
-  std::printf("spar eval: %zu scenes of %d frames at %s, %s, %s, %s on %s\n", scenes.size(), frames,
-              sizeText.c_str(), mode.c_str(), a.precision.c_str(), a.model.c_str(), deviceName.c_str());
-  // copy / mean: PSNR of the baselines on the same pixels (nearest input copied, mean colour)
-  std::printf("%3s %7s %8s %7s %7s %7s %9s %8s %7s %8s %7s %8s %9s\n", "K", "targets", "PSNR", "copy", "mean", "SSIM",
-              "mask mIoU", "IoU dyn", "recall", "sem mIoU", "sem acc", "seconds", "ms/scene");
-  for (const KResult& r : results) {
-    const bool masks = !a.assumeStatic;
-    std::printf("%3d %7lld %8s %7s %7s %7s %9s %8s %7s %8s %7s %8.2f %9s\n", r.k, (long long)r.targetViews,
-                cell(r.psnr(), "%.2f").c_str(), cell(r.copyPsnr(), "%.2f").c_str(), cell(r.meanPsnr(), "%.2f").c_str(),
-                cell(r.ssim(), "%.4f").c_str(),
-                cell(masks ? r.masks.meanIou() : std::nullopt, "%.4f").c_str(),
-                cell(masks ? r.masks.iouDynamic() : std::nullopt, "%.4f").c_str(),
-                cell(masks ? r.masks.recall() : std::nullopt, "%.4f").c_str(),
-                cell(r.semantic ? r.semantic->meanIou() : std::nullopt, "%.4f").c_str(),
-                cell(r.semantic ? r.semantic->accuracy() : std::nullopt, "%.4f").c_str(), r.seconds,
-                cell(median(r.sceneMs), "%.0f").c_str());
-    if (refine)  // the paper's second row: the same frames' masks after SAM2.1
-      std::printf("    refined (SAM2.1): mask mIoU %s, IoU dyn %s, recall %s\n",
-                  cell(r.refinedMasks.meanIou(), "%.4f").c_str(), cell(r.refinedMasks.iouDynamic(), "%.4f").c_str(),
-                  cell(r.refinedMasks.recall(), "%.4f").c_str());
-  }
+  printTable(run, tallies, deviceName);
   std::printf("wrote %s in %.1f s\n", outPath.string().c_str(), msSince(start) / 1000.0);
 }
 

@@ -113,6 +113,10 @@ void MaskCounts::add(const float* probability, const uint8_t* dynamic, size_t pi
   }
 }
 
+void MaskCounts::add(const MaskCounts& o) {
+  tp += o.tp, fp += o.fp, fn += o.fn, tn += o.tn;
+}
+
 namespace {
 std::optional<double> ratio(int64_t num, int64_t den) {
   if (den == 0) return std::nullopt;
@@ -147,6 +151,28 @@ void SemanticConfusion::add(const int32_t* labels, const int32_t* classes, const
     if (pred >= 0 && pred < classes_) ++matrix_[size_t(c) * classes_ + pred];
     else ++unknown_[size_t(c)];
   }
+}
+
+void SemanticConfusion::add(const SemanticConfusion& o) {
+  if (o.classes_ != classes_)
+    throw Error("semantic counts of " + std::to_string(o.classes_) + " classes added to " + std::to_string(classes_));
+  for (size_t i = 0; i < matrix_.size(); ++i) matrix_[i] += o.matrix_[i];
+  for (size_t i = 0; i < unknown_.size(); ++i) unknown_[i] += o.unknown_[i];
+  evaluated_ += o.evaluated_, correct_ += o.correct_;
+}
+
+SemanticConfusion SemanticConfusion::fromCounts(int classes, std::vector<int64_t> matrix, std::vector<int64_t> unknown,
+                                                int64_t evaluated, int64_t correct) {
+  if (classes < 1 || matrix.size() != size_t(classes) * size_t(classes) || unknown.size() != size_t(classes))
+    throw Error("semantic counts do not fit " + std::to_string(classes) + " classes");
+  SemanticConfusion s(classes);
+  for (int64_t v : matrix)
+    if (v < 0) throw Error("a negative semantic count");
+  for (int64_t v : unknown)
+    if (v < 0) throw Error("a negative semantic count");
+  if (evaluated < 0 || correct < 0 || correct > evaluated) throw Error("semantic counts: correct > evaluated");
+  s.matrix_ = std::move(matrix), s.unknown_ = std::move(unknown), s.evaluated_ = evaluated, s.correct_ = correct;
+  return s;
 }
 
 std::optional<double> SemanticConfusion::accuracy() const { return ratio(correct_, evaluated_); }

@@ -27,6 +27,7 @@ std::vector<double> ssimGaussian1d();
 struct MaskCounts {
   int64_t tp = 0, fp = 0, fn = 0, tn = 0;
   void add(const float* probability, const uint8_t* dynamic, size_t pixels, float threshold = 0.5f);
+  void add(const MaskCounts& other);  // pooling: scenes, shards
   // nullopt where the denominator is 0 (nothing to measure).
   std::optional<double> iouDynamic() const;
   std::optional<double> iouStatic() const;
@@ -43,6 +44,16 @@ class SemanticConfusion {
   // [0, classes) throws spar::Error (the scene's class maps and classes.json disagree); a
   // predicted id outside counts as wrong for every class.
   void add(const int32_t* labels, const int32_t* classes, const uint8_t* dynamic, int height, int width);
+  // Pooling (scenes, shards): the counts of `other`, which must have as many classes.
+  void add(const SemanticConfusion& other);
+  // The counts as they are, and back (a result file's per-scene tallies); fromCounts throws
+  // spar::Error when the sizes do not fit `classes` or a count is negative.
+  static SemanticConfusion fromCounts(int classes, std::vector<int64_t> matrix, std::vector<int64_t> unknown,
+                                      int64_t evaluated, int64_t correct);
+  int classes() const { return classes_; }
+  const std::vector<int64_t>& matrix() const { return matrix_; }
+  const std::vector<int64_t>& unknown() const { return unknown_; }
+  int64_t correct() const { return correct_; }
   int64_t evaluated() const { return evaluated_; }
   int64_t count(int truth, int predicted) const { return matrix_[size_t(truth) * classes_ + predicted]; }
   std::optional<double> accuracy() const;  // correct / evaluated

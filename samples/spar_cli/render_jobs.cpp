@@ -115,6 +115,22 @@ double secondsSince(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
 }
 
+// Staging directories (staged_dir.h) of `out` that a killed run left: DIR.tmp-XXXXXX. Only
+// this job writes there, and this process runs it, so nothing else is using them.
+void removeLeftStaging(const std::string& out) {
+  const fs::path dir = fs::path(out).parent_path();
+  const std::string prefix = fs::path(out).filename().string() + ".tmp-";
+  std::error_code ec;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (name.size() == prefix.size() + 6 && name.compare(0, prefix.size(), prefix) == 0) {
+      std::error_code rm;
+      fs::remove_all(it->path(), rm);
+      if (!rm) std::fprintf(stderr, "spar: removed %s, left by an interrupted run\n", it->path().string().c_str());
+    }
+  }
+}
+
 }  // namespace
 
 std::vector<RenderJob> readRenderJobs(const std::string& file, const RenderArgs& common) {
@@ -155,18 +171,29 @@ std::pair<int, int> parseShard(const std::string& text) {
   return {i, n};
 }
 
-int runRenderJobs(const std::vector<RenderJob>& jobs, int shard, int shards) {
+int runRenderJobs(const std::vector<RenderJob>& jobs, int shard, int shards, bool redo) {
   std::vector<const RenderJob*> mine;
   for (size_t k = 0; k < jobs.size(); ++k)
     if (int(k % size_t(shards)) == shard) mine.push_back(&jobs[k]);
   RenderContext shared;  // the device and the model, opened by the first job that gets there
   const auto start = std::chrono::steady_clock::now();
-  int failed = 0;
+  int failed = 0, skipped = 0;
   std::string failedLines;
   for (size_t k = 0; k < mine.size(); ++k) {
     const RenderJob& job = *mine[k];
+    std::error_code ec;
+    removeLeftStaging(job.args.out);
+    // An output directory appears only when its job finished (staged_dir.h): a rerun after a
+    // kill, a time limit or a requeue renders only what is missing.
+    if (!redo && fs::exists(job.args.out, ec)) {
+      std::fprintf(stderr, "spar: job %zu/%zu (line %d): %s exists: skipped (--redo renders it again)\n", k + 1,
+                   mine.size(), job.line, job.args.out.c_str());
+      ++skipped;
+      continue;
+    }
     std::fprintf(stderr, "spar: job %zu/%zu (line %d): %s\n", k + 1, mine.size(), job.line, job.args.out.c_str());
     try {
+      if (redo) fs::remove_all(job.args.out);
       runRender(job.args, &shared);
     } catch (const std::exception& e) {
       std::string msg = e.what();
@@ -179,6 +206,9 @@ int runRenderJobs(const std::vector<RenderJob>& jobs, int shard, int shards) {
   }
   if (failed)
     std::fprintf(stderr, "spar: error: %d of %zu jobs failed (lines %s)\n", failed, mine.size(), failedLines.c_str());
+  else if (skipped)
+    std::fprintf(stderr, "spar: %zu jobs done in %.1f s (%d skipped: done by an earlier run)\n", mine.size(),
+                 secondsSince(start), skipped);
   else
     std::fprintf(stderr, "spar: %zu jobs done in %.1f s\n", mine.size(), secondsSince(start));
   return failed;

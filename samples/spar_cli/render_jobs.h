@@ -33,7 +33,9 @@ std::pair<int, int> parseShard(const std::string& text);
 
 // Runs the jobs of the shard in order, each as `spar render` would run it (its own output
 // directory, written whole); a failing job prints its one-line error and the next one runs.
+// A job whose output directory exists was finished by an earlier run and is skipped (its line
+// on stderr says so), unless `redo`; staging directories a killed run left are removed.
 // Returns the number of jobs that failed; progress on stderr, a summary line at the end.
-int runRenderJobs(const std::vector<RenderJob>& jobs, int shard, int shards);
+int runRenderJobs(const std::vector<RenderJob>& jobs, int shard, int shards, bool redo = false);
 
 }  // namespace spar::cli
