@@ -68,6 +68,9 @@ AccountingStorageType=accounting_storage/none
 JobCompType=jobcomp/none
 MpiDefault=none
 SchedulerType=sched/backfill
+# the main loop every 2 s, not 60: a requeued task whose begin time was moved to now starts at
+# once, even when no other job event wakes the scheduler
+SchedulerParameters=sched_interval=2,bf_interval=2
 SelectType=select/cons_tres
 SelectTypeParameters=CR_Core
 ReturnToService=2
