@@ -3,15 +3,20 @@
 // images in closed form, SSIM = 1 for identical images, a float64 brute-force SSIM (2-D window,
 // no separability) on a small random case, motion-mask counts and semantic confusion on tiny
 // hand-made maps (2x2 block rule, mixed and dynamic blocks excluded), skipped views, and the
-// protocol's input positions. Pure host code: no device.
+// protocol's input positions; the per-scene tallies result.json keeps for merges and reruns
+// (their JSON exact, infinities included; pooling = the counts' sums). Pure host code: no device.
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstring>
+#include <limits>
 #include <random>
 #include <vector>
 
+#include "engine/error.h"
 #include "samples/spar_cli/eval_metrics.h"
 #include "samples/spar_cli/eval_scenes.h"
+#include "samples/spar_cli/eval_tally.h"
 
 namespace spar::cli::eval {
 namespace {
@@ -241,6 +246,60 @@ TEST(eval_metrics, MedianOfEvenAndOddCounts) {
   EXPECT_FALSE(median({}).has_value());
   EXPECT_DOUBLE_EQ(*median({3, 1, 2}), 2);
   EXPECT_DOUBLE_EQ(*median({4, 1, 3, 2}), 2.5);
+}
+
+SceneTally tally(double psnrSum, int64_t views, int64_t tp, int64_t truth0predicted1) {
+  SceneTally t;
+  t.targetViews = views + 1, t.psnrViews = views, t.ssimViews = views;
+  t.psnrSum = psnrSum, t.ssimSum = 0.1 * double(views), t.copyPsnrSum = 0.3, t.copySsimSum = 1.0 / 3.0, t.meanPsnrSum = 7;
+  t.masks = {tp, 1, 2, 100};
+  t.refinedMasks = {0, 0, 0, 5};
+  std::vector<int64_t> m = {10, truth0predicted1, 0, 20};  // 2 classes, [truth][predicted]
+  t.semantic = SemanticConfusion::fromCounts(2, m, {1, 0}, 10 + truth0predicted1 + 20 + 1, 30);
+  t.modelMs = 12.5, t.seconds = 0.02;
+  return t;
+}
+
+// A tally survives result.json bit for bit: doubles at full precision, +inf (a view whose
+// static pixels match exactly) as a string; a tally of another class count is refused.
+TEST(eval_metrics, TallyJsonIsExact) {
+  const SceneTally t = tally(std::numeric_limits<double>::infinity(), 3, 4, 5);
+  SceneTally u = tally(0.1 + 0.2, 3, 4, 5);
+  for (const SceneTally& x : {t, u}) {
+    const nlohmann::json j = nlohmann::json::parse(toJson(x).dump());
+    const SceneTally y = tallyFromJson(j, 2, "t");
+    EXPECT_EQ(std::memcmp(&y.psnrSum, &x.psnrSum, sizeof(double)), 0);
+    EXPECT_EQ(y.copySsimSum, x.copySsimSum);
+    EXPECT_EQ(y.masks.tp, x.masks.tp);
+    EXPECT_EQ(y.semantic->matrix(), x.semantic->matrix());
+    EXPECT_EQ(y.semantic->unknown(), x.semantic->unknown());
+    EXPECT_EQ(*y.semantic->meanIou(), *x.semantic->meanIou());
+  }
+  EXPECT_EQ(toJson(t)["psnr_sum"], "inf");
+  const nlohmann::json j = nlohmann::json::parse(toJson(u).dump());
+  EXPECT_THROW(tallyFromJson(j, 3, "t"), Error);
+  nlohmann::json bad = j;
+  bad["masks"]["tp"] = -1;
+  EXPECT_THROW(tallyFromJson(bad, 2, "t"), Error);
+  bad = j;
+  bad.erase("psnr_sum");
+  EXPECT_THROW(tallyFromJson(bad, 2, "t"), Error);
+}
+
+// The set's numbers come from the pooled sums and counts: PSNR is the sum over all views over
+// their number (not the mean of the scenes' means), IoUs from the summed confusion counts.
+TEST(eval_metrics, PoolingSumsCountsNotMeans) {
+  const SceneTally a = tally(30.0, 1, 4, 0), b = tally(60.0, 3, 8, 6);
+  const KTotals k = pool({&a, &b}, 2);
+  EXPECT_DOUBLE_EQ(*k.psnr(), 90.0 / 4.0);  // the scenes' means, 30 and 20, would average 25
+  EXPECT_EQ(k.sum.targetViews, 6);
+  EXPECT_EQ(k.sum.masks.tp, 12);
+  EXPECT_DOUBLE_EQ(*k.sum.masks.iouDynamic(), 12.0 / (12.0 + 2.0 + 4.0));
+  // class 0: TP 20, FN 6 + 2 unknown; class 1: TP 40, FP 6
+  EXPECT_DOUBLE_EQ(*k.sum.semantic->meanIou(), (20.0 / 28.0 + 40.0 / 46.0) / 2);
+  EXPECT_EQ(k.sceneMs.size(), 2u);
+  EXPECT_THROW(SemanticConfusion::fromCounts(2, {1, 2, 3}, {0, 0}, 6, 1), Error);
+  EXPECT_THROW(SemanticConfusion::fromCounts(2, {1, 2, 3, 4}, {0, 0}, 10, 11), Error);
 }
 
 }  // namespace
