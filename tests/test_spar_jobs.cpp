@@ -181,12 +181,13 @@ TEST(spar_jobs, AFailingJobDoesNotStopTheOthers) {
   EXPECT_NE(r.err.find("spar: error: 2 of 4 jobs failed (lines 2, 4)"), std::string::npos) << r.err;
 }
 
-// The result without what differs between runs of the same evaluation: times, the shard.
+// The result without what differs between runs of the same evaluation: times, the shard, the
+// scenes' folder (a copy here).
 json withoutTimes(json doc) {
   for (auto& [k, r] : doc["results"].items()) r.erase("seconds"), r.erase("ms_per_scene");
   for (auto& [scene, byK] : doc["tallies"].items())
     for (auto& [k, t] : byK.items()) t.erase("seconds"), t.erase("model_ms");
-  for (const char* key : {"shard", "merged_from"}) doc.erase(key);
+  for (const char* key : {"shard", "merged_from", "scenes_dir"}) doc.erase(key);
   return doc;
 }
 

@@ -94,7 +94,7 @@ Earlier earlierWork(const fs::path& out, const EvalRun& run, const std::vector<s
       std::ifstream in(out);
       const nlohmann::json doc = nlohmann::json::parse(in);
       const EvalRun done = runFromJson(doc, out.string());
-      if (runDifference(done, run).empty() && done.shard == run.shard &&
+      if (runDifference(done, run).empty() && done.shard == run.shard && done.scenesDir == run.scenesDir &&
           doc.at("scene_names").get<std::vector<std::string>>() == names) {
         e.tallies = talliesFromJson(doc, done, out.string());
         e.complete = true;
@@ -116,6 +116,7 @@ Earlier earlierWork(const fs::path& out, const EvalRun& run, const std::vector<s
   std::string diff = runDifference(earlier, run);
   if (diff.empty() && earlier.shard != run.shard)
     diff = "shard " + std::to_string(earlier.shard) + " and " + std::to_string(run.shard);
+  if (diff.empty() && earlier.scenesDir != run.scenesDir) diff = "scenes " + earlier.scenesDir + " and " + run.scenesDir;
   if (!diff.empty())
     throw Error(partial.string() + " holds the finished scenes of another evaluation (" + diff +
                 "): remove it or pass --redo");
@@ -235,6 +236,7 @@ void runEval(const EvalArgs& a) {
 
   EvalRun run;
   run.model = absolutePath(a.model);
+  run.scenesDir = absolutePath(a.scenes);
   run.modelDigest = modelDigest(a.model);
   run.modelBytes = model.fileBytes();
   run.precision = a.precision;

@@ -80,7 +80,7 @@ std::string modelDigest(const std::string& path) {
 }
 
 ojson runJson(const EvalRun& r) {
-  ojson j = {{"model", r.model},     {"model_digest", r.modelDigest}, {"model_bytes", r.modelBytes},
+  ojson j = {{"model", r.model},     {"scenes_dir", r.scenesDir},     {"model_digest", r.modelDigest}, {"model_bytes", r.modelBytes},
              {"runner", "engine"},   {"precision", r.precision},      {"mode", r.mode},
              {"refine", r.refine},   {"semantic", r.semantic},        {"frames", r.frames},
              {"views", r.views},     {"size", {r.height, r.width}},   {"classes", r.classNames},
@@ -93,6 +93,7 @@ EvalRun runFromJson(const json& doc, const std::string& where) {
   if (!doc.is_object() || doc.value("format", "") != "spar-eval") throw Error(where + " is not a spar eval result");
   EvalRun r;
   r.model = field<std::string>(doc, "model", where);
+  r.scenesDir = doc.value("scenes_dir", "");
   r.modelDigest = field<std::string>(doc, "model_digest", where);
   r.modelBytes = field<uint64_t>(doc, "model_bytes", where);
   if (field<std::string>(doc, "runner", where) != "engine") throw Error(where + ": not the engine's result");

@@ -17,6 +17,7 @@ namespace spar::cli::eval {
 // merge: the model's bytes, the settings, the scenes' frames, size and classes, the set.
 struct EvalRun {
   std::string model;        // the path given (informative: nodes may mount it elsewhere)
+  std::string scenesDir;    // likewise; a rerun into the same result compares it
   std::string modelDigest;  // modelDigest() of the file's bytes
   uint64_t modelBytes = 0;
   std::string precision, mode;
