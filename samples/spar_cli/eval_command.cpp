@@ -176,12 +176,7 @@ void runEval(const EvalArgs& a) {
 
   // 2. Files (exit 1), cheapest first: nothing heavy is loaded before everything named exists.
   if (!fs::exists(a.model)) throw Error("model not found: " + a.model);
-  const fs::path outPath = fs::absolute(a.out);
-  std::error_code ec;
-  if (!fs::is_directory(outPath.parent_path(), ec))
-    throw Error("the parent directory of --out does not exist: " + outPath.parent_path().string());
-  if (fs::is_directory(outPath, ec)) throw Error("--out is a directory: " + a.out);
-  checkWritable(outPath.parent_path().string(), outPath.string());
+  const fs::path outPath = checkResultPath(a.out);
   // --shard I/N: the scenes whose position (after --max-scenes) is I modulo N, so N processes
   // (a batch system's job array) together evaluate every scene once.
   size_t setScenes = 0;
@@ -377,18 +372,9 @@ void runEval(const EvalArgs& a) {
   }
 
   // result.json (PROTOCOL.md, "Output JSON"), then the finished scenes' files are not needed.
-  const ojson doc = resultDocument(run, tallies);
-  writeJson(outPath.string(), doc);
+  writeResult(outPath.string(), resultDocument(run, tallies), deviceName, takeWarnings());
+  std::error_code ec;
   fs::remove_all(partialDir(outPath), ec);
-  // Beside it, the same as a page (result.json -> result.html): a table to look at.
-  {
-    fs::path page = outPath;
-    page.replace_extension(".html");
-    if (page != outPath) {
-      std::ofstream html(page, std::ios::binary);
-      html << evalResultsPage(doc, deviceName, takeWarnings());
-    }
-  }
   printTable(run, tallies, deviceName);
   std::printf("wrote %s in %.1f s\n", outPath.string().c_str(), msSince(start) / 1000.0);
 }

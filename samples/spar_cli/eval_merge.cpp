@@ -5,16 +5,12 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
-#include <set>
 
 #include "engine/error.h"
 #include "formats/cameras.h"
 #include "samples/spar_cli/errors.h"
 #include "samples/spar_cli/eval_command.h"
 #include "samples/spar_cli/eval_result.h"
-#include "samples/spar_cli/index_page.h"
-#include "samples/spar_cli/render_outputs.h"
-#include "samples/spar_cli/staged_dir.h"
 
 namespace spar::cli {
 
@@ -23,14 +19,11 @@ using namespace spar::cli::eval;
 
 void runEvalMerge(const std::vector<std::string>& files, const std::string& out) {
   if (files.size() < 2) throw UsageError("--merge needs at least two result files");
-  const fs::path outPath = fs::absolute(out);
   std::error_code ec;
-  if (!fs::is_directory(outPath.parent_path(), ec))
-    throw Error("the parent directory of --out does not exist: " + outPath.parent_path().string());
-  if (fs::is_directory(outPath, ec)) throw Error("--out is a directory: " + out);
   for (const std::string& f : files)
-    if (fs::exists(f, ec) && fs::equivalent(f, outPath, ec)) throw UsageError("--out " + out + " is one of the results merged");
-  checkWritable(outPath.parent_path().string(), outPath.string());
+    if (fs::exists(f, ec) && fs::exists(out, ec) && fs::equivalent(f, out, ec))
+      throw UsageError("--out " + out + " is one of the results merged");
+  const std::string outPath = checkResultPath(out);
 
   EvalRun whole;
   Tallies tallies;
@@ -76,15 +69,9 @@ void runEvalMerge(const std::vector<std::string>& files, const std::string& out)
   nlohmann::ordered_json doc = resultDocument(whole, tallies);
   doc["merged_from"] = nlohmann::ordered_json::array();
   for (const std::string& f : files) doc["merged_from"].push_back(absolutePath(f));
-  writeJson(outPath.string(), doc);
-  fs::path page = outPath;
-  page.replace_extension(".html");
-  if (page != outPath) {
-    std::ofstream html(page, std::ios::binary);
-    html << evalResultsPage(doc, "the shards' devices", {});
-  }
+  writeResult(outPath, doc, "the shards' devices", {});
   printTable(whole, tallies, "the shards' devices");
-  std::printf("wrote %s from %zu results\n", outPath.string().c_str(), files.size());
+  std::printf("wrote %s from %zu results\n", outPath.c_str(), files.size());
 }
 
 }  // namespace spar::cli

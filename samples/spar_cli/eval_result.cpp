@@ -3,9 +3,13 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 
 #include "engine/error.h"
+#include "samples/spar_cli/index_page.h"
+#include "samples/spar_cli/render_outputs.h"
+#include "samples/spar_cli/staged_dir.h"
 
 namespace spar::cli::eval {
 namespace {
@@ -190,6 +194,28 @@ Tallies talliesFromJson(const json& doc, const EvalRun& run, const std::string& 
   }
   if (out.size() != names.size()) throw Error(where + ": a scene is named twice");
   return out;
+}
+
+std::string checkResultPath(const std::string& out) {
+  namespace fs = std::filesystem;
+  const fs::path path = fs::absolute(out);
+  std::error_code ec;
+  if (!fs::is_directory(path.parent_path(), ec))
+    throw Error("the parent directory of --out does not exist: " + path.parent_path().string());
+  if (fs::is_directory(path, ec)) throw Error("--out is a directory: " + out);
+  checkWritable(path.parent_path().string(), path.string());
+  return path.string();
+}
+
+void writeResult(const std::string& path, const ojson& doc, const std::string& device,
+                 const std::vector<std::string>& warnings) {
+  writeJson(path, doc);
+  std::filesystem::path page = path;
+  page.replace_extension(".html");
+  if (page != path) {
+    std::ofstream html(page, std::ios::binary);
+    html << evalResultsPage(doc, device, warnings);
+  }
 }
 
 void printTable(const EvalRun& run, const Tallies& tallies, const std::string& device) {

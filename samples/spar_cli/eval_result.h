@@ -50,6 +50,13 @@ nlohmann::ordered_json resultDocument(const EvalRun& run, const Tallies& tallies
 // The tallies of a result (throws spar::Error naming `where` when a scene or K is missing).
 Tallies talliesFromJson(const nlohmann::json& doc, const EvalRun& run, const std::string& where);
 
+// --out of an evaluation or a merge, checked before any work: its folder exists and takes a
+// file, it is not a folder. Returns it absolute; throws spar::Error.
+std::string checkResultPath(const std::string& out);
+// result.json (written whole) and the same as a page beside it (result.html).
+void writeResult(const std::string& path, const nlohmann::ordered_json& doc, const std::string& device,
+                 const std::vector<std::string>& warnings);
+
 // The table `spar eval` prints on stdout.
 void printTable(const EvalRun& run, const Tallies& tallies, const std::string& device);
 
