@@ -302,6 +302,8 @@ void Device::readCaps() {
   caps_.requiredSubgroupSize = hasSizeControl && (sizeControl.requiredSubgroupSizeStages & VK_SHADER_STAGE_COMPUTE_BIT);
   caps_.subgroupArithmetic = (subgroup.supportedStages & VK_SHADER_STAGE_COMPUTE_BIT) &&
                              (subgroup.supportedOperations & VK_SUBGROUP_FEATURE_ARITHMETIC_BIT);
+  caps_.subgroupShuffle = (subgroup.supportedStages & VK_SHADER_STAGE_COMPUTE_BIT) &&
+                          (subgroup.supportedOperations & VK_SUBGROUP_FEATURE_SHUFFLE_BIT);
   caps_.maxStorageBufferRange = l.maxStorageBufferRange;
   caps_.maxTexelBufferElements = l.maxTexelBufferElements;
   caps_.minStorageBufferOffsetAlignment = l.minStorageBufferOffsetAlignment;

@@ -46,6 +46,7 @@ struct DeviceCaps {
   uint32_t vendorId = 0, deviceId = 0;
   uint32_t subgroupSize = 1;
   bool subgroupArithmetic = false;   // subgroupAdd / subgroupMax in compute shaders
+  bool subgroupShuffle = false;      // subgroupShuffle in compute shaders
   // VK_EXT_subgroup_size_control, enabled: pipelines can require full subgroups (and, where
   // requiredSubgroupSizeStages has compute, a size between min and max).
   bool fullSubgroups = false;

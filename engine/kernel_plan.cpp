@@ -3,6 +3,7 @@
 #include <cstdio>
 
 #include "engine/error.h"
+#include "engine/ops/cpu_tiles.h"
 
 namespace spar {
 
@@ -177,7 +178,11 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
   out.push_back(std::string("inputs: ") + (plan.storageInputs ? "storage buffers of 32-bit words, fp32 or fp16 (*_sx kernels)"
                                                                : "texel buffers"));
   auto gemmText = [&](KernelFamily f, bool f16) {
-    if (f == KernelFamily::CpuBlocks) return std::string("gemm.comp (") + familyName(f) + ")";
+    if (f == KernelFamily::CpuBlocks) {
+      const bool shared = ops::cpuSharedColumns(caps);  // engine/ops/linear.cpp, chooseGemmTiles
+      return std::string("gemm.comp (") + familyName(f) +
+             (shared ? "; from 2^28 multiply-adds 4 x 32 columns shared by the subgroup's lanes" : "") + ")";
+    }
     if (f == KernelFamily::CoopMat) return "gemm_coopmat.comp (" + plan.coop.text() + ")";
     return "gemm_tiled.comp (" + plan.gemmTiles.text() + ", small " + plan.gemmSmallTiles.text() +
            (f16 && plan.fp16Math ? ", fp16 arithmetic" : "") + ")";

@@ -287,10 +287,43 @@ void addSam2Cases(std::vector<BenchCase>& cases, Engine& engine, DType s) {
   addAttention(cases, engine, 4096, 8, 72, s, 1, "sam2_l_global_");
 }
 
+// The device's arithmetic ceiling (shaders/peak_flops.comp): multiply-add chains on registers,
+// no memory traffic, so the GEMMs' GFLOPS can be read against what the device can do at all.
+// Its "NMSE" is the relative error of one invocation's result against float64 (a check that
+// the work was done, not a precision claim).
+void addPeak(std::vector<BenchCase>& cases, Engine& engine, int chains, bool useFma, int unroll) {
+  const int64_t invocations = 1 << 18;
+  const int iterations = 1024;
+  Tensor ty = engine.tensor({invocations});
+  const int32_t local = 64;
+  const Kernel& k = engine.kernel({"peak_flops", {Bind::Write}, 12, {local, 1, 1, chains, useFma, unroll}});
+  struct Push { int32_t iterations; float a, b; } push{iterations, 0.999f, 0.001f};
+  BenchCase c;
+  c.name = std::string("peak_") + (useFma ? "fma" : "mul_add") + "_f32";
+  c.shape = std::to_string(chains) + " chains x " + std::to_string(iterations) + ", unrolled " + std::to_string(unroll);
+  c.flops = 2.0 * double(invocations) * iterations * chains;
+  c.record = [=, &k](Recorder& rec) { rec.dispatch(k, {Arg::out(ty)}, push, uint32_t(invocations / local)); };
+  c.nmse = [=, &engine]() {
+    auto y = engine.download(ty);
+    const int64_t i = invocations / 3;
+    double ref = 0;
+    for (int j = 0; j < chains; ++j) {
+      double v = double(i + j);
+      for (int it = 0; it < iterations; ++it) v = v * double(push.a) + double(push.b);
+      ref += v;
+    }
+    return (y[i] - ref) * (y[i] - ref) / (ref * ref);
+  };
+  cases.push_back(std::move(c));
+}
+
 }  // namespace
 
 std::vector<BenchCase> makeCases(Engine& engine, const std::string& only, bool large) {
   std::vector<BenchCase> cases;
+  for (int chains : {8, 16, 32})
+    for (int unroll : {1, 8}) addPeak(cases, engine, chains, true, unroll);
+  addPeak(cases, engine, 16, false, 8);
   std::vector<DType> storages = {DType::F32};
   if (engine.caps().supportsFp16Storage()) storages.push_back(DType::F16);
   for (DType s : storages) {

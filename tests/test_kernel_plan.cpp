@@ -49,6 +49,41 @@ TEST(KernelPlan, CpuDeviceGetsRegisterBlocks) {
   EXPECT_FALSE(p.measureTiles);
 }
 
+// llvmpipe's large products share columns among a subgroup's lanes (engine/ops/linear.cpp);
+// only with shuffles and full subgroups of the lanes' size, and never where the tiles are forced
+// or on another CPU driver, whose kernels were not measured so.
+TEST(KernelPlan, LlvmpipeSharesColumnsOnLargeProductsOnly) {
+  DeviceCaps c = cpuCaps();
+  c.driverId = VK_DRIVER_ID_MESA_LLVMPIPE;
+  c.mesaMajor = 22;
+  c.subgroupShuffle = c.fullSubgroups = true;
+  const double large = double(1 << 28), small = large / 2;
+  GemmTiles t = chooseGemmTiles(c, {}, large, 1003);
+  EXPECT_TRUE(t.sharedColumns);
+  EXPECT_EQ(t.rowsPerInvocation, 4);
+  EXPECT_EQ(t.colsPerInvocation, 32);
+  EXPECT_EQ(t.localX, 8);
+  EXPECT_EQ(t.localY, 1);
+  EXPECT_EQ(chooseGemmTiles(c, {}, large, 20).colsPerInvocation, 16);
+  EXPECT_FALSE(chooseGemmTiles(c, {}, small, 1003).sharedColumns);
+  KernelTuning forced;
+  forced.gemmTiles = std::array<int, 5>{4, 16, 8, 8, 2};
+  EXPECT_FALSE(chooseGemmTiles(c, forced, large, 1003).sharedColumns);
+  for (auto lacks : {&DeviceCaps::subgroupShuffle, &DeviceCaps::fullSubgroups}) {
+    DeviceCaps d = c;
+    d.*lacks = false;
+    EXPECT_FALSE(chooseGemmTiles(d, {}, large, 1003).sharedColumns);
+  }
+  DeviceCaps swiftshader = c;
+  swiftshader.driverId = VK_DRIVER_ID_GOOGLE_SWIFTSHADER;
+  swiftshader.mesaMajor = 0;
+  EXPECT_FALSE(chooseGemmTiles(swiftshader, {}, large, 1003).sharedColumns);
+  DeviceCaps wide = c;  // 512-bit llvmpipe: 16 lanes share 32 columns (16: a multiple of them)
+  wide.subgroupSize = wide.minSubgroupSize = wide.maxSubgroupSize = 16;
+  EXPECT_EQ(chooseGemmTiles(wide, {}, large, 1003).localX, 16);
+  EXPECT_TRUE(chooseGemmTiles(wide, {}, large, 20).sharedColumns);
+}
+
 TEST(KernelPlan, GpuGetsTilesSubgroupsAndMeasuredGemm) {
   const KernelPlan p = planKernels(gpuCaps(), {});
   EXPECT_EQ(p.gemm, KernelFamily::Tiled);

@@ -18,6 +18,9 @@ struct LinearCase {
   Activation act;
 };
 
+void expectQuantizedLinear(Engine& engine, const std::vector<float>& w, int64_t M, int64_t N, int64_t K, int bits,
+                           bool bias, Activation act, const std::string& what);
+
 class LinearTest : public EngineTest, public ::testing::WithParamInterface<LinearCase> {};
 
 TEST_P(LinearTest, MatchesFloat64Reference) {
@@ -44,6 +47,26 @@ INSTANTIATE_TEST_SUITE_P(
                       LinearCase{64, 17, 20, false, Activation::Silu}, LinearCase{9, 300, 12, true, Activation::Sigmoid},
                       LinearCase{21, 35, 9, true, Activation::Relu},
                       LinearCase{130, 768, 518, true, Activation::None}));
+
+// From 2^28 multiply-adds llvmpipe's plan shares a workgroup's columns among its subgroup's lanes
+// (gemm.comp's SHARED_COLUMNS, engine/ops/linear.cpp chooseGemmTiles): 32 columns, 16 where N is
+// narrower, odd M and N past the last block's edge, fp32 and q8 weights. Elsewhere (GPU family,
+// device profiles without full subgroups) the same products go through the other kernels.
+TEST_F(EngineTest, LinearLargeProductsPastEveryEdge) {
+  const int64_t M = 521, N = 1003, K = 516;  // 2^28.006 multiply-adds
+  ASSERT_GE(double(M) * N * K, double(1 << 28));
+  auto x = randomUniform(M * K, -1, 1, 31), w = randomUniform(N * K, -1, 1, 32), b = randomUniform(N, -1, 1, 33);
+  Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w), tb = eng().fromFloats({N}, b);
+  GuardedOutput y(eng(), {M, N});
+  Recorder rec(eng());
+  linear(rec, tx, tw, tb, y.tensor(), Activation::Gelu);
+  rec.run();
+  expectClose(y.read(), linearRef(x, w, b, 1, M, N, K, false, Activation::Gelu), 1e-10 * (K / 16), 1e-4, "521x1003x516");
+  y.expectAllWritten();
+  // 20 columns: the narrow block; q8 weights dequantized as they are fetched
+  expectQuantizedLinear(eng(), randomUniform(20 * 128, -1, 1, 34), 104863, 20, 128, 8, false, Activation::None,
+                        "q8 104863x20x128");
+}
 
 TEST_F(EngineTest, LinearBatchedWeights) {
   const int64_t B = 3, M = 29, N = 37, K = 44;

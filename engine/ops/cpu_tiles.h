@@ -29,4 +29,12 @@ inline CpuTiles cpuTiles(const DeviceCaps& caps) {
 // Invocations along x share one SIMD vector on llvmpipe: a multiple of the lane count.
 inline int cpuLanes(const DeviceCaps& caps) { return std::max<int>(8, static_cast<int>(caps.subgroupSize)); }
 
+// Whether a GEMM workgroup can be one subgroup whose lanes share its columns (shaders/gemm.comp,
+// SHARED_COLUMNS): measured on llvmpipe only (docs/first-run-and-kernels.md), where a texel
+// fetch is a call that spills the accumulators; it needs subgroup shuffles and full subgroups of
+// the lane count.
+inline bool cpuSharedColumns(const DeviceCaps& caps) {
+  return caps.isLlvmpipe() && caps.subgroupShuffle && caps.fullSubgroups && int(caps.subgroupSize) == cpuLanes(caps);
+}
+
 }  // namespace spar::ops

@@ -68,7 +68,7 @@ GemmLaunch gemmLaunch(Engine& engine, DType wType, DType yType, int64_t M, int64
     const Kernel& k = engine.kernel({name, {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write}, sizeof(GemmPush), constants});
     return {&k, t.bm, t.bn};
   }
-  GemmTiles tiles = chooseGemmTiles(caps, engine.options().tuning, double(B) * double(M) * double(N) * double(K));
+  GemmTiles tiles = chooseGemmTiles(caps, engine.options().tuning, double(B) * double(M) * double(N) * double(K), N);
   // Small outputs (heads with N = 1 or 9, a handful of rows) would mostly compute clamped
   // duplicates with big blocks: on GPUs the blocks are halved down to the problem. CPU blocks
   // are small already, and every other block is one more variant to compile (0.3-0.4 s each
@@ -79,21 +79,35 @@ GemmLaunch gemmLaunch(Engine& engine, DType wType, DType yType, int64_t M, int64
     while (tiles.rowsPerInvocation > 4 && tiles.rowsPerInvocation / 2 >= M) tiles.rowsPerInvocation /= 2;
   }
   std::vector<int32_t> constants = {tiles.localX, tiles.localY, 1, tiles.rowsPerInvocation, tiles.colsPerInvocation,
-                                    texelK, static_cast<int>(act), hasBias, tiles.kUnroll};
-  if (isQuantized(wType)) constants.push_back(wType == DType::Q8 ? 8 : 4);  // W_BITS
-  const Kernel& k = engine.kernel({std::string(isQuantized(wType) ? "gemm_q" : "gemm") + (f16Out ? "_f16out" : "_f32"),
-                                   {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                                   sizeof(GemmPush),
-                                   constants});
+                                    texelK, static_cast<int>(act), hasBias, tiles.kUnroll,
+                                    isQuantized(wType) ? (wType == DType::Q8 ? 8 : 4) : 8,  // W_BITS
+                                    tiles.localX};                                          // LANES
+  const std::string name = std::string(tiles.sharedColumns ? "gemm_sc" : "gemm") + (isQuantized(wType) ? "_q" : "") +
+                           (f16Out ? "_f16out" : "_f32");
+  // Shared columns: the workgroup must be one full subgroup (its shuffles read every lane).
+  const Kernel& k = engine.kernel({name, {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write}, sizeof(GemmPush), constants,
+                                   tiles.sharedColumns ? uint32_t(tiles.localX) : 0u});
   return {&k, int64_t(tiles.rowsPerInvocation) * tiles.localX, int64_t(tiles.colsPerInvocation) * tiles.localY};
 }
 
 }  // namespace
 
-GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, double multiplyAdds) {
+GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, double multiplyAdds, int64_t N) {
   if (const auto& t = tuning.gemmTiles) return {(*t)[0], (*t)[1], (*t)[2], (*t)[3], (*t)[4]};
   if (caps.isCpu()) {
     const int lanes = ops::cpuLanes(caps);
+    // Shared columns (gemm.comp, SHARED_COLUMNS), 1024^3 / 1024 x 768 x 3072 on one machine
+    // against the register blocks below (spar-bench, GFLOPS; compile of the 4 x 32 variant):
+    //   Mesa 22.3, 8 lanes:  64 / 85 against 37 / 55 (0.4 s)
+    //   Mesa 22.3, 16 lanes: 79 / 95 against 65 / 69 (0.4 s)
+    //   Mesa 25.0.7, 8 lanes: 68 / 90 against 16 / 25 (1.4 s)
+    // 4 x 32 was the fastest of 2-4 rows x 16-64 columns everywhere; 16 columns where N is
+    // smaller, so that narrow outputs do not compute mostly clamped duplicates. Only from 2^28
+    // multiply-adds: below, its compile outweighs what it saves (the shipped model, 2^22-2^27:
+    // 8 % less run time, 7.9 s of first compiles instead of 1.3 s).
+    const int columns = N >= 32 ? 32 : 16;
+    if (ops::cpuSharedColumns(caps) && columns % lanes == 0 && multiplyAdds >= double(1 << 28))
+      return {4, columns, lanes, 1, 2, true};
     switch (ops::cpuTiles(caps)) {
       // The earlier default (58-64 GFLOPS on an AVX-512 machine; 32 x 32 within noise of it at
       // ~20 s of compile per variant).

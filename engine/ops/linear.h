@@ -10,12 +10,17 @@ namespace spar {
 struct GemmTiles {
   int rowsPerInvocation, colsPerInvocation, localX, localY;
   int kUnroll;  // k texels per loop iteration
+  // The workgroup is one subgroup of localX lanes sharing its colsPerInvocation columns
+  // (gemm.comp's SHARED_COLUMNS; localY is 1).
+  bool sharedColumns = false;
 };
-// CPU devices (llvmpipe): register blocks measured per driver generation (engine/ops/
-// cpu_tiles.h) and by the work of the product (multiply-adds M * N * K: a bigger block only
-// where the run time it saves outweighs its compile time); GPUs: small blocks, many invocations.
-// tuning.gemmTiles (SPAR_GEMM_TILES="RM,RN,LX,LY,KU") overrides (for tuning with spar-bench).
-GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, double multiplyAdds);
+// llvmpipe with subgroup shuffles and full subgroups: 4 rows a lane, the subgroup's lanes sharing
+// 32 columns (16 where N is smaller), measured on three llvmpipe generations. Other CPU devices:
+// register blocks measured per driver generation (engine/ops/cpu_tiles.h) and by the work of the
+// product (multiply-adds M * N * K: a bigger block only where the run time it saves outweighs
+// its compile time); GPUs: small blocks, many invocations. tuning.gemmTiles
+// (SPAR_GEMM_TILES="RM,RN,LX,LY,KU") forces register blocks of those tiles (for tuning with spar-bench).
+GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, double multiplyAdds, int64_t N);
 
 // x: [rows..., K] with w: [N, K], or x: [B, M, K] with w: [B, N, K] (batched);
 // bias: [N] or undefined; y: [rows..., N] (f32 or f16). x, w, bias may be f32 or f16.
