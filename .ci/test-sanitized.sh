@@ -25,7 +25,8 @@ targets=(spar test_runtime test_linear test_attention test_conv2d test_conv_tran
 # targets named on one command line one after another (CMake's top Makefile is .NOTPARALLEL),
 # and most test targets are one source file, so one core idled; GCC's -O1 with the sanitizers
 # is 1.6x Clang's on the engine's sources. The tests take as long with either (164 s / 168 s).
-# It also keeps the host code building with a second compiler.
+# (The Release build uses Clang and Ninja too, scripts/setup/build.sh; GCC still compiles the
+# installed package's example against the public headers: CTest install_and_build_example.)
 # A build-asan configured otherwise before (Makefiles, GCC) cannot switch: start it again.
 if [ -f build-asan/CMakeCache.txt ] && ! grep -q '^CMAKE_GENERATOR:INTERNAL=Ninja$' build-asan/CMakeCache.txt; then
   rm -rf build-asan
