@@ -6,6 +6,8 @@
 #include <cstring>
 #include <limits>
 
+#include "engine/kernel_plan.h"
+#include "engine/ops/cpu_tiles.h"
 #include "tests/quantized_weights.h"
 #include "tests/test_support.h"
 
@@ -17,9 +19,6 @@ struct LinearCase {
   bool bias;
   Activation act;
 };
-
-void expectQuantizedLinear(Engine& engine, const std::vector<float>& w, int64_t M, int64_t N, int64_t K, int bits,
-                           bool bias, Activation act, const std::string& what);
 
 class LinearTest : public EngineTest, public ::testing::WithParamInterface<LinearCase> {};
 
@@ -50,22 +49,56 @@ INSTANTIATE_TEST_SUITE_P(
 
 // From 2^28 multiply-adds llvmpipe's plan shares a workgroup's columns among its subgroup's lanes
 // (gemm.comp's SHARED_COLUMNS, engine/ops/linear.cpp chooseGemmTiles): 32 columns, 16 where N is
-// narrower, odd M and N past the last block's edge, fp32 and q8 weights. Elsewhere (GPU family,
-// device profiles without full subgroups) the same products go through the other kernels.
+// narrower, odd M and N past the last block's edge, fp32 and q8 weights (the thresholds of the
+// other fp32 and quantized tests). Checked against float64 on every column of sampled rows
+// (every 37th, and the last block's): the full reference is 2^28 multiply-adds a case. Elsewhere (GPU family, device profiles without full
+// subgroups) the same products take kernels the other tests cover, at a cold compile each.
+void expectSampledRows(Engine& engine, const Tensor& y, const std::vector<float>& x, const std::vector<float>& w,
+                       const std::vector<float>& b, int64_t M, int64_t N, int64_t K, Activation act, double maxAbs,
+                       double maxAbsPerPeak, const std::string& what) {
+  std::vector<int64_t> rows;
+  for (int64_t m = 0; m < M; m += 37) rows.push_back(m);
+  for (int64_t m = std::max<int64_t>(0, M - 40); m < M; ++m)
+    if (m % 37) rows.push_back(m);
+  std::vector<float> xs, got;
+  const std::vector<float> all = engine.download(y);
+  for (int64_t m : rows) {
+    xs.insert(xs.end(), x.begin() + m * K, x.begin() + (m + 1) * K);
+    got.insert(got.end(), all.begin() + m * N, all.begin() + (m + 1) * N);
+  }
+  const auto ref = linearRef(xs, w, b, 1, int64_t(rows.size()), N, K, false, act);
+  double peak = 0;
+  for (double v : ref) peak = std::max(peak, std::abs(v));
+  expectClose(got, ref, 1e-10 * std::max<int64_t>(1, K / 16), maxAbs + maxAbsPerPeak * std::max(1.0, peak), what);
+}
+
 TEST_F(EngineTest, LinearLargeProductsPastEveryEdge) {
-  const int64_t M = 521, N = 1003, K = 516;  // 2^28.006 multiply-adds
+  if (!ops::cpuLanesShareFetches(eng().caps()) || eng().plan().gemm != KernelFamily::CpuBlocks)
+    GTEST_SKIP() << "the plan shares no columns on this device";
+  {
+    const int64_t M = 521, N = 1003, K = 516;  // 2^28.006 multiply-adds
+    ASSERT_GE(double(M) * N * K, double(1 << 28));
+    auto x = randomUniform(M * K, -1, 1, 31), w = randomUniform(N * K, -1, 1, 32), b = randomUniform(N, -1, 1, 33);
+    Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w), tb = eng().fromFloats({N}, b);
+    GuardedOutput y(eng(), {M, N});
+    Recorder rec(eng());
+    linear(rec, tx, tw, tb, y.tensor(), Activation::Gelu);
+    rec.run();
+    expectSampledRows(eng(), y.tensor(), x, w, b, M, N, K, Activation::Gelu, 1e-4, 0, "521x1003x516");
+    y.expectAllWritten();
+  }
+  // 20 columns: the narrow block; q8 weights dequantized as they are fetched
+  const int64_t M = 104863, N = 20, K = 128;
   ASSERT_GE(double(M) * N * K, double(1 << 28));
-  auto x = randomUniform(M * K, -1, 1, 31), w = randomUniform(N * K, -1, 1, 32), b = randomUniform(N, -1, 1, 33);
-  Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w), tb = eng().fromFloats({N}, b);
+  const auto x = randomUniform(M * K, -1, 1, 34);
+  const QuantizedMatrix q = quantizeReference(randomUniform(N * K, -1, 1, 35), N, K, 8);
+  Tensor tx = eng().fromFloats({M, K}, x), tw = quantizedTensor(eng(), q, N, K, 8);
   GuardedOutput y(eng(), {M, N});
   Recorder rec(eng());
-  linear(rec, tx, tw, tb, y.tensor(), Activation::Gelu);
+  linear(rec, tx, tw, Tensor(), y.tensor());
   rec.run();
-  expectClose(y.read(), linearRef(x, w, b, 1, M, N, K, false, Activation::Gelu), 1e-10 * (K / 16), 1e-4, "521x1003x516");
+  expectSampledRows(eng(), y.tensor(), x, q.values, {}, M, N, K, Activation::None, 0, 1e-6, "q8 104863x20x128");
   y.expectAllWritten();
-  // 20 columns: the narrow block; q8 weights dequantized as they are fetched
-  expectQuantizedLinear(eng(), randomUniform(20 * 128, -1, 1, 34), 104863, 20, 128, 8, false, Activation::None,
-                        "q8 104863x20x128");
 }
 
 TEST_F(EngineTest, LinearBatchedWeights) {
