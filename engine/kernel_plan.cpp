@@ -179,7 +179,7 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
                                                                : "texel buffers"));
   auto gemmText = [&](KernelFamily f, bool f16) {
     if (f == KernelFamily::CpuBlocks) {
-      const bool shared = ops::cpuSharedColumns(caps);  // engine/ops/linear.cpp, chooseGemmTiles
+      const bool shared = ops::cpuLanesShareFetches(caps);  // engine/ops/linear.cpp, chooseGemmTiles
       return std::string("gemm.comp (") + familyName(f) +
              (shared ? "; from 2^28 multiply-adds 4 x 32 columns shared by the subgroup's lanes" : "") + ")";
     }
@@ -191,7 +191,8 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
   out.push_back("linear, fp16 weights: " + gemmText(plan.gemmF16, true));
   out.push_back("linear, q8 / q4 weights: " + gemmText(plan.quantizedGemm(), false) + ", dequantizing");
   out.push_back(plan.attention == KernelFamily::CpuBlocks
-                    ? "attention: attention.comp (cpu register blocks)"
+                    ? std::string("attention: attention.comp (cpu register blocks") +
+                          (ops::cpuLanesShareFetches(caps) ? "; each block's keys shared by the subgroup's lanes)" : ")")
                     : "attention: attention_tiled.comp (" + std::to_string(plan.attentionQueries) + " queries, " +
                           std::to_string(plan.attentionKeys) + "-key blocks)");
   if (plan.attentionF16 == KernelFamily::CoopMat)

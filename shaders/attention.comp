@@ -8,9 +8,22 @@
 // head and keeps their DH-wide accumulators in registers; no shared memory (see gemm.comp).
 // Numerics: running max starts at -FLT_MAX/2 (never -inf, so exp2 of a difference is never
 // NaN), masked keys contribute exactly 0, and the final division is guarded.
+//
+// SHARED_KEYS (the attention_sk_* variants): the workgroup is one subgroup of LANES invocations,
+// and they share each block's keys: lane l fetches the k and v texels of keys l, LANES + l, ...
+// and every lane takes a key's values from its lane by a shuffle, so one fetch serves LANES keys
+// (on llvmpipe a texel fetch is a call that spills every register: shaders/gemm.comp).
 //! variant attention_f32 OUT_F16=0
 //! variant attention_f16out OUT_F16=1
+//! variant attention_sk_f32 OUT_F16=0 SHARED_KEYS=1
+//! variant attention_sk_f16out OUT_F16=1 SHARED_KEYS=1
 #extension GL_GOOGLE_include_directive : require
+#ifndef SHARED_KEYS
+#define SHARED_KEYS 0
+#endif
+#if SHARED_KEYS
+#extension GL_KHR_shader_subgroup_shuffle : require
+#endif
 #include "common.glsl"
 
 layout(local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in;
@@ -18,6 +31,7 @@ layout(constant_id = 3) const int DH = 64;   // head dimension (multiple of 4)
 layout(constant_id = 4) const int QPI = 8;   // queries per invocation
 layout(constant_id = 5) const int KB = 16;   // keys per block (multiple of 4)
 layout(constant_id = 6) const bool CAUSAL = false;
+layout(constant_id = 7) const int LANES = 8;  // SHARED_KEYS: the workgroup's x size, one full subgroup (KB a multiple)
 
 TEXEL_INPUT(0, Q, 4)
 TEXEL_INPUT(1, K, 4)
@@ -38,7 +52,22 @@ void main() {
   const int q0 = int(gl_GlobalInvocationID.x) * QPI;
   const int head = int(gl_WorkGroupID.y);
   const int b = int(gl_WorkGroupID.z);
+#if SHARED_KEYS
+  // Every lane stays to the end (the shuffles need them all): the last workgroup's queries past
+  // Nq compute clamped duplicates that are not stored, and with a causal mask every lane walks
+  // the keys of the workgroup's last query, masking its own.
+  const int KT = KB / LANES;  // key texels a lane fetches per channel group
+  const int keyLane = int(gl_SubgroupInvocationID);
+#define KEY_OF(t) ((t) * LANES + keyLane)
+#define KEY_TEXEL(tex, j) subgroupShuffle(tex[(j) / LANES], (j) % LANES)
+  const int lastQuery = (int(gl_WorkGroupID.x) + 1) * LANES * QPI;
+#else
   if (q0 >= p.Nq) return;
+  const int KT = KB;
+#define KEY_OF(t) (t)
+#define KEY_TEXEL(tex, j) tex[j]
+  const int lastQuery = q0 + QPI;
+#endif
 
   int qTexel[QPI];
   [[unroll]] for (int i = 0; i < QPI; ++i)
@@ -50,16 +79,26 @@ void main() {
   [[unroll]] for (int i = 0; i < QPI; ++i) { runMax[i] = kNegLarge; runSum[i] = 0.0; }
   [[unroll]] for (int i = 0; i < QPI * DH; ++i) acc[i] = 0.0;
 
-  // With a causal mask no query of this invocation sees keys past its last query.
-  const int kEnd = CAUSAL ? min(p.Nk, q0 + QPI) : p.Nk;
+  // With a causal mask no query here sees keys past the last query.
+  const int kEnd = CAUSAL ? min(p.Nk, lastQuery) : p.Nk;
   for (int kb = 0; kb < kEnd; kb += KB) {
+    int kTexel[KT], vTexel[KT];
+    [[unroll]] for (int t = 0; t < KT; ++t) {
+      const int key = min(kb + KEY_OF(t), p.Nk - 1);
+      kTexel[t] = kBase + key * kRow;
+      vTexel[t] = vBase + key * vRow;
+    }
+    // Scores: per group of 4 head channels every fetch first (QPI queries, KT keys), then the
+    // QPI x KB dot-product steps.
     float s[QPI * KB];
     [[unroll]] for (int i = 0; i < QPI * KB; ++i) s[i] = 0.0;
     for (int d4 = 0; d4 < DH / 4; ++d4) {
       vec4 qv[QPI];
       [[unroll]] for (int i = 0; i < QPI; ++i) qv[i] = fetch_Q(qTexel[i] + d4);
+      vec4 kt[KT];
+      [[unroll]] for (int t = 0; t < KT; ++t) kt[t] = fetch_K(kTexel[t] + d4);
       [[unroll]] for (int j = 0; j < KB; ++j) {
-        vec4 kv = fetch_K(kBase + min(kb + j, p.Nk - 1) * kRow + d4);
+        const vec4 kv = KEY_TEXEL(kt, j);
         [[unroll]] for (int i = 0; i < QPI; ++i)
           s[i * KB + j] = fma(qv[i].w, kv.w, fma(qv[i].z, kv.z, fma(qv[i].y, kv.y, fma(qv[i].x, kv.x, s[i * KB + j]))));
       }
@@ -85,25 +124,20 @@ void main() {
       runSum[i] = sum;
       [[unroll]] for (int d = 0; d < DH; ++d) acc[i * DH + d] *= correction;
     }
-    // Keys advance 4 at a time in a loop; head channels are unrolled, so every
-    // accumulator index is a compile-time constant, and each accumulator takes a chain
-    // of 4 fmas per load/store: with QPI x DH accumulators mostly in spilled registers,
-    // that traffic, not the arithmetic, is what bounds this loop on a CPU device.
-    [[unroll]] for (int j0 = 0; j0 < KB; j0 += 4) {
-      float w[QPI * 4];
+    // Values: per group of 4 head channels every fetch first (KT keys), then each accumulator
+    // takes one chain of KB fmas per load and store: with QPI x DH accumulators mostly in spilled
+    // registers, that traffic, not the arithmetic, bounds this loop on a CPU device.
+    [[unroll]] for (int d4 = 0; d4 < DH / 4; ++d4) {
+      vec4 vt[KT];
+      [[unroll]] for (int t = 0; t < KT; ++t) vt[t] = fetch_V(vTexel[t] + d4);
+      vec4 vv[KB];
+      [[unroll]] for (int j = 0; j < KB; ++j) vv[j] = KEY_TEXEL(vt, j);
       [[unroll]] for (int i = 0; i < QPI; ++i)
-        [[unroll]] for (int u = 0; u < 4; ++u) w[i * 4 + u] = s[i * KB + j0 + u];
-      int vTexel[4];
-      [[unroll]] for (int u = 0; u < 4; ++u) vTexel[u] = vBase + min(kb + j0 + u, p.Nk - 1) * vRow;
-      [[unroll]] for (int d4 = 0; d4 < DH / 4; ++d4) {
-        const vec4 v0 = fetch_V(vTexel[0] + d4), v1 = fetch_V(vTexel[1] + d4);
-        const vec4 v2 = fetch_V(vTexel[2] + d4), v3 = fetch_V(vTexel[3] + d4);
-        [[unroll]] for (int i = 0; i < QPI; ++i)
-          [[unroll]] for (int c = 0; c < 4; ++c) {
-            const int a = i * DH + d4 * 4 + c;
-            acc[a] = fma(w[i * 4 + 3], v3[c], fma(w[i * 4 + 2], v2[c], fma(w[i * 4 + 1], v1[c], fma(w[i * 4], v0[c], acc[a]))));
-          }
-      }
+        [[unroll]] for (int c = 0; c < 4; ++c) {
+          float a = acc[i * DH + d4 * 4 + c];
+          [[unroll]] for (int j = 0; j < KB; ++j) a = fma(s[i * KB + j], vv[j][c], a);
+          acc[i * DH + d4 * 4 + c] = a;
+        }
     }
   }
 

@@ -123,19 +123,26 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   // 4 queries per invocation run as fast as 8 there and compile in a third of the time (3.7 s
   // against 11 s); narrower heads take 2 (1.4 s of compile, at 60 % of the speed: attention is
   // about a tenth of the shipped model's compute, its compile a third of the first run).
+  // Shared keys (llvmpipe, below): 22.3 about as fast as own keys with the fetches first,
+  // 25.0.7 1.6x and half the compile (docs/first-run-and-kernels.md).
   const bool newer = cpu && ops::cpuTiles(engine.caps()) == ops::CpuTiles::Newer;
   const int newerQueries = headDim < 64 ? 2 : 4;
   int queriesPerInvocation = cpu ? (newer ? newerQueries : 8) : 2, keysPerBlock = cpu && headDim < 64 ? 8 : 16;
   int localX = cpu ? ops::cpuLanes(engine.caps()) : 64;
+  // llvmpipe: the workgroup's lanes share each block's keys (attention.comp's SHARED_KEYS).
+  bool sharedKeys = cpu && ops::cpuLanesShareFetches(engine.caps()) && keysPerBlock % localX == 0;
   if (const auto& t = engine.options().tuning.attentionTiles) {
     queriesPerInvocation = (*t)[0];
     keysPerBlock = (*t)[1];
     localX = (*t)[2];
+    sharedKeys = false;
   }
-  const Kernel& kernel = engine.kernel({f16Out ? "attention_f16out" : "attention_f32",
+  const std::string name = std::string(sharedKeys ? "attention_sk" : "attention") + (f16Out ? "_f16out" : "_f32");
+  const Kernel& kernel = engine.kernel({name,
                                         {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
                                         sizeof(AttentionPush),
-                                        {localX, 1, 1, headDim, queriesPerInvocation, keysPerBlock, causal ? 1 : 0}});
+                                        {localX, 1, 1, headDim, queriesPerInvocation, keysPerBlock, causal ? 1 : 0, localX},
+                                        sharedKeys ? uint32_t(localX) : 0u});
   const int64_t perGroup = int64_t(queriesPerInvocation) * localX;
   rec.dispatch(kernel, args, push, static_cast<uint32_t>((gq.rows + perGroup - 1) / perGroup),
                static_cast<uint32_t>(heads), static_cast<uint32_t>(gq.batch));

@@ -29,11 +29,12 @@ inline CpuTiles cpuTiles(const DeviceCaps& caps) {
 // Invocations along x share one SIMD vector on llvmpipe: a multiple of the lane count.
 inline int cpuLanes(const DeviceCaps& caps) { return std::max<int>(8, static_cast<int>(caps.subgroupSize)); }
 
-// Whether a GEMM workgroup can be one subgroup whose lanes share its columns (shaders/gemm.comp,
-// SHARED_COLUMNS): measured on llvmpipe only (docs/first-run-and-kernels.md), where a texel
-// fetch is a call that spills the accumulators; it needs subgroup shuffles and full subgroups of
-// the lane count.
-inline bool cpuSharedColumns(const DeviceCaps& caps) {
+// Whether a workgroup can be one subgroup whose lanes share the texels all of them read (the
+// GEMM's columns, attention's keys: shaders/gemm.comp SHARED_COLUMNS, shaders/attention.comp
+// SHARED_KEYS), each lane fetching its part and shuffling the rest from the others. Measured on
+// llvmpipe only (docs/first-run-and-kernels.md), where a texel fetch is a call that spills the
+// accumulators; it needs subgroup shuffles and full subgroups of the lane count.
+inline bool cpuLanesShareFetches(const DeviceCaps& caps) {
   return caps.isLlvmpipe() && caps.subgroupShuffle && caps.fullSubgroups && int(caps.subgroupSize) == cpuLanes(caps);
 }
 

@@ -106,7 +106,7 @@ GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, do
     // multiply-adds: below, its compile outweighs what it saves (the shipped model, 2^22-2^27:
     // 8 % less run time, 7.9 s of first compiles instead of 1.3 s).
     const int columns = N >= 32 ? 32 : 16;
-    if (ops::cpuSharedColumns(caps) && columns % lanes == 0 && multiplyAdds >= double(1 << 28))
+    if (ops::cpuLanesShareFetches(caps) && columns % lanes == 0 && multiplyAdds >= double(1 << 28))
       return {4, columns, lanes, 1, 2, true};
     switch (ops::cpuTiles(caps)) {
       // The earlier default (58-64 GFLOPS on an AVX-512 machine; 32 x 32 within noise of it at
