@@ -179,9 +179,12 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
                                                                : "texel buffers"));
   auto gemmText = [&](KernelFamily f, bool f16) {
     if (f == KernelFamily::CpuBlocks) {
-      const bool shared = ops::cpuLanesShareFetches(caps);  // engine/ops/linear.cpp, chooseGemmTiles
+      // engine/ops/linear.cpp, chooseGemmTiles
+      const bool shared = ops::cpuLanesShareFetches(caps), newer = ops::cpuTiles(caps) == ops::CpuTiles::Newer;
       return std::string("gemm.comp (") + familyName(f) +
-             (shared ? "; from 2^28 multiply-adds 4 x 32 columns shared by the subgroup's lanes" : "") + ")";
+             (!shared ? ""
+              : newer ? "; from 2^28 multiply-adds 4 x 32 columns shared by the subgroup's lanes"
+                      : "; 4 x 16 columns shared by the subgroup's lanes, 4 x 32 from 2^28 multiply-adds") + ")";
     }
     if (f == KernelFamily::CoopMat) return "gemm_coopmat.comp (" + plan.coop.text() + ")";
     return "gemm_tiled.comp (" + plan.gemmTiles.text() + ", small " + plan.gemmSmallTiles.text() +

@@ -49,10 +49,11 @@ TEST(KernelPlan, CpuDeviceGetsRegisterBlocks) {
   EXPECT_FALSE(p.measureTiles);
 }
 
-// llvmpipe's large products share columns among a subgroup's lanes (engine/ops/linear.cpp);
-// only with shuffles and full subgroups of the lanes' size, and never where the tiles are forced
+// llvmpipe shares a GEMM workgroup's columns among its subgroup's lanes (engine/ops/linear.cpp):
+// 4 x 16, 4 x 32 from 2^28 multiply-adds; Mesa 25's below 2^28 keep register blocks (compile).
+// Only with shuffles and full subgroups of the lanes' size, and never where the tiles are forced
 // or on another CPU driver, whose kernels were not measured so.
-TEST(KernelPlan, LlvmpipeSharesColumnsOnLargeProductsOnly) {
+TEST(KernelPlan, LlvmpipeSharesColumnsByDriverAndProduct) {
   DeviceCaps c = cpuCaps();
   c.driverId = VK_DRIVER_ID_MESA_LLVMPIPE;
   c.mesaMajor = 22;
@@ -65,7 +66,13 @@ TEST(KernelPlan, LlvmpipeSharesColumnsOnLargeProductsOnly) {
   EXPECT_EQ(t.localX, 8);
   EXPECT_EQ(t.localY, 1);
   EXPECT_EQ(chooseGemmTiles(c, {}, large, 20).colsPerInvocation, 16);
-  EXPECT_FALSE(chooseGemmTiles(c, {}, small, 1003).sharedColumns);
+  t = chooseGemmTiles(c, {}, small, 1003);
+  EXPECT_TRUE(t.sharedColumns);
+  EXPECT_EQ(t.colsPerInvocation, 16);
+  DeviceCaps newer = c;
+  newer.mesaMajor = 25;
+  EXPECT_FALSE(chooseGemmTiles(newer, {}, small, 1003).sharedColumns);
+  EXPECT_TRUE(chooseGemmTiles(newer, {}, large, 1003).sharedColumns);
   KernelTuning forced;
   forced.gemmTiles = std::array<int, 5>{4, 16, 8, 8, 2};
   EXPECT_FALSE(chooseGemmTiles(c, forced, large, 1003).sharedColumns);
@@ -78,7 +85,7 @@ TEST(KernelPlan, LlvmpipeSharesColumnsOnLargeProductsOnly) {
   swiftshader.driverId = VK_DRIVER_ID_GOOGLE_SWIFTSHADER;
   swiftshader.mesaMajor = 0;
   EXPECT_FALSE(chooseGemmTiles(swiftshader, {}, large, 1003).sharedColumns);
-  DeviceCaps wide = c;  // 512-bit llvmpipe: 16 lanes share 32 columns (16: a multiple of them)
+  DeviceCaps wide = c;  // 512-bit llvmpipe: 16 lanes share 16 or 32 columns (multiples of them)
   wide.subgroupSize = wide.minSubgroupSize = wide.maxSubgroupSize = 16;
   EXPECT_EQ(chooseGemmTiles(wide, {}, large, 1003).localX, 16);
   EXPECT_TRUE(chooseGemmTiles(wide, {}, large, 20).sharedColumns);

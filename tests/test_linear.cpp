@@ -47,9 +47,9 @@ INSTANTIATE_TEST_SUITE_P(
                       LinearCase{21, 35, 9, true, Activation::Relu},
                       LinearCase{130, 768, 518, true, Activation::None}));
 
-// From 2^28 multiply-adds llvmpipe's plan shares a workgroup's columns among its subgroup's lanes
-// (gemm.comp's SHARED_COLUMNS, engine/ops/linear.cpp chooseGemmTiles): 32 columns, 16 where N is
-// narrower, odd M and N past the last block's edge, fp32 and q8 weights (the thresholds of the
+// llvmpipe's plan shares a workgroup's columns among its subgroup's lanes (gemm.comp's
+// SHARED_COLUMNS, engine/ops/linear.cpp chooseGemmTiles; the other tests here: 16 columns), from
+// 2^28 multiply-adds 32 columns, 16 where N is narrower: odd M and N past the last block's edge, fp32 and q8 weights (the thresholds of the
 // other fp32 and quantized tests). Checked against float64 on every column of sampled rows
 // (every 37th, and the last block's): the full reference is 2^28 multiply-adds a case. Elsewhere (GPU family, device profiles without full
 // subgroups) the same products take kernels the other tests cover, at a cold compile each.

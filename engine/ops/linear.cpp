@@ -101,12 +101,16 @@ GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, do
     //   Mesa 22.3, 8 lanes:  64 / 85 against 37 / 55 (0.4 s)
     //   Mesa 22.3, 16 lanes: 79 / 95 against 65 / 69 (0.4 s)
     //   Mesa 25.0.7, 8 lanes: 68 / 90 against 16 / 25 (1.4 s)
-    // 4 x 32 was the fastest of 2-4 rows x 16-64 columns everywhere; 16 columns where N is
-    // smaller, so that narrow outputs do not compute mostly clamped duplicates. Only from 2^28
-    // multiply-adds: below, its compile outweighs what it saves (the shipped model, 2^22-2^27:
-    // 8 % less run time, 7.9 s of first compiles instead of 1.3 s).
-    const int columns = N >= 32 ? 32 : 16;
-    if (ops::cpuLanesShareFetches(caps) && columns % lanes == 0 && multiplyAdds >= double(1 << 28))
+    // 4 x 32 was the fastest of 2-4 rows x 16-64 columns everywhere. Below 2^28 multiply-adds
+    // (the shipped model's GEMMs, 2^22-2^27) compile time decides: there 4 x 16, which on 22.3
+    // compiles as fast as the register blocks did and runs the model 5-8 % faster (4 x 32: 7 %
+    // more still, for 1.5 s more of first compiles); Mesa 25.0.7 keeps its 4 x 4 blocks there (4 x
+    // 16 took the model's first compiles from 7.7 to 12.0 s). 16 columns also where N is smaller,
+    // so that narrow outputs do not compute mostly clamped duplicates.
+    const bool large = multiplyAdds >= double(1 << 28);
+    const int columns = N >= 32 && large ? 32 : 16;
+    const bool newer = ops::cpuTiles(caps) == ops::CpuTiles::Newer;
+    if (ops::cpuLanesShareFetches(caps) && columns % lanes == 0 && (large || !newer))
       return {4, columns, lanes, 1, 2, true};
     switch (ops::cpuTiles(caps)) {
       // The earlier default (58-64 GFLOPS on an AVX-512 machine; 32 x 32 within noise of it at
