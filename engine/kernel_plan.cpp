@@ -73,6 +73,13 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
                                ? "CPU device: register blocks through texel buffers, no shared memory (on llvmpipe shared "
                                  "memory is a loop over the SIMD lanes and a coroutine switch per barrier)"
                                : "forced: the CPU family");
+    const bool share = ops::cpuLanesShareFetches(caps);
+    plan.gemmSharedColumns = share && !tuning.gemmTiles;
+    plan.attentionSharedKeys = share && !tuning.attentionTiles;
+    if (share)
+      plan.reasons.push_back("llvmpipe with subgroup shuffles and full subgroups: a workgroup is one subgroup whose lanes "
+                             "share the texels all of them read (a texel fetch there is a call that spills the registers)" +
+                             std::string(tuning.gemmTiles || tuning.attentionTiles ? "; not where tiles are forced" : ""));
     return plan;
   }
   plan.gemm = plan.gemmF16 = plan.attention = plan.attentionF16 = plan.conv = KernelFamily::Tiled;
@@ -180,7 +187,7 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
   auto gemmText = [&](KernelFamily f, bool f16) {
     if (f == KernelFamily::CpuBlocks) {
       // engine/ops/linear.cpp, chooseGemmTiles
-      const bool shared = ops::cpuLanesShareFetches(caps), newer = ops::cpuTiles(caps) == ops::CpuTiles::Newer;
+      const bool shared = plan.gemmSharedColumns, newer = ops::cpuTiles(caps) == ops::CpuTiles::Newer;
       return std::string("gemm.comp (") + familyName(f) +
              (!shared ? ""
               : newer ? "; from 2^28 multiply-adds 4 x 32 columns shared by the subgroup's lanes"
@@ -195,7 +202,7 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
   out.push_back("linear, q8 / q4 weights: " + gemmText(plan.quantizedGemm(), false) + ", dequantizing");
   out.push_back(plan.attention == KernelFamily::CpuBlocks
                     ? std::string("attention: attention.comp (cpu register blocks") +
-                          (ops::cpuLanesShareFetches(caps) ? "; each block's keys shared by the subgroup's lanes)" : ")")
+                          (plan.attentionSharedKeys ? "; each block's keys shared by the subgroup's lanes)" : ")")
                     : "attention: attention_tiled.comp (" + std::to_string(plan.attentionQueries) + " queries, " +
                           std::to_string(plan.attentionKeys) + "-key blocks)");
   if (plan.attentionF16 == KernelFamily::CoopMat)

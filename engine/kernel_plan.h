@@ -58,6 +58,9 @@ struct KernelPlan {
   KernelFamily conv = KernelFamily::CpuBlocks;     // conv2d (Tiled: an implicit GEMM)
   bool cpuShapes = true;            // workgroup shapes of the other ops: a CPU's SIMD lanes or a GPU's
   bool subgroupReductions = false;  // norms and softmax combine partial results with subgroup ops
+  // CPU family on a device whose subgroup's lanes share fetches (engine/ops/cpu_tiles.h), unless
+  // the tiles are forced: the GEMM's columns (SHARED_COLUMNS) and attention's keys (SHARED_KEYS)
+  bool gemmSharedColumns = false, attentionSharedKeys = false;
   // Inputs read through storage buffers instead of texel buffers (the *_sx kernels): where a
   // texel binding holds fewer floats than a storage binding (Vulkan's minimum is 65536 texels
   // against 128 MiB), so splitting by the storage range is all the ops need; SPAR_INPUTS forces

@@ -85,6 +85,21 @@ TEST(KernelPlan, LlvmpipeSharesColumnsByDriverAndProduct) {
   swiftshader.driverId = VK_DRIVER_ID_GOOGLE_SWIFTSHADER;
   swiftshader.mesaMajor = 0;
   EXPECT_FALSE(chooseGemmTiles(swiftshader, {}, large, 1003).sharedColumns);
+  // The plan says so (spar-bench --list-kernels), and not where the tiles are forced.
+  const KernelPlan plan = planKernels(c, {});
+  EXPECT_TRUE(plan.gemmSharedColumns && plan.attentionSharedKeys);
+  auto lists = [&](const KernelPlan& p, const std::string& what) {
+    for (const auto& line : describePlan(p, c))
+      if (line.find(what) != std::string::npos) return true;
+    return false;
+  };
+  EXPECT_TRUE(lists(plan, "columns shared by the subgroup's lanes"));
+  EXPECT_TRUE(lists(plan, "keys shared by the subgroup's lanes"));
+  KernelTuning both = forced;
+  both.attentionTiles = std::array<int, 3>{8, 16, 8};
+  const KernelPlan forcedPlan = planKernels(c, both);
+  EXPECT_FALSE(forcedPlan.gemmSharedColumns || forcedPlan.attentionSharedKeys);
+  EXPECT_FALSE(lists(forcedPlan, "shared by the subgroup's lanes"));
   DeviceCaps wide = c;  // 512-bit llvmpipe: 16 lanes share 16 or 32 columns (multiples of them)
   wide.subgroupSize = wide.minSubgroupSize = wide.maxSubgroupSize = 16;
   EXPECT_EQ(chooseGemmTiles(wide, {}, large, 1003).localX, 16);

@@ -130,13 +130,12 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   int queriesPerInvocation = cpu ? (newer ? newerQueries : 8) : 2, keysPerBlock = cpu && headDim < 64 ? 8 : 16;
   int localX = cpu ? ops::cpuLanes(engine.caps()) : 64;
   // llvmpipe: the workgroup's lanes share each block's keys (attention.comp's SHARED_KEYS).
-  bool sharedKeys = cpu && ops::cpuLanesShareFetches(engine.caps()) && keysPerBlock % localX == 0;
   if (const auto& t = engine.options().tuning.attentionTiles) {
     queriesPerInvocation = (*t)[0];
     keysPerBlock = (*t)[1];
     localX = (*t)[2];
-    sharedKeys = false;
   }
+  const bool sharedKeys = cpu && plan.attentionSharedKeys && keysPerBlock % localX == 0;
   const std::string name = std::string(sharedKeys ? "attention_sk" : "attention") + (f16Out ? "_f16out" : "_f32");
   const Kernel& kernel = engine.kernel({name,
                                         {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
