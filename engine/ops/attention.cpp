@@ -129,12 +129,12 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   const int newerQueries = headDim < 64 ? 2 : 4;
   int queriesPerInvocation = cpu ? (newer ? newerQueries : 8) : 2, keysPerBlock = cpu && headDim < 64 ? 8 : 16;
   int localX = cpu ? ops::cpuLanes(engine.caps()) : 64;
-  // llvmpipe: the workgroup's lanes share each block's keys (attention.comp's SHARED_KEYS).
   if (const auto& t = engine.options().tuning.attentionTiles) {
     queriesPerInvocation = (*t)[0];
     keysPerBlock = (*t)[1];
     localX = (*t)[2];
   }
+  // llvmpipe: the workgroup's lanes share each block's keys (attention.comp's SHARED_KEYS).
   const bool sharedKeys = cpu && plan.attentionSharedKeys && keysPerBlock % localX == 0;
   const std::string name = std::string(sharedKeys ? "attention_sk" : "attention") + (f16Out ? "_f16out" : "_f32");
   const Kernel& kernel = engine.kernel({name,
