@@ -39,8 +39,8 @@ ModelCard parseModelCard(const std::string& text) {
   const nlohmann::json card = nlohmann::json::parse(text, nullptr, false);
   if (card.is_discarded() || !card.is_object()) throw Error(where + "not a JSON object");
   for (auto it = card.begin(); it != card.end(); ++it)
-    if (!std::set<std::string>{"kind", "about", "measured"}.count(it.key()))
-      throw Error(where + "unknown field '" + it.key() + "' (known: kind, about, measured)");
+    if (!std::set<std::string>{"kind", "about", "measured", "training"}.count(it.key()))
+      throw Error(where + "unknown field '" + it.key() + "' (known: kind, about, measured, training)");
   ModelCard c;
   c.kind = oneLineString(card, "kind", where);
   if (c.kind != "demonstration") throw Error(where + "unknown kind '" + c.kind + "' (known: demonstration)");
@@ -54,6 +54,19 @@ ModelCard parseModelCard(const std::string& text) {
     c.baseline = oneLineString(*m, "baseline", at);
     c.psnrDb = finiteNumber(*m, "psnr_db", at);
     c.baselinePsnrDb = finiteNumber(*m, "baseline_psnr_db", at);
+  }
+  if (auto t = card.find("training"); t != card.end()) {
+    const std::string at = where + "training.";
+    if (!t->is_object() || t->size() != 3)
+      throw Error(where + "training must hold exactly data, steps, minutes");
+    c.trained = true;
+    c.trainingData = oneLineString(*t, "data", at);
+    auto steps = t->find("steps");
+    if (steps == t->end() || !steps->is_number_integer() || steps->get<int64_t>() < 1)
+      throw Error(at + "steps must be a positive integer");
+    c.trainingSteps = steps->get<int64_t>();
+    c.trainingMinutes = finiteNumber(*t, "minutes", at);
+    if (c.trainingMinutes <= 0) throw Error(at + "minutes must be a finite positive number");
   }
   return c;
 }

@@ -3,6 +3,7 @@
 // its users in one sentence so that a demonstration model's renders are not taken for the engine's
 // limits. `spar render` prints the sentence once and its index.html opens with it.
 #pragma once
+#include <cstdint>
 #include <optional>
 #include <string>
 
@@ -15,6 +16,12 @@ struct ModelCard {
   bool measured = false;
   std::string what, baseline;  // "held-out K=3", "copying the nearest input"
   double psnrDb = 0, baselinePsnrDb = 0;
+  // How it was made, if the card says (its optional `training` record): what it was trained or
+  // fitted on, its steps and minutes.
+  bool trained = false;
+  std::string trainingData;
+  int64_t trainingSteps = 0;
+  double trainingMinutes = 0;
 };
 
 // The card of the metadata value `text`, checked as the converter checks it; throws spar::Error

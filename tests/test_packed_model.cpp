@@ -543,6 +543,14 @@ TEST_F(HandMadeFileTest, ModelCardIsReadAndABadOneRefusedByField) {
   above.erase("about");
   above["about"] = "fitted to three rooms";
   EXPECT_NE(modelCardClaim(parseModelCard(above.dump())).find("PSNR 25.0 dB, above the 20.0 dB"), std::string::npos);
+  json trained = good;
+  trained["training"] = {{"data", "takes of three rooms"}, {"steps", 2400}, {"minutes", 80.5}};
+  const ModelCard t = parseModelCard(trained.dump());
+  EXPECT_TRUE(t.trained);
+  EXPECT_EQ(t.trainingData, "takes of three rooms");
+  EXPECT_EQ(t.trainingSteps, 2400);
+  EXPECT_DOUBLE_EQ(t.trainingMinutes, 80.5);
+  EXPECT_FALSE(parseModelCard(good.dump()).trained);
   json bare = {{"kind", "demonstration"}, {"about", "made by hand"}};
   EXPECT_EQ(modelCardClaim(parseModelCard(bare.dump())), "Demonstration model: made by hand");
   EXPECT_FALSE(PackedModel::open(write("nocard.spar", json{{"__metadata__", goodMetadata()}}, data)).modelCard());
@@ -563,6 +571,12 @@ TEST_F(HandMadeFileTest, ModelCardIsReadAndABadOneRefusedByField) {
   bad["measured"].erase("baseline");
   expectRefused(write("card_measured.spar", withCard(bad.dump()), data), "model_card: measured must hold exactly");
   expectRefused(write("card_json.spar", withCard("{kind"), data), "model_card: not a JSON object");
+  bad = trained;
+  bad["training"]["steps"] = 0;
+  expectRefused(write("card_steps.spar", withCard(bad.dump()), data), "model_card: training.steps must be a positive integer");
+  bad = trained;
+  bad["training"].erase("minutes");
+  expectRefused(write("card_training.spar", withCard(bad.dump()), data), "model_card: training must hold exactly");
 }
 
 }  // namespace

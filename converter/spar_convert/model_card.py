@@ -11,7 +11,9 @@ project's CPU, whose renders show a room's layout rather than its detail):
                   "baseline": "copying the nearest input", "baseline_psnr_db": 20.02}}
 
 `spar render` prints it as one line and its index.html opens with it (model/model_card.cpp
-makes the sentence; both read the same fields).
+makes the sentence; both read the same fields). An optional `training` record says how it was
+made, for whoever reads the file: `{"data": "<what it was trained or fitted on>", "steps": N,
+"minutes": M}`.
 """
 
 import json
@@ -19,6 +21,7 @@ import math
 
 KINDS = ("demonstration",)
 MEASURED = {"what": str, "psnr_db": float, "baseline": str, "baseline_psnr_db": float}
+TRAINING = ("data", "steps", "minutes")
 
 
 class ModelCardError(Exception):
@@ -30,9 +33,9 @@ def check_card(card, where):
     with every field (numbers finite). `where` names the card in errors."""
     if not isinstance(card, dict):
         raise ModelCardError("%s: a model card is a JSON object" % where)
-    unknown = sorted(set(card) - {"kind", "about", "measured"})
+    unknown = sorted(set(card) - {"kind", "about", "measured", "training"})
     if unknown:
-        raise ModelCardError("%s: unknown field %r (known: kind, about, measured)" % (where, unknown[0]))
+        raise ModelCardError("%s: unknown field %r (known: kind, about, measured, training)" % (where, unknown[0]))
     if card.get("kind") not in KINDS:
         raise ModelCardError("%s: kind must be one of %s, not %r" % (where, ", ".join(KINDS), card.get("kind")))
     about = card.get("about")
@@ -49,6 +52,17 @@ def check_card(card, where):
                     raise ModelCardError("%s: measured.%s must be a finite number, not %r" % (where, key, v))
             elif not isinstance(v, str) or not v.strip() or "\n" in v:
                 raise ModelCardError("%s: measured.%s must be a non-empty one-line string" % (where, key))
+    if "training" in card:
+        t = card["training"]
+        if not isinstance(t, dict) or set(t) != set(TRAINING):
+            raise ModelCardError("%s: training must have exactly %s" % (where, ", ".join(TRAINING)))
+        if not isinstance(t["data"], str) or not t["data"].strip() or "\n" in t["data"]:
+            raise ModelCardError("%s: training.data must be a non-empty one-line string" % where)
+        if isinstance(t["steps"], bool) or not isinstance(t["steps"], int) or t["steps"] < 1:
+            raise ModelCardError("%s: training.steps must be a positive integer, not %r" % (where, t["steps"]))
+        m = t["minutes"]
+        if isinstance(m, bool) or not isinstance(m, (int, float)) or not math.isfinite(m) or m <= 0:
+            raise ModelCardError("%s: training.minutes must be a finite positive number, not %r" % (where, m))
     return card
 
 

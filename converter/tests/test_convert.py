@@ -716,7 +716,7 @@ def test_model_card_is_stored_and_replaced_alone(f32, work, tmp_path):
     assert json.loads(read(out)[1]["model_card"]) == CARD
     assert "model_card" not in f32[3]  # a conversion without --model-card stores none
     # a packed model in: every tensor byte for byte, the other metadata kept, the card replaced
-    other = dict(CARD, about="something else")
+    other = dict(CARD, about="something else", training={"data": "three rooms", "steps": 2400, "minutes": 80.5})
     card.write_text(json.dumps(other))
     again = tmp_path / "again.spar"
     rc, so, se = run(f32[0], "--model-card", card, "-o", again)
@@ -738,6 +738,9 @@ def test_model_card_is_stored_and_replaced_alone(f32, work, tmp_path):
     (dict(CARD, colour="red"), "unknown field 'colour'"),
     (dict(CARD, measured=dict(CARD["measured"], psnr_db=float("nan"))), "measured.psnr_db must be a finite number"),
     (dict(CARD, measured={"what": "x"}), "measured must have exactly"),
+    (dict(CARD, training={"data": "rooms", "steps": 10}), "training must have exactly data, steps, minutes"),
+    (dict(CARD, training={"data": "rooms", "steps": 0, "minutes": 1.0}), "training.steps must be a positive integer"),
+    (dict(CARD, training={"data": "rooms", "steps": 5, "minutes": float("inf")}), "training.minutes must be a finite"),
 ])
 def test_model_card_refusals_are_one_line(f32, tmp_path, card, words):
     path = tmp_path / "card.json"

@@ -38,31 +38,46 @@ def _path(rng, world, foot, center, d0, radius, length_rng, n):
     return None
 
 
-def _frames(a, b, n):
-    s = np.linspace(0, 1, n) if n > 1 else np.zeros(1)
-    return a[None] + s[:, None] * (b - a)[None]        # [F, 2]
+def moments_along(n):
+    """The shoot's moments: n evenly spaced fractions of a mover's path, first to last."""
+    return np.linspace(0, 1, n) if n > 1 else np.zeros(1)
 
 
-def add_person(world, rng, foot, center, d0):
-    n = world.n_frames
+def path_positions(m, t):
+    """(x, z) of mover ``m`` at the path fractions ``t`` [F]."""
+    a, b = m["a"], m["b"]
+    return a[None] + np.asarray(t, dtype=np.float64)[:, None] * (b - a)[None]        # [F, 2]
+
+
+def draw_person(world, rng, foot, center, d0):
+    """A person's height, path and clothes (its primitives: person_prims); None if no path fits."""
     h = rng.uniform(1.55, 1.85)
-    path = _path(rng, world, foot, center, d0, 0.3, (0.6, 1.8), n)
+    path = _path(rng, world, foot, center, d0, 0.3, (0.6, 1.8), world.n_frames)
     if path is None:
         return None
     a, b = path
-    pos = _frames(a, b, n)
+    m = {"class": "person", "height": h, "a": a, "b": b, "radius": 0.3,
+         "phase0": rng.uniform(0, 2 * np.pi)}
+    m["shirt"] = random_material(rng, ("flat", "stripes", "checker", "noise"), sat=(0.4, 0.9),
+                                 val=(0.3, 0.9), period=(0.04, 0.12))
+    m["pants"] = random_material(rng, ("flat", "noise"), sat=(0.1, 0.5), val=(0.15, 0.5),
+                                 period=(0.05, 0.1))
+    m["skin"] = {"kind": "flat", "c0": random_color(rng, (0.3, 0.6), (0.35, 0.9), (0.04, 0.1)),
+                 "c1": random_color(rng, (0.3, 0.6), (0.35, 0.9), (0.04, 0.1)), "period": 1.0,
+                 "angle": 0.0, "seed": int(rng.integers(0, 2 ** 20))}
+    return m
+
+
+def person_prims(m, t):
+    """Person ``m``'s primitives at path fractions ``t`` [F], and its scene.json record."""
+    h, a, b = m["height"], m["a"], m["b"]
+    pos = path_positions(m, t)
+    n = len(pos)
     fwd = (b - a) / max(np.linalg.norm(b - a), 1e-9)
     side = np.array([-fwd[1], fwd[0]])
     # limbs swing with the distance walked (stride about 1 m), legs against arms
-    phase = 2 * np.pi * np.linalg.norm(pos - a[None], axis=1) / 1.0 + rng.uniform(0, 2 * np.pi)
+    phase = 2 * np.pi * np.linalg.norm(pos - a[None], axis=1) / 1.0 + m["phase0"]
     swing = np.sin(phase)[:, None] * fwd[None]
-    shirt = random_material(rng, ("flat", "stripes", "checker", "noise"), sat=(0.4, 0.9),
-                            val=(0.3, 0.9), period=(0.04, 0.12))
-    pants = random_material(rng, ("flat", "noise"), sat=(0.1, 0.5), val=(0.15, 0.5),
-                            period=(0.05, 0.1))
-    skin = {"kind": "flat", "c0": random_color(rng, (0.3, 0.6), (0.35, 0.9), (0.04, 0.1)),
-            "c1": random_color(rng, (0.3, 0.6), (0.35, 0.9), (0.04, 0.1)), "period": 1.0,
-            "angle": 0.0, "seed": int(rng.integers(0, 2 ** 20))}
     cid = CLASS_ID["person"]
     prims = []
 
@@ -72,35 +87,42 @@ def add_person(world, rng, foot, center, d0):
         prims.append(Prim("cylinder", cid, mat, p, dynamic=True, name=name))
 
     leg = 0.47 * h
-    cyl("person.leg", pants, pos + 0.09 * side + 0.12 * swing, 0.0, leg, 0.065)
-    cyl("person.leg", pants, pos - 0.09 * side - 0.12 * swing, 0.0, leg, 0.065)
-    cyl("person.torso", shirt, pos, leg - 0.02, 0.82 * h, 0.17)
-    cyl("person.arm", shirt, pos + 0.235 * side - 0.1 * swing, 0.5 * h, 0.8 * h, 0.05)
-    cyl("person.arm", shirt, pos - 0.235 * side + 0.1 * swing, 0.5 * h, 0.8 * h, 0.05)
+    cyl("person.leg", m["pants"], pos + 0.09 * side + 0.12 * swing, 0.0, leg, 0.065)
+    cyl("person.leg", m["pants"], pos - 0.09 * side - 0.12 * swing, 0.0, leg, 0.065)
+    cyl("person.torso", m["shirt"], pos, leg - 0.02, 0.82 * h, 0.17)
+    cyl("person.arm", m["shirt"], pos + 0.235 * side - 0.1 * swing, 0.5 * h, 0.8 * h, 0.05)
+    cyl("person.arm", m["shirt"], pos - 0.235 * side + 0.1 * swing, 0.5 * h, 0.8 * h, 0.05)
     head = np.concatenate([pos[:, :1], np.full((n, 1), 0.9 * h), pos[:, 1:],
                            np.full((n, 3), 0.11)], axis=1)
-    prims.append(Prim("ellipsoid", cid, skin, head, dynamic=True, name="person.head"))
-    world.prims.extend(prims)
-    return {"class": "person", "height": h, "start_xz": a.tolist(), "end_xz": b.tolist(),
-            "head_centers": head[:, :3].tolist()}
+    prims.append(Prim("ellipsoid", cid, m["skin"], head, dynamic=True, name="person.head"))
+    return prims, {"class": "person", "height": h, "start_xz": a.tolist(), "end_xz": b.tolist(),
+                   "head_centers": head[:, :3].tolist()}
 
 
-def add_pet(world, rng, foot, center, d0):
-    n = world.n_frames
+def draw_pet(world, rng, foot, center, d0):
+    """A pet's size, path and fur (its primitives: pet_prims); None if no path fits."""
     s = rng.uniform(0.8, 1.3)
-    path = _path(rng, world, foot, center, d0, 0.35 * s, (0.8, 2.4), n)
+    path = _path(rng, world, foot, center, d0, 0.35 * s, (0.8, 2.4), world.n_frames)
     if path is None:
         return None
     a, b = path
-    pos = _frames(a, b, n)
+    m = {"class": "pet", "scale": s, "a": a, "b": b, "radius": 0.35 * s}
+    m["fur"] = random_material(rng, ("noise", "flat", "stripes"), sat=(0.2, 0.8), val=(0.2, 0.85),
+                               period=(0.03, 0.08), hue=(0.02, 0.12))
+    return m
+
+
+def pet_prims(m, t):
+    """Pet ``m``'s primitives at path fractions ``t`` [F], and its scene.json record."""
+    s, a, b, fur = m["scale"], m["a"], m["b"], m["fur"]
+    pos = path_positions(m, t)
+    n = len(pos)
     d = b - a
     # axis-aligned shapes: the body stretches along the dominant walking axis
     ax = 0 if abs(d[0]) >= abs(d[1]) else 1
     fwd = np.zeros(2)
     fwd[ax] = np.sign(d[ax]) or 1.0
     side = np.array([-fwd[1], fwd[0]])
-    fur = random_material(rng, ("noise", "flat", "stripes"), sat=(0.2, 0.8), val=(0.2, 0.85),
-                          period=(0.03, 0.08), hue=(0.02, 0.12))
     cid = CLASS_ID["pet"]
     semi = np.array([0.14, 0.12, 0.14]) * s
     semi[0 if ax == 0 else 2] = 0.3 * s
@@ -109,28 +131,41 @@ def add_pet(world, rng, foot, center, d0):
     hp = pos + 0.32 * s * fwd[None]
     head = np.concatenate([hp[:, :1], np.full((n, 1), 0.42 * s), hp[:, 1:],
                            np.full((n, 3), 0.1 * s)], axis=1)
-    world.prims.append(Prim("ellipsoid", cid, fur, body, dynamic=True, name="pet.body"))
-    world.prims.append(Prim("ellipsoid", cid, fur, head, dynamic=True, name="pet.head"))
+    prims = [Prim("ellipsoid", cid, fur, body, dynamic=True, name="pet.body"),
+             Prim("ellipsoid", cid, fur, head, dynamic=True, name="pet.head")]
     gait = np.sin(2 * np.pi * np.linalg.norm(pos - a[None], axis=1) / 0.5)[:, None] * fwd[None]
     for i, (fa, sa) in enumerate(((0.18, 0.08), (0.18, -0.08), (-0.18, 0.08), (-0.18, -0.08))):
         sign = 1 if i in (0, 3) else -1
         xz = pos + s * (fa * fwd[None] + sa * side[None]) + 0.04 * s * sign * gait
         p = np.concatenate([xz[:, :1], xz[:, 1:], np.zeros((n, 1)), np.full((n, 1), 0.22 * s),
                             np.full((n, 1), 0.03 * s)], axis=1)
-        world.prims.append(Prim("cylinder", cid, fur, p, dynamic=True, name="pet.leg"))
-    return {"class": "pet", "scale": s, "start_xz": a.tolist(), "end_xz": b.tolist(),
-            "body_centers": body[:, :3].tolist()}
+        prims.append(Prim("cylinder", cid, fur, p, dynamic=True, name="pet.leg"))
+    return prims, {"class": "pet", "scale": s, "start_xz": a.tolist(), "end_xz": b.tolist(),
+                   "body_centers": body[:, :3].tolist()}
 
 
-def add_distractors(world, rng, foot, center, d0):
-    """A person (probability 0.85) and a pet (0.6), at least one of them."""
+MOVER_PRIMS = {"person": person_prims, "pet": pet_prims}
+
+
+def place_movers(world, t):
+    """Puts every mover of ``world.movers`` at path fractions ``t`` (one per frame): their
+    primitives join ``world.prims``, their records ``world.distractors``."""
+    for m in world.movers:
+        prims, record = MOVER_PRIMS[m["class"]](m, t)
+        world.prims.extend(prims)
+        world.distractors.append(record)
+
+
+def draw_movers(world, rng, foot, center, d0):
+    """A person (probability 0.85) and a pet (0.6), at least one of them, into ``world.movers``
+    (parameters only: place_movers puts them into frames)."""
     want_person = rng.uniform() < 0.85
     want_pet = rng.uniform() < 0.6 or not want_person
     if want_person:
-        d = add_person(world, rng, foot, center, d0)
-        if d:
-            world.distractors.append(d)
+        m = draw_person(world, rng, foot, center, d0)
+        if m:
+            world.movers.append(m)
     if want_pet:
-        d = add_pet(world, rng, foot, center, d0)
-        if d:
-            world.distractors.append(d)
+        m = draw_pet(world, rng, foot, center, d0)
+        if m:
+            world.movers.append(m)

@@ -23,7 +23,7 @@ import numpy as np
 from .camera import relative_to
 from .classes import CLASS_NAMES
 from .render import render_frame
-from .world import build_world
+from .world import TAKE_ROOM_FRAMES, build_world, reshoot
 
 
 def parse_size(size: Union[int, Tuple[int, int]]) -> Tuple[int, int]:
@@ -37,15 +37,23 @@ def parse_size(size: Union[int, Tuple[int, int]]) -> Tuple[int, int]:
     return hw
 
 
-def generate_scene(seed: int, n_frames: int = 8, size=128, distractors: bool = True) -> dict:
+def generate_scene(seed: int, n_frames: int = 8, size=128, distractors: bool = True, take: int = 0) -> dict:
     """Render scene ``seed`` (any int >= 0). ``distractors=False`` gives the static version:
-    the same room and cameras with nobody in it (a clean background for every frame)."""
+    the same room and cameras with nobody in it (a clean background for every frame).
+    ``take`` >= 1: the same room, furniture and movers from another camera arc and at other
+    moments (world.reshoot; the room is the one of the seed's 8-frame scene)."""
     if n_frames < 1:
         raise ValueError("n_frames must be >= 1")
     if seed < 0:
         raise ValueError("seed must be >= 0")
+    if take < 0:
+        raise ValueError("take must be >= 0")
     h, w = parse_size(size)
-    world = build_world(int(seed), int(n_frames), w, h, distractors=distractors)
+    if take:
+        world = reshoot(build_world(int(seed), TAKE_ROOM_FRAMES, w, h, distractors=True), int(take),
+                        int(n_frames), distractors=distractors)
+    else:
+        world = build_world(int(seed), int(n_frames), w, h, distractors=distractors)
     frames = [render_frame(world, f) for f in range(n_frames)]
     out = {k: np.stack([fr[k] for fr in frames]) for k in ("rgb", "classes", "mask", "depth")}
     canon = n_frames // 2
@@ -55,6 +63,7 @@ def generate_scene(seed: int, n_frames: int = 8, size=128, distractors: bool = T
         "fxfycxcy": np.tile(world.k_norm, (n_frames, 1)),
         "has_distractors": out["mask"].reshape(n_frames, -1).any(axis=1),
         "seed": int(seed),
+        "take": int(take),
         "kind": "dynamic" if distractors else "static",
         "canonical_index": canon,
         "class_names": list(CLASS_NAMES),

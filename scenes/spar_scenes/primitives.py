@@ -48,3 +48,8 @@ class World:
     k_norm: np.ndarray               # [4] fx/W, fy/H, cx/W, cy/H
     objects: List[dict] = field(default_factory=list)      # description for scene.json
     distractors: List[dict] = field(default_factory=list)
+    # What a re-shoot of the room needs (world.reshoot): the movers' parameters
+    # (distractors.draw_movers), the furniture's (x, z) footprints and the camera arc's layout.
+    movers: List[dict] = field(default_factory=list)
+    footprints: List[tuple] = field(default_factory=list)
+    arc: dict = field(default_factory=dict)

@@ -6,17 +6,23 @@ Three independent random streams, numpy.random.default_rng([seed, stream]):
 So the static version of a scene (no distractors) has the very same room and cameras, and
 a clean background for every frame of its dynamic version.
 
+Takes (``reshoot``): take k >= 1 of a seed is the same room, furniture and movers as its
+8-frame shoot (take 0, what ``spar-scenes`` writes), seen from another camera arc on the same
+side of the room and at other moments of the movers' walks (streams [seed, 1, k] and
+[seed, 2, k]): what a model fitted to a few rooms trains on without ever seeing their frames.
+
 World axes: y up, floor at y = 0, room x in [0, W], z in [0, D]. Room faces are numbered as
 geometry.room_t returns them: 0 -x, 1 floor, 2 -z, 3 +x, 4 ceiling, 5 +z.
 """
 
+import dataclasses
 from typing import List
 
 import numpy as np
 
 from . import camera
 from .classes import CLASS_ID
-from .distractors import add_distractors
+from .distractors import draw_movers, moments_along, path_positions, place_movers
 from .primitives import Decal, Prim, World
 from .textures import random_color, random_material
 
@@ -244,8 +250,78 @@ def build_world(seed: int, n_frames: int, width: int, height: int,
     ambient = rng.uniform(0.3, 0.45)
 
     world = World(seed, width, height, n_frames, lo, hi, face_mats, decals, prims, light,
-                  ambient, c2w, k_norm, objects)
+                  ambient, c2w, k_norm, objects, footprints=list(foot.rects),
+                  arc={"center": center, "phi0": phi0, "radius": radius, "height": cam_h,
+                       "half_arc": half_arc, "target": target})
     # distractors: drawn after everything static, from their own stream
     if distractors:
-        add_distractors(world, rng_dyn, foot, center, d0)
+        draw_movers(world, rng_dyn, foot, center, d0)
+        place_movers(world, moments_along(n_frames))
     return world
+
+
+# A room is defined by its 8-frame shoot (take 0, the length of the shipped scenes): the
+# furniture keeps clear of those cameras, the movers' paths too.
+TAKE_ROOM_FRAMES = 8
+
+
+def _arc_is_clear(world, c2w, mover_xz) -> bool:
+    """Every camera inside the room, 0.45 m from the furniture's footprints and 0.5 m beyond
+    each mover's radius at every frame of the take."""
+    xz = c2w[:, [0, 2], 3]
+    lo, hi = world.lo[[0, 2]] + 0.3, world.hi[[0, 2]] - 0.3
+    if np.any(xz < lo) or np.any(xz > hi):
+        return False
+    for (x0, x1, z0, z1) in world.footprints:
+        d = np.hypot(xz[:, 0] - np.clip(xz[:, 0], x0, x1), xz[:, 1] - np.clip(xz[:, 1], z0, z1))
+        if np.any(d <= 0.45):
+            return False
+    for m, pos in mover_xz:
+        if np.min(np.linalg.norm(xz[:, None] - pos[None], axis=2)) <= m["radius"] + 0.5:
+            return False
+    return True
+
+
+def reshoot(world: World, take: int, n_frames: int, distractors: bool = True) -> World:
+    """Take ``take`` (>= 1) of ``world`` (built with its movers drawn, i.e. distractors=True):
+    the same room, furniture and movers over ``n_frames`` frames of another camera arc (its
+    angle within 0.4 rad of the shoot's, its radius, height, span, aim and focal length drawn
+    anew; the shoot's own arc with fresh jitter if 100 draws find none clear of furniture and
+    movers) and at other moments of the movers' walks (a stretch of at least a quarter of each
+    path, either way). ``distractors=False``: the same take without the movers."""
+    if take < 1:
+        raise ValueError("take must be >= 1 (take 0 is the scene itself)")
+    rng_t = np.random.default_rng([world.seed, 2, take])
+    u0 = rng_t.uniform(0.0, 0.75)
+    u1 = rng_t.uniform(u0 + 0.25, 1.0)
+    t = np.linspace(u0, u1, n_frames) if n_frames > 1 else np.full(1, u0)
+    if rng_t.uniform() < 0.5:
+        t = t[::-1].copy()
+    mover_xz = [(m, path_positions(m, t)) for m in world.movers]
+
+    rng = np.random.default_rng([world.seed, 1, take])
+    arc = world.arc
+    center = arc["center"]
+    c2w = None
+    for _ in range(100):
+        phi = arc["phi0"] + rng.uniform(-0.4, 0.4)
+        d = np.array([np.cos(phi), np.sin(phi)])
+        radius = rng.uniform(0.6, max(0.7, min(center[0], center[2]) - 0.8))
+        height = rng.uniform(1.2, 1.8)
+        half_arc = rng.uniform(0.1, 0.4)
+        reach = rng.uniform(1.0, 1.8)
+        target = np.array([center[0] - reach * d[0], rng.uniform(0.9, 1.3), center[2] - reach * d[1]])
+        cand = camera.trajectory(rng, center, n_frames, radius, height, phi, half_arc, target)
+        if _arc_is_clear(world, cand, mover_xz):
+            c2w = cand
+            break
+    if c2w is None:
+        c2w = camera.trajectory(rng, center, n_frames, arc["radius"], arc["height"], arc["phi0"],
+                                arc["half_arc"], arc["target"])
+    k_norm = camera.intrinsics(rng.uniform(0.6, 0.85), world.width, world.height)
+    shot = dataclasses.replace(world, n_frames=n_frames, c2w=c2w, k_norm=k_norm,
+                               prims=[p for p in world.prims if not p.dynamic], distractors=[],
+                               movers=list(world.movers) if distractors else [])
+    if distractors:
+        place_movers(shot, t)
+    return shot

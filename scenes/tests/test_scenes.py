@@ -65,6 +65,63 @@ def test_same_seed_same_bytes():
     assert json.dumps(a["info"]) == json.dumps(b["info"])
 
 
+SHIPPED = os.path.join(HERE, "..", "..", "samples", "data", "scenes")
+
+
+def test_shipped_scenes_are_take_0_of_their_seeds():
+    """The repository's demo scenes are what the generator makes of their seeds: the rooms a
+    model fitted to them (spar-train --fit-scenes) trains on are these rooms."""
+    from PIL import Image
+    with open(os.path.join(SHIPPED, "index.json")) as f:
+        index = json.load(f)
+    assert len(index["scenes"]) == 3
+    for sc in index["scenes"]:
+        g = generate_scene(sc["seed"], index["frames"], index["width"], distractors=True)
+        for i in range(index["frames"]):
+            png = np.asarray(Image.open(os.path.join(SHIPPED, sc["path"], "rgb_%02d.png" % i)).convert("RGB"))
+            assert np.array_equal(png, g["rgb"][i]), (sc["seed"], i)
+
+
+def _static_prims(scene):
+    return [(p.shape, p.cls, repr(sorted(p.mat.items())), p.params.tobytes())
+            for p in scene["_world"].prims if not p.dynamic]
+
+
+def test_takes_keep_the_room_and_move_cameras_and_movers():
+    """Take k >= 1: the same room (walls, decals, furniture, light) and movers (paths,
+    clothes), another camera arc, other moments of the walks; its static version has its
+    cameras; the same take twice is the same bytes."""
+    seed = 1000002                                          # a person and a pet
+    shoot = generate_scene(seed, 8, 48)
+    w0 = shoot["_world"]
+    for take in (1, 2):
+        t = generate_scene(seed, 5, 48, take=take)
+        w = t["_world"]
+        assert t["take"] == take and t["rgb"].shape == (5, 48, 48, 3)
+        assert _static_prims(t) == _static_prims(shoot)
+        assert repr(w.decals) == repr(w0.decals) and repr(w.face_mats) == repr(w0.face_mats)
+        assert np.array_equal(w.light, w0.light) and np.array_equal(w.hi, w0.hi)
+        assert [m["class"] for m in w.movers] == [m["class"] for m in w0.movers] == ["person", "pet"]
+        for m, m0 in zip(w.movers, w0.movers):
+            assert np.array_equal(m["a"], m0["a"]) and np.array_equal(m["b"], m0["b"])
+        # every camera of the take is at least 5 cm from every camera of the shoot
+        d = np.linalg.norm(t["c2w"][:, None, :3, 3] - shoot["c2w"][None, :, :3, 3], axis=2)
+        assert d.min() > 0.05, d.min()
+        # the movers stand elsewhere than in any frame of the shoot
+        heads = np.array(w.distractors[0]["head_centers"])
+        heads0 = np.array(w0.distractors[0]["head_centers"])
+        assert np.linalg.norm(heads[:, None] - heads0[None], axis=2).min() > 1e-3
+        assert t["mask"].any()
+        static = generate_scene(seed, 5, 48, distractors=False, take=take)
+        assert np.array_equal(static["c2w"], t["c2w"]) and not static["mask"].any()
+        again = generate_scene(seed, 5, 48, take=take)
+        for k in ARRAYS:
+            assert again[k].tobytes() == t[k].tobytes(), k
+    assert not np.allclose(generate_scene(seed, 5, 48, take=1)["c2w"], generate_scene(seed, 5, 48, take=2)["c2w"])
+    with pytest.raises(ValueError):
+        generate_scene(seed, 5, 48, take=-1)
+
+
 def test_different_seeds_differ():
     a, b = generate_scene(1, 3, 48), generate_scene(2, 3, 48)
     assert not np.array_equal(a["rgb"], b["rgb"])

@@ -24,7 +24,7 @@ def load(name):
 
 def main():
     if not os.path.isfile(os.path.join(OUT, "index.html")):
-        subprocess.run(["bash", os.path.join(ROOT, "scripts", "demo.sh")], check=True)
+        subprocess.run(["bash", os.path.join(ROOT, "scripts", "demo", "demo.sh")], check=True)
     tiles = []
     for k in range(3):
         img = np.asarray(load("input_%02d.png" % k)).astype(np.float64)

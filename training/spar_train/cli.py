@@ -40,6 +40,11 @@ def main(argv=None) -> int:
                    help="the scene encoder's latent tokens (64: one view's patches at 128x128; the "
                         "official model keeps three views' worth, 768 at 256x256)")
     p.add_argument("--scenes", type=int, default=400, help="train scenes in the pool")
+    p.add_argument("--fit-scenes", metavar="DIR",
+                   help="fit the model to the rooms of this spar-scenes folder (its index.json's "
+                        "seeds) instead of training on many rooms: the pool is --scenes takes of "
+                        "those rooms (other camera arcs, other moments of their movers), never "
+                        "their own frames")
     p.add_argument("--cache", help="scene pool cache directory (default: OUT/../scene-cache)")
     p.add_argument("--lseg-steps", type=int, default=300)
     p.add_argument("--lseg-batch", type=int, default=8)
@@ -92,6 +97,15 @@ def main(argv=None) -> int:
         print("spar-train: error: --minutes must be >= 0, --workers and --eval-every >= 1",
               file=sys.stderr)
         return 2
+    if a.fit_scenes:
+        from .fit import fit_seeds
+        try:
+            a.fit_seeds = fit_seeds(a.fit_scenes)
+        except ValueError as e:
+            print(f"spar-train: error: --fit-scenes {a.fit_scenes}: {e}", file=sys.stderr)
+            return 2
+    else:
+        a.fit_seeds = None
     if a.eval_scenes and not os.path.isdir(a.eval_scenes):
         print(f"spar-train: error: --eval-scenes {a.eval_scenes}: not a directory", file=sys.stderr)
         return 2

@@ -12,11 +12,13 @@ import torch
 
 from spar_scenes import copy_paste, generate_scene, split_seeds
 
+from .fit import fit_jobs
+
 
 def _render(args):
-    seed, frames, size = args
-    dyn = generate_scene(seed, n_frames=frames, size=size, distractors=True)
-    sta = generate_scene(seed, n_frames=frames, size=size, distractors=False)
+    seed, take, frames, size = args
+    dyn = generate_scene(seed, n_frames=frames, size=size, distractors=True, take=take)
+    sta = generate_scene(seed, n_frames=frames, size=size, distractors=False, take=take)
     # cameras: the same for both renderings of the room (canonical view F // 2, normalized K)
     return (seed, dyn["rgb"], dyn["classes"], dyn["mask"], sta["rgb"], sta["classes"],
             dyn["c2w_canonical"].astype(np.float32), dyn["fxfycxcy"].astype(np.float32))
@@ -25,21 +27,27 @@ def _render(args):
 class ScenePool:
     """Scenes of train seeds 0..count-1: per scene the dynamic frames (rgb, classes, motion
     mask), the same room without distractors (rgb, classes), and the frames' true cameras
-    (c2w relative to the canonical view F // 2, normalized intrinsics) for the camera loss."""
+    (c2w relative to the canonical view F // 2, normalized intrinsics) for the camera loss.
+    ``fit_seeds``: instead, ``count`` takes of those rooms (fit_jobs: other camera arcs and
+    moments of the same rooms and movers, spar_scenes.generate_scene's ``take``), for a model
+    fitted to them."""
 
     def __init__(self, count: int, frames: int, size: int, cache_dir: str, workers: int = 2,
-                 log=print):
-        path = os.path.join(cache_dir, f"pool_{count}x{frames}_{size}_cams.npz")
+                 log=print, fit_seeds=None):
+        fit = "" if not fit_seeds else "fit" + "-".join(str(int(s)) for s in fit_seeds) + "_"
+        path = os.path.join(cache_dir, f"pool_{fit}{count}x{frames}_{size}_cams.npz")
         if os.path.isfile(path):
             z = np.load(path)
             self.seeds, self.rgb, self.classes = z["seeds"], z["rgb"], z["classes"]
             self.mask, self.static_rgb, self.static_classes = z["mask"], z["static_rgb"], z["static_classes"]
             self.c2w, self.fxfycxcy = z["c2w"], z["fxfycxcy"]
+            # (pools cached before takes existed are all take 0)
+            self.takes = z["takes"] if "takes" in z.files else np.zeros(len(self.seeds), np.int64)
             log(f"scene pool: {count} scenes from {path}")
             return
         t0 = time.time()
-        seeds = split_seeds("train", count)
-        jobs = [(int(s), frames, size) for s in seeds]
+        pairs = fit_jobs(fit_seeds, count) if fit_seeds else [(int(s), 0) for s in split_seeds("train", count)]
+        jobs = [(seed, take, frames, size) for seed, take in pairs]
         with Pool(workers) as p:
             res = []
             for i, r in enumerate(p.imap(_render, jobs, chunksize=4)):
@@ -47,6 +55,7 @@ class ScenePool:
                 if (i + 1) % 50 == 0 or i + 1 == count:
                     log(f"scene pool: rendered {i + 1}/{count} scenes ({time.time() - t0:.0f} s)")
         self.seeds = np.array([r[0] for r in res])
+        self.takes = np.array([take for _, take in pairs])
         self.rgb = np.stack([r[1] for r in res])
         self.classes = np.stack([r[2] for r in res])
         self.mask = np.stack([r[3] for r in res])
@@ -58,7 +67,7 @@ class ScenePool:
         tmp = path + ".tmp.npz"
         np.savez(tmp, seeds=self.seeds, rgb=self.rgb, classes=self.classes, mask=self.mask,
                  static_rgb=self.static_rgb, static_classes=self.static_classes, c2w=self.c2w,
-                 fxfycxcy=self.fxfycxcy)
+                 fxfycxcy=self.fxfycxcy, takes=self.takes)
         os.replace(tmp, path)
 
     def __len__(self):

@@ -120,7 +120,8 @@ class Run:
         self.dev = pick_device(a.device)
         t_start = time.time()
         pool = ScenePool(a.scenes, 8, a.image_size, os.path.join(a.out, "..", "scene-cache")
-                         if a.cache is None else a.cache, workers=a.workers, log=self.log)
+                         if a.cache is None else a.cache, workers=a.workers, log=self.log,
+                         fit_seeds=getattr(a, "fit_seeds", None))
         model = self.build(pool).to(self.dev)
         heldout = None
         if a.eval_scenes:
