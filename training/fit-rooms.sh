@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
-# Remakes the demo's model fitted to the shipped rooms, samples/data/spar_rooms_fitted.spar
-# (training/README.md, "A model fitted to the shipped rooms"): trains on other takes of those
-# rooms (never their frames; seed fixed; about 80 minutes on two cores), measures it with
-# `spar eval` on the shipped scenes, and packs it with a model card saying what it is.
+# Makes a model fitted to the shipped rooms, samples/data/spar_rooms_fitted.spar (training/
+# README.md, "A model fitted to the shipped rooms"; not shipped: on this CPU the recipe stays
+# below the general model there): trains on other takes of those rooms (never their frames;
+# seed fixed; about 80 minutes on two cores), measures it with `spar eval` on the shipped
+# scenes, and packs it with a model card saying what it is.
 #
 #   bash training/fit-rooms.sh [RUN_DIR]       (default runs/fit-rooms; needs the build)
 set -euo pipefail
