@@ -76,10 +76,16 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
     const bool share = ops::cpuLanesShareFetches(caps);
     plan.gemmSharedColumns = share && !tuning.gemmTiles;
     plan.attentionSharedKeys = share && !tuning.attentionTiles;
+    // conv2d's weights: measured faster on Mesa 22.3 at 8 and 16 lanes (conv3x3 64 -> 64 at
+    // 128x128: 22.3 -> 18.8 ms and 16.4 -> 13.4 ms; CV-DRP's 1x1 head 4.3 -> 2.6 and 8.4 -> 3.7
+    // ms), not on Mesa 25.0.7 (the same 31.5 ms; the head 2.2 -> 3.8 ms), which keeps its blocks.
+    plan.convSharedWeights = share && !tuning.convTiles && ops::cpuTiles(caps) != ops::CpuTiles::Newer;
     if (share)
       plan.reasons.push_back("llvmpipe with subgroup shuffles and full subgroups: a workgroup is one subgroup whose lanes "
                              "share the texels all of them read (a texel fetch there is a call that spills the registers)" +
-                             std::string(tuning.gemmTiles || tuning.attentionTiles ? "; not where tiles are forced" : ""));
+                             std::string(tuning.gemmTiles || tuning.attentionTiles || tuning.convTiles
+                                             ? "; not where tiles are forced"
+                                             : ""));
     return plan;
   }
   plan.gemm = plan.gemmF16 = plan.attention = plan.attentionF16 = plan.conv = KernelFamily::Tiled;
@@ -208,8 +214,10 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
   if (plan.attentionF16 == KernelFamily::CoopMat)
     out.push_back("attention, fp16 layers: attention_coopmat.comp (" + std::to_string(plan.coop.m) + "x" +
                   std::to_string(plan.coop.n) + "x" + std::to_string(plan.coop.k) + " MMA)");
-  out.push_back(plan.conv == KernelFamily::CpuBlocks ? "conv2d: conv2d.comp (cpu register blocks)"
-                                                     : "conv2d: gemm_tiled.comp, CONV (implicit GEMM)");
+  out.push_back(plan.conv == KernelFamily::CpuBlocks
+                    ? std::string("conv2d: conv2d.comp (cpu register blocks") +
+                          (plan.convSharedWeights ? "; each step's weights shared by the subgroup's lanes)" : ")")
+                    : "conv2d: gemm_tiled.comp, CONV (implicit GEMM)");
   out.push_back(std::string("reductions: ") + (plan.subgroupReductions ? "subgroup operations" : "shared memory") +
                 ", workgroup shapes for " + (plan.cpuShapes ? "CPU SIMD lanes" : "GPUs"));
   for (const auto& r : plan.reasons) out.push_back("why: " + r);

@@ -59,8 +59,9 @@ struct KernelPlan {
   bool cpuShapes = true;            // workgroup shapes of the other ops: a CPU's SIMD lanes or a GPU's
   bool subgroupReductions = false;  // norms and softmax combine partial results with subgroup ops
   // CPU family on a device whose subgroup's lanes share fetches (engine/ops/cpu_tiles.h), unless
-  // the tiles are forced: the GEMM's columns (SHARED_COLUMNS) and attention's keys (SHARED_KEYS)
-  bool gemmSharedColumns = false, attentionSharedKeys = false;
+  // the tiles are forced: the GEMM's columns (SHARED_COLUMNS), attention's keys (SHARED_KEYS) and
+  // conv2d's weights (SHARED_WEIGHTS)
+  bool gemmSharedColumns = false, attentionSharedKeys = false, convSharedWeights = false;
   // Inputs read through storage buffers instead of texel buffers (the *_sx kernels): where a
   // texel binding holds fewer floats than a storage binding (Vulkan's minimum is 65536 texels
   // against 128 MiB), so splitting by the storage range is all the ops need; SPAR_INPUTS forces

@@ -17,11 +17,27 @@
 // W_QUANT: w is a block-quantized kernel (q8 / q4 by W_BITS, shaders/quant.glsl): the matrix
 // [Cout, Cin*KH*KW], each row its code words then its scales, dequantized per RGBA texel of 4
 // weights as the rows are read (TEXEL_W is 4: the host quantizes only rows of whole blocks of 32).
+//
+// SHARED_WEIGHTS (the conv2d_sw_* variants, llvmpipe): the workgroup is one subgroup of LANES
+// invocations, all of one block of output channels, so the RC x G*KH*KW weights of a step are
+// the same in every lane. On llvmpipe each texel fetch is a call that spills the accumulators,
+// and a fetch whose address is the same in every lane costs a full gather all the same: lane l
+// fetches the block's weight texels l, LANES + l, ... and every lane takes a texel from its
+// lane by a shuffle, so one fetch serves LANES texels (as gemm.comp's SHARED_COLUMNS does).
+// Every lane stays to the end (the shuffles read all of them); lanes past the plane store nothing.
 //! variant conv2d_f32 OUT4=0 W_QUANT=0
 //! variant conv2d_f32_out4 OUT4=1 W_QUANT=0
 //! variant conv2d_q_f32 OUT4=0 W_QUANT=1
 //! variant conv2d_q_f32_out4 OUT4=1 W_QUANT=1
+//! variant conv2d_sw_f32 OUT4=0 W_QUANT=0 SHARED_WEIGHTS=1
+//! variant conv2d_sw_f32_out4 OUT4=1 W_QUANT=0 SHARED_WEIGHTS=1
 #extension GL_GOOGLE_include_directive : require
+#ifndef SHARED_WEIGHTS
+#define SHARED_WEIGHTS 0
+#endif
+#if SHARED_WEIGHTS
+#extension GL_KHR_shader_subgroup_shuffle : require
+#endif
 #include "common.glsl"
 #include "quant.glsl"
 
@@ -47,6 +63,7 @@ layout(constant_id = 14) const int SHIFT = 0;
 // tiles, which GPUs want for cache locality).
 layout(constant_id = 15) const bool FLAT = false;
 layout(constant_id = 16) const int W_BITS = 8;  // W_QUANT: 8 (q8) or 4 (q4)
+layout(constant_id = 17) const int LANES = 8;   // SHARED_WEIGHTS: the workgroup's x size, one full subgroup
 
 TEXEL_INPUT(0, X, TEXEL_X)     // TEXEL_X texels
 #if W_QUANT
@@ -90,7 +107,9 @@ void main() {
   }
   const int ox0 = bx * RX;
   const int oy0 = by * RY;
-  if (ox0 >= p.Wo || oy0 >= p.Ho) return;
+  // Past the plane: tile reads are clamped in bounds, and nothing is stored.
+  const bool inPlane = ox0 < p.Wo && oy0 < p.Ho;
+  if (SHARED_WEIGHTS == 0 && !inPlane) return;
   const int unit = p.zBase + int(gl_GlobalInvocationID.z);
   const int n = unit / p.coBlocks;
   const int co0 = (unit - n * p.coBlocks) * RC;
@@ -157,8 +176,30 @@ void main() {
       }
       xOff += plane;
     }
+#if SHARED_WEIGHTS
+    // The step's weight texels of the whole block (GT a channel, channel-major), LANES apart
+    // in each lane's share; past the block's last texel a lane re-reads it (never used).
+    const int GT = G * KK / 4;
+    const int WT = (RC * GT + LANES - 1) / LANES;
+    vec4 wt[WT];
+    [[unroll]] for (int j = 0; j < WT; ++j) {
+      const int t = min(j * LANES + int(gl_SubgroupInvocationID), RC * GT - 1);
+      const int c = t / GT;
+      wt[j] = fetch_W((min(co0 + c, p.Cout - 1) * p.Cin * KK - p.wBase + ci0 * KK) / 4 + t - c * GT);
+    }
+#endif
     [[unroll]] for (int c = 0; c < RC; ++c) {
       float wv[G * KK];
+#if SHARED_WEIGHTS
+      [[unroll]] for (int t = 0; t < G * KK / 4; ++t) {
+        const int s = c * (G * KK / 4) + t;
+        const vec4 q = subgroupShuffle(wt[s / LANES], s % LANES);
+        wv[4 * t] = q.x;
+        wv[4 * t + 1] = q.y;
+        wv[4 * t + 2] = q.z;
+        wv[4 * t + 3] = q.w;
+      }
+#else
       if (TEXEL_W == 4) {
 #if W_QUANT
         const int t0 = ci0 * KK / 4;  // texel of the row
@@ -181,6 +222,7 @@ void main() {
         [[unroll]] for (int t = 0; t < G * KK; ++t) wv[t] = fetch_W(wOff[c] + ci0 * KK + t).x;
 #endif
       }
+#endif
       [[unroll]] for (int g = 0; g < G; ++g)
         [[unroll]] for (int ky = 0; ky < KH; ++ky)
           [[unroll]] for (int kx = 0; kx < KW; ++kx) {
@@ -194,6 +236,7 @@ void main() {
     }
   }
 
+  if (!inPlane) return;
   [[unroll]] for (int c = 0; c < RC; ++c) {
     const int co = co0 + c;
     if (co >= p.Cout) break;

@@ -95,15 +95,44 @@ TEST(KernelPlan, LlvmpipeSharesColumnsByDriverAndProduct) {
   };
   EXPECT_TRUE(lists(plan, "columns shared by the subgroup's lanes"));
   EXPECT_TRUE(lists(plan, "keys shared by the subgroup's lanes"));
-  KernelTuning both = forced;
-  both.attentionTiles = std::array<int, 3>{8, 16, 8};
-  const KernelPlan forcedPlan = planKernels(c, both);
-  EXPECT_FALSE(forcedPlan.gemmSharedColumns || forcedPlan.attentionSharedKeys);
+  KernelTuning all = forced;
+  all.attentionTiles = std::array<int, 3>{8, 16, 8};
+  all.convTiles = std::array<int, 5>{8, 1, 8, 8, 1};
+  const KernelPlan forcedPlan = planKernels(c, all);
+  EXPECT_FALSE(forcedPlan.gemmSharedColumns || forcedPlan.attentionSharedKeys || forcedPlan.convSharedWeights);
   EXPECT_FALSE(lists(forcedPlan, "shared by the subgroup's lanes"));
   DeviceCaps wide = c;  // 512-bit llvmpipe: 16 lanes share 16 or 32 columns (multiples of them)
   wide.subgroupSize = wide.minSubgroupSize = wide.maxSubgroupSize = 16;
   EXPECT_EQ(chooseGemmTiles(wide, {}, large, 1003).localX, 16);
   EXPECT_TRUE(chooseGemmTiles(wide, {}, large, 20).sharedColumns);
+}
+
+// conv2d's weights are shared by the lanes where that measured faster: Mesa 22.3 at 8 and 16
+// lanes, not Mesa 25 (engine/kernel_plan.cpp), never where the conv tiles are forced.
+TEST(KernelPlan, LlvmpipeSharesConvWeightsOnMesa22) {
+  DeviceCaps c = cpuCaps();
+  c.driverId = VK_DRIVER_ID_MESA_LLVMPIPE;
+  c.mesaMajor = 22;
+  c.subgroupShuffle = c.fullSubgroups = true;
+  const KernelPlan plan = planKernels(c, {});
+  EXPECT_TRUE(plan.convSharedWeights);
+  bool listed = false;
+  for (const auto& line : describePlan(plan, c)) listed |= line.find("weights shared by the subgroup's lanes") != std::string::npos;
+  EXPECT_TRUE(listed);
+  DeviceCaps wide = c;
+  wide.subgroupSize = wide.minSubgroupSize = wide.maxSubgroupSize = 16;
+  EXPECT_TRUE(planKernels(wide, {}).convSharedWeights);
+  DeviceCaps newer = c;
+  newer.mesaMajor = 25;
+  EXPECT_FALSE(planKernels(newer, {}).convSharedWeights);
+  EXPECT_TRUE(planKernels(newer, {}).gemmSharedColumns);
+  KernelTuning forced;
+  forced.convTiles = std::array<int, 5>{8, 1, 8, 8, 1};
+  EXPECT_FALSE(planKernels(c, forced).convSharedWeights);
+  EXPECT_TRUE(planKernels(c, forced).gemmSharedColumns);
+  DeviceCaps noShuffle = c;
+  noShuffle.subgroupShuffle = false;
+  EXPECT_FALSE(planKernels(noShuffle, {}).convSharedWeights);
 }
 
 TEST(KernelPlan, GpuGetsTilesSubgroupsAndMeasuredGemm) {

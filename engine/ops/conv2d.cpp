@@ -174,14 +174,21 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   // Outputs as whole vec4s (the _out4 variant) when every block row segment is: its start
   // (a multiple of cols in a row of Wo) and the binding's base on a 4-element boundary.
   const bool rowsOf4 = tiles.cols % 4 == 0 && Wo % 4 == 0;
+  // The lanes of a workgroup (one subgroup, all of one block of output channels) share each
+  // step's weight texels (conv2d.comp SHARED_WEIGHTS) where the plan says so and the weights
+  // are RGBA float texels (engine/kernel_plan.h, convSharedWeights).
+  const bool sharedWeights = engine.plan().convSharedWeights && !quantized && rgba && tiles.localY == 1 &&
+                             tiles.localX == ops::cpuLanes(caps);
   const auto kernelFor = [&](bool out4) -> const Kernel& {
     std::vector<int32_t> constants = {tiles.localX, tiles.localY, 1, int(KH), int(KW), params.stride, tiles.channels,
                                       tiles.rows, tiles.cols, G, rgba ? 4 : 1, static_cast<int>(params.act),
                                       bias.defined(), rgbaX ? 4 : 1, rgbaX ? (4 - params.padX % 4) % 4 : 0, flat};
     if (quantized) constants.push_back(w.dtype() == DType::Q8 ? 8 : 4);  // W_BITS
-    return engine.kernel({std::string(quantized ? "conv2d_q_f32" : "conv2d_f32") + (out4 ? "_out4" : ""),
+    if (sharedWeights) constants.insert(constants.end(), {8, tiles.localX});  // W_BITS (unused), LANES
+    return engine.kernel({std::string(quantized ? "conv2d_q_f32" : sharedWeights ? "conv2d_sw_f32" : "conv2d_f32") +
+                              (out4 ? "_out4" : ""),
                           {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                          sizeof(ConvPush), constants});
+                          sizeof(ConvPush), constants, sharedWeights ? uint32_t(tiles.localX) : 0u});
   };
 
   // One workgroup layer per (image, block of output channels).
