@@ -68,7 +68,8 @@ def spar_seeds(out):
            {"a": np.zeros(2, dtype=np.float16), "b": np.zeros(0, dtype=np.int64)})
     packed(out / "model_card.spar", photometric, {"a": np.zeros(2, dtype=np.float32)},
            card={"kind": "demonstration", "about": "made for the fuzzer",
-                 "measured": {"what": "K=3", "psnr_db": 18.14, "baseline": "copying", "baseline_psnr_db": 20.02}})
+                 "measured": {"what": "K=3", "psnr_db": 18.14, "baseline": "copying", "baseline_psnr_db": 20.02},
+                 "training": {"data": "takes of 3 rooms", "steps": 870, "minutes": 29.0}})
     # A SAM2.1 variant's metadata (spar-convert --sam2) and a few of its tensors under sam2.
     sam2 = {"name": "fuzz", "embed_dim": 8, "num_heads": 1, "stages": [1, 1, 2, 1], "global_att_blocks": [3],
             "window_spec": [8, 4, 6, 3], "window_pos_embed_bkg_spatial_size": [7, 7], "d_model": 64,
