@@ -50,7 +50,7 @@ bool readAsF32(const std::string& name, const Shape& shape) {
 // trunk: the four stage maps, the neck's laterals, level 2 and image_embed, feat_s0 / feat_s1,
 // and the decoder's upscaled map and 3 mask logits.
 int64_t sam2ViewFloatsAtLeast(const Sam2Config& c) {
-  const int64_t S = Sam2Config::kImageSize, side = c.tokenSide(), t = side * side, c0 = c.embedDim, d = c.dModel;
+  const int64_t S = c.imageSize, side = c.tokenSide(), t = side * side, c0 = c.embedDim, d = c.dModel;
   const int64_t firstBlock = 3 * S * S + 2 * t * c0 + t * c0 * (1 + 3 + 1 + 4 + 1);
   int64_t afterTrunk = 0;
   for (int64_t i = 0, tokens = t, width = c0; i < 4; ++i, tokens /= 4, width *= 2) afterTrunk += tokens * (width + d);
@@ -67,7 +67,7 @@ int64_t sam2ViewFloatsAtLeast(const Sam2Config& c) {
 // prompt's downscaling, the dense embedding and keys, two two-way layers and the final
 // attention at up to d wide, the upscaling, the mask logits).
 int64_t sam2ViewFloats(const Sam2Config& c, int64_t hw) {
-  const int64_t S = Sam2Config::kImageSize, side = c.tokenSide(), t = side * side, C0 = c.embedDim, d = c.dModel;
+  const int64_t S = c.imageSize, side = c.tokenSide(), t = side * side, C0 = c.embedDim, d = c.dModel;
   const int64_t s2 = t / 16, base = 3 * S * S + 2 * t * C0;  // input, embedded, the first x
   const std::vector<int64_t> ends = c.stageEnds();
   const std::vector<Sam2BlockSpec> blocks = c.blocks();

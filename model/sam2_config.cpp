@@ -52,6 +52,9 @@ Sam2Config Sam2Config::fromJson(const std::string& text) {
   c.embedDim = positive(j, "embed_dim", 1024);
   c.numHeads = positive(j, "num_heads", 64);
   c.dModel = positive(j, "d_model", 2048);
+  // absent in files packed before it was recorded: those are official variants, all at 1024
+  c.imageSize = j.contains("image_size") ? positive(j, "image_size", 2048) : 1024;
+  if (c.imageSize % 32 || c.imageSize < 64) throw Error("sam2_config: image_size must be a multiple of 32, at least 64");
   c.stages = ints(j, "stages", 4);
   c.globalAttBlocks = ints(j, "global_att_blocks", 0);
   c.windowSpec = ints(j, "window_spec", 4);

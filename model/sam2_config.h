@@ -1,7 +1,8 @@
 // A SAM2.1 variant as the packed file's `sam2_config` metadata states it (converter/FORMAT.md,
 // converter/spar_convert/sam2_config.py, whose block schedule this mirrors): the Hiera trunk's
-// widths, depths, windows and global blocks, and the neck's width. The rest of the path is
-// fixed by SAM2.1 (image 1024x1024, mask prompt 256x256, decoder of 2 layers, 8 heads).
+// widths, depths, windows and global blocks, the neck's width and the image side (1024 in every
+// official variant; smaller in test models: the trunk's maps, the image embedding and the mask
+// prompt follow it). The rest of the path is fixed by SAM2.1 (decoder of 2 layers, 8 heads).
 #pragma once
 #include <cstdint>
 #include <string>
@@ -12,10 +13,11 @@
 namespace spar {
 
 struct Sam2Config {
-  static constexpr int64_t kImageSize = 1024, kPatchStride = 4, kMaskInputSize = 256;
+  static constexpr int64_t kPatchStride = 4;
 
   std::string name;
   int64_t embedDim = 0, numHeads = 0, dModel = 256;
+  int64_t imageSize = 1024;  // the encoder's input side, a multiple of 32 (four stages of 2x)
   std::vector<int64_t> stages, globalAttBlocks, windowSpec, backgroundSize, backboneChannels;
 
   // Parses the metadata JSON; throws one line naming the field that is missing or wrong.
@@ -23,7 +25,8 @@ struct Sam2Config {
 
   std::vector<int64_t> stageEnds() const;       // the blocks whose outputs are the 4 stage maps
   std::vector<Sam2BlockSpec> blocks() const;    // per block: widths, heads, window, q pooling
-  int64_t tokenSide() const { return kImageSize / kPatchStride; }  // 256
+  int64_t tokenSide() const { return imageSize / kPatchStride; }      // 256 at 1024
+  int64_t maskInputSize() const { return imageSize / kPatchStride; }  // the mask prompt's side: 4 x the embedding's
 };
 
 }  // namespace spar

@@ -31,7 +31,7 @@ Tensor Sam2ImageEncoder::weight(const std::string& name) const {
 
 Sam2ImageFeatures Sam2ImageEncoder::encode(Recorder& rec, const Tensor& images, int64_t view,
                                            const std::function<void(Recorder&)>& flush) const {
-  const int64_t S = Sam2Config::kImageSize, side = config_.tokenSide(), C0 = config_.embedDim, d = config_.dModel;
+  const int64_t S = config_.imageSize, side = config_.tokenSide(), C0 = config_.embedDim, d = config_.dModel;
   const Tensor input = engine_.tensor({1, 3, S, S});
   sam2Preprocess(rec, images, view, input.reshape({3, S, S}));
   const Tensor embedded = engine_.tensor({1, C0, side, side});

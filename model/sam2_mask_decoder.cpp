@@ -21,7 +21,7 @@
 namespace spar {
 namespace {
 
-constexpr int64_t kHeads = 8, kMlp = 2048, kMaskTokens = 4, kPromptSide = Sam2Config::kMaskInputSize;
+constexpr int64_t kHeads = 8, kMlp = 2048, kMaskTokens = 4;
 
 struct DecoderPush {
   uint32_t total, a, b;
@@ -122,12 +122,13 @@ Sam2MaskResult Sam2MaskDecoder::decode(Recorder& rec, const Sam2ImageFeatures& f
                                        bool allMasks) const {
   const std::string op = "sam2 mask decoder";
   const int64_t d = config_.dModel, side = config_.tokenSide() / 4, up = config_.tokenSide();
+  const int64_t kPromptSide = config_.maskInputSize();
   if (!probs.defined() || probs.rank() != 3 || view < 0 || view >= probs.dim(0))
     throw Error(op + ": probs must be [V, H, W] holding view " + std::to_string(view));
   const int64_t H = probs.dim(1), W = probs.dim(2);
   Sam2MaskResult r;
 
-  // the prompt: +-10 of the view's binary mask, at 256 x 256 (bilinear, align_corners=False)
+  // the prompt: +-10 of the view's binary mask, at maskInputSize() a side (256 at 1024; bilinear, align_corners=False)
   const Tensor binary = engine_.tensor({1, 1, H, W});
   const Tensor viewProbs = engine_.tensor({H, W});
   slice(rec, probs, 0, view, 1, viewProbs.reshape({1, H, W}));

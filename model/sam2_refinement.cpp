@@ -18,7 +18,7 @@ WeightLookup sam2Weights(WeightSet& weights) {
 
 Sam2Refiner::Sam2Refiner(Engine& engine, const Sam2Config& config, const WeightLookup& weights,
                          const std::string& prefix)
-    : engine_(engine), encoder_(engine, config, weights, prefix), decoder_(engine, config, weights, prefix) {}
+    : engine_(engine), maskSide_(config.maskInputSize()), encoder_(engine, config, weights, prefix), decoder_(engine, config, weights, prefix) {}
 
 Sam2Refined Sam2Refiner::refine(const Tensor& images, const Tensor& probs,
                                  const std::function<void(const Recorder&)>& ran) {
@@ -27,7 +27,7 @@ Sam2Refined Sam2Refiner::refine(const Tensor& images, const Tensor& probs,
   if (!probs.defined() || probs.rank() != 3 || probs.dim(0) != images.dim(0) || probs.dim(1) != images.dim(2) ||
       probs.dim(2) != images.dim(3))
     throw Error("SAM2 refinement: probs " + probs.describe() + " do not match images " + images.describe());
-  const int64_t V = probs.dim(0), H = probs.dim(1), W = probs.dim(2), side = Sam2Config::kMaskInputSize;
+  const int64_t V = probs.dim(0), H = probs.dim(1), W = probs.dim(2), side = maskSide_;
 
   // which views run: one readback of V counts; the binary masks are the skipped views' output
   const Tensor counts = engine_.tensor({V}, DType::I32);

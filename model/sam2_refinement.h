@@ -55,6 +55,7 @@ class Sam2Refiner {
 
  private:
   Engine& engine_;
+  int64_t maskSide_;  // the decoder's logits and the mask prompt: Sam2Config::maskInputSize()
   Sam2ImageEncoder encoder_;
   Sam2MaskDecoder decoder_;
 };

@@ -318,6 +318,16 @@ TEST_F(Sam2ImageEncoderTest, ConfigRefusesWhatTheConverterRefuses) {
   std::string badChannels = ok;
   badChannels.replace(badChannels.find("[64, 32, 16, 8]"), 15, "[64, 32, 16, 9]");
   EXPECT_THROW(Sam2Config::fromJson(badChannels), Error);
+  // The image side: the official 1024, also where a file packed before it was recorded has none;
+  // the maps and the mask prompt follow a smaller one (the test models' 256).
+  EXPECT_EQ(Sam2Config::fromJson(ok).imageSize, 1024);
+  std::string noSize = ok;
+  noSize.replace(noSize.find(", \"image_size\": 1024"), 20, "");
+  EXPECT_EQ(Sam2Config::fromJson(noSize).imageSize, 1024);
+  std::string quarter = ok;
+  quarter.replace(quarter.find("\"image_size\": 1024"), 18, "\"image_size\": 256");
+  const Sam2Config q = Sam2Config::fromJson(quarter);
+  EXPECT_EQ(std::vector<int64_t>({q.tokenSide(), q.maskInputSize()}), std::vector<int64_t>({64, 64}));
   // Sizes no variant has, which would overflow the widths' doublings or make schedules of
   // billions of blocks: refused in one line (the fuzzer's invariants, tests/fuzz).
   auto with = [&](const std::string& from, const std::string& to) {
@@ -329,7 +339,11 @@ TEST_F(Sam2ImageEncoderTest, ConfigRefusesWhatTheConverterRefuses) {
   for (const auto& [from, to] : std::vector<std::pair<std::string, std::string>>{
            {"\"stages\": [1, 1, 2, 2]", "\"stages\": [1, 1, 2000000000, 2]"},
            {"\"embed_dim\": 8", "\"embed_dim\": 4611686018427387904"},
-           {"\"window_spec\": [8, 4, 6, 3]", "\"window_spec\": [8, 4, 6, 300]"}}) {
+           {"\"window_spec\": [8, 4, 6, 3]", "\"window_spec\": [8, 4, 6, 300]"},
+           {"\"image_size\": 1024", "\"image_size\": 1000"},   // not four stages of 2x
+           {"\"image_size\": 1024", "\"image_size\": 4096"},   // past the limit
+           {"\"image_size\": 1024", "\"image_size\": 32"}}) {  // windows of 8 on an 8-token map
+
     try {
       Sam2Config::fromJson(with(from, to));
       ADD_FAILURE() << to << " accepted";

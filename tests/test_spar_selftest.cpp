@@ -58,7 +58,7 @@ TEST(spar_selftest, PassesAndPrintsTheDeviceLimitsPlanAndVerdict) {
                            "model rgb 1x2x3x64x64", "model lseg_features 1x3x16x32x32", "model text_embeddings 4x16",
                            "model label_logits 2x4x32x32", "model label_maps 2x64x64",
                            "model refined_input 3x64x64", "model refined_target 2x64x64", "model refine_iou 5x3",
-                           "model refine_logits 5x256x256", "verdict: PASS (37 of 37 checks passed)"})
+                           "model refine_logits 5x64x64", "verdict: PASS (37 of 37 checks passed)"})
     EXPECT_NE(r.out.find(part), std::string::npos) << part << "\n" << r.out;
 }
 

@@ -14,7 +14,10 @@ modeling/backbones/hieradet.py):
 * the background position embedding is 7x7 for t, s and l and 14x14 for b+ (the official
   configs; SPAR's own builder has 14x14 for t and s and cannot load the official files);
 * the image size is 1024 (the predictor's feature sizes are fixed to it), so the trunk's maps
-  are 256, 128, 64 and 32 tokens a side and the decoder's image embedding is 64x64;
+  are 256, 128, 64 and 32 tokens a side and the decoder's image embedding is 64x64. An official
+  YAML must say 1024; the engine's own JSON form may give a smaller ``image_size`` (a multiple
+  of 32): test models, whose refinement then costs (size / 1024)^2 of the official one, while the
+  weights stay the same tensors (SAM2Base runs at any such size; only the predictor fixes 1024);
 * q-pooling at the first block of stages 2-4, dims and heads x2 there, and the window size of a
   stage's first block is the previous stage's ("lags by a block").
 """
@@ -56,8 +59,17 @@ class Sam2Config:
     window_pos_embed_bkg_spatial_size: List[int]
     d_model: int = 256
     backbone_channel_list: List[int] = field(default_factory=list)
+    image_size: int = IMAGE_SIZE
 
     # ------------------------------------------------------------------ derived sizes
+    def token_side(self) -> int:
+        """The trunk's first map, tokens a side (256 at 1024)."""
+        return self.image_size // PATCH_STRIDE
+
+    def mask_input_size(self) -> int:
+        """The mask prompt's and the low-resolution logits' side: 4 x the image embedding's."""
+        return self.image_size // PATCH_STRIDE
+
     def stage_ends(self) -> List[int]:
         return [sum(self.stages[:i + 1]) - 1 for i in range(len(self.stages))]
 
@@ -88,7 +100,7 @@ class Sam2Config:
                 raise Sam2ConfigError("%s: %d entries, expected %d" % (name, len(v), n))
             if positive and any(x <= 0 for x in v):
                 raise Sam2ConfigError("%s: %r has entries below 1" % (name, v))
-        for name in ("embed_dim", "num_heads", "d_model"):
+        for name in ("embed_dim", "num_heads", "d_model", "image_size"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v <= 0:
                 raise Sam2ConfigError("%s: %r is not a positive integer" % (name, v))
@@ -114,8 +126,11 @@ class Sam2Config:
             if (b["dim_out"] // b["heads"]) % 4:
                 raise Sam2ConfigError("block %d: heads of %d channels; the engine needs a multiple of 4"
                                       % (i, b["dim_out"] // b["heads"]))
-        # the window embedding is tiled over the 256x256 token map
-        side = IMAGE_SIZE // PATCH_STRIDE
+        if self.image_size % 32 or not 64 <= self.image_size <= 2048:
+            raise Sam2ConfigError("image_size %d: a multiple of 32 (four stages halving the "
+                                  "stride-4 map) in 64..2048" % self.image_size)
+        # the window embedding is tiled over the token map (256x256 at 1024)
+        side = self.token_side()
         if side % self.window_spec[0]:
             raise Sam2ConfigError("window_spec[0] %d does not divide the %d-token map the window "
                                   "position embedding is tiled over" % (self.window_spec[0], side))

@@ -20,7 +20,7 @@ import torch
 
 from spar_convert.convert import is_matrix, main
 from spar_convert.safetensors_file import SafetensorsFile
-from spar_convert.sam2_config import (VARIANTS, Sam2ConfigError, discarded_tensors, is_unused,
+from spar_convert.sam2_config import (VARIANTS, Sam2Config, Sam2ConfigError, discarded_tensors, is_unused,
                                       read_sam2_config, used_tensors, variant)
 from spar_convert import sam2_plan
 from spar_reference import make_checkpoint as make_spar_checkpoint, tiny
@@ -97,6 +97,24 @@ def test_official_configs():
     assert [(b["dim"], b["dim_out"], b["heads"], b["window"], b["q_pool"]) for b in blocks[1:4]] == \
         [(144, 144, 2, 8, 0), (144, 288, 4, 8, 1), (288, 288, 4, 4, 0)]
     assert blocks[23]["window"] == 0 and blocks[44]["window"] == 16 and blocks[45]["window"] == 8
+
+
+def test_image_size_official_in_yaml_smaller_in_json(tmp_path):
+    # every official variant runs at 1024, and says so in its packed JSON form
+    assert variant("t").image_size == 1024 and variant("t").to_dict()["image_size"] == 1024
+    # the engine's JSON form may give a test model a smaller side: maps and prompt follow it
+    d = dict(variant("t").to_dict(), image_size=256)
+    (tmp_path / "v.json").write_text(json.dumps(d))
+    quarter = read_sam2_config(str(tmp_path / "v.json"))
+    assert (quarter.image_size, quarter.token_side(), quarter.mask_input_size()) == (256, 64, 64)
+    for bad in (1000, 32, 4096, True):  # not four stages of 2x; windows of 8 on 8 tokens; limit; a bool
+        with pytest.raises(Sam2ConfigError, match="image_size"):
+            Sam2Config(**dict(d, image_size=bad)).validate()
+    # an official YAML stays at the predictor's 1024
+    p = tmp_path / "v.yaml"
+    p.write_text(TINY_YAML.replace("model:\n", "model:\n  image_size: 512\n", 1))
+    with pytest.raises(Sam2ConfigError, match="image_size"):
+        read_sam2_config(str(p))
 
 
 @pytest.mark.parametrize("name", list(VARIANTS))

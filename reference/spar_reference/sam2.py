@@ -83,12 +83,13 @@ def gelu(x):
 
 
 # ------------------------------------------------------------------------------- image encoder
-def preprocess(image01: torch.Tensor, dtype) -> torch.Tensor:
-    """[3, H, W] float in [0, 1] -> [1, 3, 1024, 1024]: SPAR's uint8 cast (x 255 in float32,
-    truncated), ToTensor (/ 255), bilinear Resize, Normalize."""
+def preprocess(image01: torch.Tensor, dtype, size: int = IMAGE_SIZE) -> torch.Tensor:
+    """[3, H, W] float in [0, 1] -> [1, 3, size, size] (the variant's image_size, 1024 in the
+    official ones): SPAR's uint8 cast (x 255 in float32, truncated), ToTensor (/ 255), bilinear
+    Resize, Normalize."""
     u8 = (image01.to(torch.float32) * 255.0).to(torch.uint8)
     x = u8.to(dtype)[None] / 255.0
-    x = F.interpolate(x, size=(IMAGE_SIZE, IMAGE_SIZE), mode="bilinear", align_corners=False)
+    x = F.interpolate(x, size=(size, size), mode="bilinear", align_corners=False)
     mean = torch.tensor(IMAGENET_MEAN, dtype=dtype)[None, :, None, None]
     std = torch.tensor(IMAGENET_STD, dtype=dtype)[None, :, None, None]
     return (x - mean) / std
@@ -207,11 +208,12 @@ def dense_pe(sd, side: int, dtype) -> torch.Tensor:
     return torch.cat([torch.sin(p), torch.cos(p)], dim=-1).permute(2, 0, 1)[None]
 
 
-def mask_prompt(prob: torch.Tensor, dtype) -> torch.Tensor:
-    """P(dynamic) [H, W] -> the mask logits prompt [1, 1, 256, 256] (+-10, resized)."""
+def mask_prompt(prob: torch.Tensor, dtype, size: int = MASK_INPUT_SIZE) -> torch.Tensor:
+    """P(dynamic) [H, W] -> the mask logits prompt [1, 1, size, size] (+-10, resized; the
+    variant's mask_input_size(), 256 in the official ones)."""
     binary = (prob > 0.5).to(dtype)
     logits = binary * PROMPT_SCALE + PROMPT_BIAS
-    return F.interpolate(logits[None, None], size=(MASK_INPUT_SIZE, MASK_INPUT_SIZE), mode="bilinear",
+    return F.interpolate(logits[None, None], size=(size, size), mode="bilinear",
                          align_corners=False)
 
 
@@ -309,8 +311,8 @@ def refine_view(sd, cfg: Sam2Config, image01: torch.Tensor, prob: torch.Tensor, 
     if count < SKIP_MIN or count > h * w - SKIP_MIN:
         return {"refined": binary, "skipped": True, "iou": None, "chosen": None, "logits": None,
                 "dynamic_pixels": count}
-    prompt = mask_prompt(prob, dtype)
-    feats = image_encoder(preprocess(image01, dtype), sd, cfg, record)
+    prompt = mask_prompt(prob, dtype, cfg.mask_input_size())
+    feats = image_encoder(preprocess(image01, dtype, cfg.image_size), sd, cfg, record)
     dense = prompt_dense(sd, prompt)
     pe = dense_pe(sd, feats["image_embed"].shape[-1], dtype)
     logits, iou = mask_decoder(sd, feats, dense, pe, record)

@@ -35,13 +35,15 @@ from spar_reference import sam2
 CONFIG = Sam2Config(name="tiny_test", embed_dim=8, num_heads=1, stages=[1, 1, 2, 2], global_att_blocks=[3],
                     window_spec=[8, 4, 6, 3], window_pos_embed_bkg_spatial_size=[7, 7], d_model=64,
                     backbone_channel_list=[64, 32, 16, 8]).validate()
-# The same schedule with its global block moved from the 64x64 map to the 32x32 one: 1024
-# tokens cost the float32 reference 0.7 s a view instead of 4.2 (float64: 2.7 s instead of 9).
+# The same schedule with its global block on the last map, at 256x256 images instead of 1024:
+# token maps of 64, 32, 16 and 8 a side (stage 3's windows of 6 and stage 4's of 3 still padded,
+# the position tables still resized and tiled), a 16x16 image embedding and 64x64 mask logits,
+# a sixteenth of the official size's work (SwiftShader's self-test refinement 33 s -> ~2 s).
 # The whole refinement in requests, spar render / eval and the self-test model use it; the
-# 4096-token global attention keeps its test here (CONFIG).
+# official 1024 and the 4096-token global attention keep their tests here (CONFIG).
 QUICK_CONFIG = Sam2Config(name="tiny_quick", embed_dim=8, num_heads=1, stages=[1, 1, 1, 2], global_att_blocks=[4],
                           window_spec=[8, 4, 6, 3], window_pos_embed_bkg_spatial_size=[7, 7], d_model=64,
-                          backbone_channel_list=[64, 32, 16, 8]).validate()
+                          backbone_channel_list=[64, 32, 16, 8], image_size=256).validate()
 VIEW = 1
 
 
@@ -67,7 +69,7 @@ def main(argv=None) -> None:
     record = {}
     sd64 = sam2.as_dtype(sd, CONFIG, torch.float64)
     with torch.no_grad():
-        out = sam2.image_encoder(sam2.preprocess(images[VIEW], torch.float64), sd64, CONFIG, record)
+        out = sam2.image_encoder(sam2.preprocess(images[VIEW], torch.float64, CONFIG.image_size), sd64, CONFIG, record)
     for i in range(4):
         s = np.ascontiguousarray(record["sam2_trunk_%d" % i][0].permute(1, 2, 0).numpy())  # [H, W, C]
         np.save(os.path.join(args.out, "stage_%d.npy" % i), s)
@@ -78,7 +80,8 @@ def main(argv=None) -> None:
     probs = torch.stack([torch.sigmoid(2.0 - ((yy - cy) ** 2 + (xx - cx) ** 2) / 40.0) for cy, cx in ((20, 12), (30, 25))])
     np.save(os.path.join(args.out, "probs.npy"), probs.numpy().astype(np.float32))
     with torch.no_grad():
-        prompt = sam2.mask_prompt(probs[VIEW].to(torch.float32).to(torch.float64), torch.float64)
+        prompt = sam2.mask_prompt(probs[VIEW].to(torch.float32).to(torch.float64), torch.float64,
+                                 CONFIG.mask_input_size())
         dense = sam2.prompt_dense(sd64, prompt)
         pe = sam2.dense_pe(sd64, out["image_embed"].shape[-1], torch.float64)
         rec = {}

@@ -7,9 +7,9 @@ tokens, pose estimator and heads, Plücker rays, DINOv3, CV-DRP, gating, LSeg, s
 scene encoder, renderer with its semantic head, CLIP's text tower with the full vocabulary at
 width 16, label maps) at 64x64 pixels and D 32, perturbed so every bias and statistic matters,
 packed with a tiny SAM2.1 (sam2_config(): padded windows, q pooling, a global block; the
-refinement of every view's motion mask at SAM2's fixed 1024x1024), with every weight rounded
-to a value fp16 holds exactly. Packed with --fp16 (2.6 MB instead of 5.2), the file then
-holds the very model the float64 reference ran: a device with fp16 storage reads the weights as
+refinement of every view's motion mask, at 256x256 images: SAM2.1's path at a sixteenth of
+the official 1024x1024's work), with every weight rounded to a value fp16 holds exactly.
+Packed with --fp16 (2.6 MB instead of 5.2), the file then holds the very model the float64 reference ran: a device with fp16 storage reads the weights as
 fp16, one without widens them to fp32, and both are compared with the same float64 outputs.
 
     /usr/bin/python3 tests/python/make_selftest_model.py [OUT_DIR]     (default samples/data/selftest)
@@ -20,7 +20,7 @@ writes OUT_DIR/
     reference/*.npy   the PyTorch reference's float64 output of the stages `spar selftest` checks
                       (refined_input / refined_target: SAM2's masks of CV-DRP's P(dynamic), 0/1,
                       with *.logits.npy, the chosen logits at full size, for ties at 0;
-                      refine_iou [views, 3] and refine_logits [views, 256, 256] (float32), inputs
+                      refine_iou [views, 3] and refine_logits [views, 64, 64] (float32), inputs
                       then targets),
                       the prompts' token ids (text_tokens: the tokenizer has tests of its own) and
                       label_maps.gap (each full-resolution pixel's top-two score gap: near-ties)
