@@ -45,6 +45,10 @@ def main(argv=None) -> int:
                         "seeds) instead of training on many rooms: the pool is --scenes takes of "
                         "those rooms (other camera arcs, other moments of their movers), never "
                         "their own frames")
+    p.add_argument("--init-from", metavar="MODEL.spar",
+                   help="start from the weights of this packed model (same configuration) and its "
+                        "teacher instead of a fresh initialization and a teacher trained here; its "
+                        "BatchNorms stay frozen (spar_train/init_from.py)")
     p.add_argument("--cache", help="scene pool cache directory (default: OUT/../scene-cache)")
     p.add_argument("--lseg-steps", type=int, default=300)
     p.add_argument("--lseg-batch", type=int, default=8)
@@ -106,6 +110,9 @@ def main(argv=None) -> int:
             return 2
     else:
         a.fit_seeds = None
+    if a.init_from and not os.path.isfile(a.init_from):
+        print(f"spar-train: error: --init-from {a.init_from}: no such file", file=sys.stderr)
+        return 2
     if a.eval_scenes and not os.path.isdir(a.eval_scenes):
         print(f"spar-train: error: --eval-scenes {a.eval_scenes}: not a directory", file=sys.stderr)
         return 2
@@ -124,5 +131,10 @@ def main(argv=None) -> int:
     if a.profile:
         from .profile_step import profile
         return profile(a)
+    from .init_from import InitFromError
     from .train import Run
-    return Run(a).train()
+    try:
+        return Run(a).train()
+    except InitFromError as e:   # a packed model of another configuration: one line
+        print(f"spar-train: error: {e}", file=sys.stderr)
+        return 2

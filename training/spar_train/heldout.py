@@ -15,7 +15,9 @@ KEYS = ("psnr", "ssim", "psnr_nearest_input", "psnr_mean_colour", "sem_miou", "m
 
 
 class HeldOut:
-    def __init__(self, scenes_dir: str, views: int, cfg, text_encoder, bpe: str):
+    def __init__(self, scenes_dir: str, views: int, cfg, text_encoder, bpe: str, restore=None):
+        """restore(model): the run's training modes, set again after each measurement (default:
+        train mode, DINOv3 and LSeg in eval mode)."""
         self.scenes = load_scenes(Options(checkpoint="", scenes=scenes_dir))
         frames = self.scenes[0].frames
         check_views([views], frames)
@@ -27,6 +29,7 @@ class HeldOut:
         self.inputs, self.targets = view_indices(frames, views)
         self.cfg, self.text, self.bpe = cfg, text_encoder, bpe
         self.classes = len(self.scenes[0].class_names)
+        self.restore = restore
 
     def measure(self, model) -> dict:
         """Metrics of `model` (left in the train/eval mode it was in)."""
@@ -40,9 +43,12 @@ class HeldOut:
                 acc.add(s, self.inputs, self.targets,
                         predict(lm, s, self.inputs, self.targets, "default"))
         finally:
-            model.train(was_training)
-            # the frozen parts stay in eval mode (BatchNorm statistics, dropout)
-            model._dino_v3.eval()
-            model.lseg_model.eval()
+            if was_training and self.restore is not None:
+                self.restore(model)
+            else:
+                model.train(was_training)
+                # the frozen parts stay in eval mode (BatchNorm statistics, dropout)
+                model._dino_v3.eval()
+                model.lseg_model.eval()
         r = acc.result(time.perf_counter() - t0)
         return {k: r[k] for k in KEYS + ("seconds",)}

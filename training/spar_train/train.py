@@ -14,6 +14,7 @@ from spar_reference import dino_v3, lseg as lseg_mod
 from spar_reference.cli import add_clip_text
 from spar_reference.spar import SPAR, _cosine_with_warmup
 
+from . import init_from
 from .config import small_config
 from .data import ScenePool, Sampler
 from .heldout import HeldOut
@@ -75,7 +76,17 @@ class Run:
         with open(os.path.join(a.out, "config.json"), "w") as f:
             json.dump(cfg.to_dict(), f, indent=1)
         teacher_path = a.teacher or os.path.join(a.out, "teacher.pt")
-        if os.path.isfile(teacher_path):
+        if getattr(a, "init_from", None):
+            # the packed model's own teacher: its LSeg comes with the model's weights below,
+            # its CLIP text tower from the file (a teacher trained here would not be the one
+            # its semantic head learned from)
+            from spar_reference.clip_text import CLIPTextEncoder
+            text = CLIPTextEncoder(cfg.clip).float()
+            text.load_state_dict(init_from.text_encoder_state(a.init_from))
+            text.eval()
+            lseg = lseg_mod.LSegEncoder(cfg.lseg)
+            self.log(f"teacher from {a.init_from} (its LSeg and CLIP text tower)")
+        elif os.path.isfile(teacher_path):
             t = torch.load(teacher_path)
             text = __import__("spar_reference.clip_text", fromlist=["x"]).CLIPTextEncoder(cfg.clip)
             text.load_state_dict(t["clip"])
@@ -101,7 +112,18 @@ class Run:
         dino = dino_v3.DinoV3(cfg.dino, seed=a.seed + 11)
         torch.manual_seed(a.seed)
         model = SPAR(cfg, dino=dino, lseg=lseg).float()
+        if getattr(a, "init_from", None):
+            init_from.load_into(model, a.init_from, log=self.log)
         return model
+
+    def train_modes(self, model):
+        """Training mode but for the frozen parts: DINOv3 and the LSeg teacher, and every
+        BatchNorm when the run starts from a packed model (init_from: they are identities there)."""
+        model.train()
+        model._dino_v3.eval()
+        model.lseg_model.eval()
+        if getattr(self.a, "init_from", None):
+            init_from.freeze_batch_norms(model)
 
     def checkpoint(self, model, opt, sched, step, path):
         ck = {"model": _round_to_fp16(model.state_dict()), "optimizer": _to_cpu(opt.state_dict()),
@@ -125,7 +147,8 @@ class Run:
         model = self.build(pool).to(self.dev)
         heldout = None
         if a.eval_scenes:
-            heldout = HeldOut(a.eval_scenes, a.eval_views, self.cfg, self.text, a.bpe)
+            heldout = HeldOut(a.eval_scenes, a.eval_views, self.cfg, self.text, a.bpe,
+                              restore=self.train_modes)
         sampler = Sampler(pool, a.seed, input_targets=a.input_targets, device=self.dev)
         named = [(k, p) for k, p in model.named_parameters() if p.requires_grad]
         groups = [{"params": [p for _, p in named if p.dim() != 1], "weight_decay": 0.05},
@@ -136,9 +159,7 @@ class Run:
         total = [a.steps]
         sched = torch.optim.lr_scheduler.LambdaLR(
             opt, lambda s: _cosine_with_warmup(s, a.warmup, total[0]))
-        model.train()
-        model._dino_v3.eval()
-        model.lseg_model.eval()
+        self.train_modes(model)
         self.log(f"training {sum(p.numel() for _, p in named) / 1e6:.2f} M parameters on "
                  f"{self.dev}, {a.steps} steps of {a.batch} scenes"
                  f"{f' (at most {a.minutes} min)' if a.minutes else ''}, lr {a.lr}, "

@@ -266,6 +266,9 @@ def test_scene_tokens_size_the_latent(base, capsys):
     (["--minutes", "-1"], "--minutes"),
     (["--scene-tokens", "0"], "--scene-tokens"),
     (["--eval-scenes", "/nonexistent/scenes"], "not a directory"),
+    (["--init-from", "/nonexistent/m.spar"], "--init-from /nonexistent/m.spar: no such file"),
+    (["--init-from", os.path.join(HERE, "..", "..", "samples", "data", "spar_rooms.spar"), "--scene-tokens", "24"],
+     "another configuration"),
 ])
 def test_bad_options_are_one_line_errors(tmp_path, extra, message, capsys):
     code, _, se = train_in_process(args(tmp_path / "run", "--steps", "1", *extra,
