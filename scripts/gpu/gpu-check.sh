@@ -98,8 +98,10 @@ out="$work/out"  # every step's files; the report and an archive of them go to $
 mkdir -p "$out"
 log="$out/steps.log"
 : > "$log"
-t_start=$(date +%s)
-say() { echo "[gpu-check $(( $(date +%s) - t_start ))s] $*" | tee -a "$log"; }
+# The clock and the log line from bash itself ($EPOCHSECONDS, no `date` or `tee` process a line:
+# a step logs many, and each process costs a virtual machine milliseconds).
+t_start=$EPOCHSECONDS
+say() { local line="[gpu-check $(( EPOCHSECONDS - t_start ))s] $*"; echo "$line" >> "$log"; echo "$line"; }
 
 [ -f .gpucheck/bundle.tar.xz ] || { echo "gpu-check: no .gpucheck/bundle.tar.xz (run 'pack' here first)" >&2; exit 1; }
 tar -C "$work" -xJf .gpucheck/bundle.tar.xz
@@ -153,7 +155,7 @@ bin="$work/bin.sh"
 deadline=${GPU_CHECK_SECONDS:-480}  # steps not started by then are skipped (the call's limit is 600 s)
 step() {  # step NAME SECONDS COMMAND... : runs it with a limit, its output in $out/NAME.log
   local name=$1 limit=$2; shift 2
-  local left=$(( deadline - ($(date +%s) - t_start) ))
+  local left=$(( deadline - (EPOCHSECONDS - t_start) ))
   if [ "$name" != report ] && [ $left -le 10 ]; then
     say "$name: skipped (the run's $deadline s are used up)"
     echo "$name skipped" >> "$out/steps.rc"
@@ -242,7 +244,7 @@ for t in "${model_tests[@]}"; do
 done
 
 step report 60 "$py" scripts/gpu/gpu_check_report.py "$out"
-say "done in $(( $(date +%s) - t_start )) s: $final/report.md"
+say "done in $(( EPOCHSECONDS - t_start )) s: $final/report.md"
 cp "$out/report.md" "$out/report.json" "$out/steps.log" "$final/" 2>/dev/null
 tar -C "$work" -cf - out | xz -T2 > "$final/gpu-check-all.tar.xz"
 cat "$out/report.md" 2>/dev/null

@@ -61,8 +61,8 @@ cpu=0
 [ "${1:-}" = --cpu ] && cpu=1
 out=${OUT:-$root/build/gpu-session-out}
 mkdir -p "$out/check" "$out/train"
-t0=$(date +%s)
-say() { echo "[gpu-session $(( $(date +%s) - t0 ))s] $*" | tee -a "$out/train/steps.log"; }
+t0=$EPOCHSECONDS  # bash's clock: no `date` process a line (nor `tee`)
+say() { local line="[gpu-session $(( EPOCHSECONDS - t0 ))s] $*"; echo "$line" >> "$out/train/steps.log"; echo "$line"; }
 deadline=${GPU_SESSION_SECONDS:-560}
 check_seconds=${GPU_SESSION_CHECK_SECONDS:-260}
 teacher=${GPU_SESSION_TEACHER:-$root/.gpucheck/teacher.pt}  # the rehearsal passes a tiny one
@@ -102,7 +102,7 @@ say "check: exit $check_rc, pool: exit $pool_rc (cores $cores, overlapped: $over
 # The check's report.json and steps.log are in its archive: fewer files to bring back.
 rm -f "$out/check/report.json" "$out/check/steps.log"
 
-left=$(( deadline - ($(date +%s) - t0) ))
+left=$(( deadline - (EPOCHSECONDS - t0) ))
 say "training with $left s left"
 OUT="$out/train" GPU_TRAIN_SECONDS=$left GPU_TRAIN_TEACHER="$teacher" \
   bash scripts/gpu/gpu-train.sh run "${train_args[@]}" > "$out/train.stdout" 2>&1
@@ -113,6 +113,6 @@ say "training: exit $train_rc"
 [ $check_rc = 0 ] && rm -f "$out/check.stdout"
 [ $pool_rc = 0 ] && rm -f "$out/pool.stdout"
 [ $train_rc = 0 ] && rm -f "$out/train.stdout"
-say "done in $(( $(date +%s) - t0 )) s: $(cd "$out" && find . -type f | sort | tr '\n' ' ')"
+say "done in $(( EPOCHSECONDS - t0 )) s: $(cd "$out" && find . -type f | sort | tr '\n' ' ')"
 cat "$out/check/report.md" "$out/train/summary.md" 2>/dev/null
 [ $check_rc = 0 ] && [ $train_rc = 0 ]

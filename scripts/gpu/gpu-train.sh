@@ -92,7 +92,8 @@ if [ "$mode" = pool ] || [ ! -f "$work/pool-ready" ]; then
   : > "$log"
 fi
 mkdir -p "$work"
-say() { echo "[$(date +%H:%M:%S)] $*" | tee -a "$log"; }
+# The time of day from bash's printf: no `date` process a line (nor `tee`).
+say() { local now; printf -v now '%(%H:%M:%S)T' -1; echo "[$now] $*" >> "$log"; echo "[$now] $*"; }
 py=python3                                      # there: the python3 that holds PyTorch
 [ $cpu = 1 ] && py=/usr/bin/python3
 export PYTHONUNBUFFERED=1
@@ -111,7 +112,7 @@ $py -c "import torch, numpy; print('torch', torch.__version__, 'numpy', numpy.__
   2>&1 | tee -a "$log"
 
 # (1) the scene pool, once, on every core (every core this process may use); validation scenes
-t0=$(date +%s)
+t0=$EPOCHSECONDS
 deadline=${GPU_TRAIN_SECONDS:-560}
 if [ ! -f "$work/pool-ready" ]; then
   PYTHONPATH="$(bash scripts/setup/pythonpath.sh)" $py -c "
@@ -121,7 +122,7 @@ ScenePool($scenes, 8, 128, '$work/scene-cache', workers=$cores, log=print)
 " >>"$log" 2>&1 || { say "scene pool failed"; tail -n 20 "$log"; exit 1; }
   $py scenes/spar-scenes split --split test --count $val --start 12 --out "$work/val" >>"$log" 2>&1 \
     || { say "validation scenes failed"; exit 1; }
-  say "scene pool of $scenes and $val validation scenes in $(( $(date +%s) - t0 )) s on $cores cores"
+  say "scene pool of $scenes and $val validation scenes in $(( EPOCHSECONDS - t0 )) s on $cores cores"
   echo "$scenes" > "$work/pool-ready"
 fi
 [ "$mode" = pool ] && exit 0
@@ -137,12 +138,12 @@ if [ -n "${GPU_TRAIN_TEACHER:-}" ]; then
 else
   $py training/spar-train --out "$work/teacher" "${common[@]}" --steps 1 --lseg-steps $lseg \
     >>"$log" 2>&1 || { say "teacher failed"; tail -n 20 "$log"; exit 1; }
-  say "teachers in $(( $(date +%s) - t0 )) s"
+  say "teachers in $(( EPOCHSECONDS - t0 )) s"
 fi
 
 # (3) the variants, in parallel, fitted to what is left of GPU_TRAIN_SECONDS (the call's limit
 # is 600 s): 60 s kept for writing back and a 10 % overrun
-left=$(( deadline - ($(date +%s) - t0) - 60 ))
+left=$(( deadline - (EPOCHSECONDS - t0) - 60 ))
 minutes=$(awk -v m="$minutes" -v l="$left" 'BEGIN { x = l / 66.0; if (x < m) m = x; if (m < 0.2) m = 0.2; printf "%.2f", m }')
 say "training $((${#variants[@]})) variants for $minutes min each"
 pids=()
@@ -159,7 +160,7 @@ failed=0
 for i in "${!pids[@]}"; do
   wait "${pids[$i]}" || { failed=1; say "variant ${variants[$i]%%|*} failed: $(tail -n 3 "$work/${variants[$i]%%|*}.stdout")"; }
 done
-say "variants done in $(( $(date +%s) - t0 )) s"
+say "variants done in $(( EPOCHSECONDS - t0 )) s"
 
 # (4) the best on the validation scenes, written back
 $py - "$work" "$out" "${variants[@]}" <<'PY' 2>&1 | tee -a "$log"
