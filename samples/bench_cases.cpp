@@ -9,15 +9,15 @@
 #include "engine/ops/linear.h"
 #include "engine/ops/norm.h"
 #include "engine/ops/reduce_channels.h"
+#include "engine/uniform_floats.h"
 
 namespace spar::bench {
 namespace {
 
 std::vector<float> randomValues(size_t n, uint32_t seed, float scale = 1.0f) {
   std::mt19937 rng(seed);
-  std::uniform_real_distribution<float> dist(-scale, scale);
   std::vector<float> v(n);
-  for (auto& x : v) x = dist(rng);
+  for (auto& x : v) x = uniformFloat(rng, -scale, scale);
   return v;
 }
 

@@ -8,6 +8,7 @@
 #include <cstring>
 
 #include "engine/half.h"
+#include "engine/uniform_floats.h"
 
 namespace spar::test {
 namespace {
@@ -38,9 +39,8 @@ void EngineTest::TearDown() {
 
 std::vector<float> randomUniform(size_t n, float lo, float hi, uint32_t seed) {
   std::mt19937 rng(seed);
-  std::uniform_real_distribution<float> dist(lo, hi);
   std::vector<float> v(n);
-  for (auto& x : v) x = dist(rng);
+  for (auto& x : v) x = uniformFloat(rng, lo, hi);
   return v;
 }
 

@@ -12,6 +12,7 @@
 #include <random>
 
 #include "engine/half.h"
+#include "engine/uniform_floats.h"
 #include "engine/ops/attention.h"
 #include "engine/ops/conv2d.h"
 #include "engine/ops/linear.h"
@@ -25,9 +26,8 @@ namespace {
 
 std::vector<float> uniform(size_t n, float lo, float hi, uint32_t seed) {
   std::mt19937 rng(seed);
-  std::uniform_real_distribution<float> d(lo, hi);
   std::vector<float> v(n);
-  for (float& x : v) x = d(rng);
+  for (float& x : v) x = uniformFloat(rng, lo, hi);
   return v;
 }
 
