@@ -46,7 +46,7 @@ std::vector<float> randomUniform(size_t n, float lo, float hi, uint32_t seed) {
 
 std::vector<float> randomNormal(size_t n, float mean, float stddev, uint32_t seed) {
   std::mt19937 rng(seed);
-  std::normal_distribution<float> dist(mean, stddev);
+  NormalFloats dist(mean, stddev);
   std::vector<float> v(n);
   for (auto& x : v) x = dist(rng);
   return v;

@@ -12,13 +12,13 @@
 #include <random>
 
 #include "engine/half.h"
-#include "engine/uniform_floats.h"
 #include "engine/ops/attention.h"
 #include "engine/ops/conv2d.h"
 #include "engine/ops/linear.h"
 #include "engine/ops/norm.h"
 #include "engine/ops/reduce_channels.h"
 #include "engine/ops/unary.h"
+#include "engine/uniform_floats.h"
 #include "model/quantized_matrices.h"
 
 namespace spar::cli {
@@ -199,7 +199,7 @@ SelftestCheck attentionCheck(Engine& engine) {
 SelftestCheck layerNormCheck(Engine& engine) {
   const int64_t rows = 37, d = 257;
   std::mt19937 rng(41);
-  std::normal_distribution<float> dist(1e4f, 1e-3f);
+  NormalFloats dist(1e4f, 1e-3f);
   std::vector<float> x(size_t(rows * d));
   for (float& v : x) v = dist(rng);
   const auto w = uniform(size_t(d), 0.5f, 1.5f, 42), b = uniform(size_t(d), -1, 1, 43);

@@ -93,7 +93,7 @@ if [ "$mode" = pool ] || [ ! -f "$work/pool-ready" ]; then
 fi
 mkdir -p "$work"
 # The time of day from bash's printf: no `date` process a line (nor `tee`).
-say() { local now; printf -v now '%(%H:%M:%S)T' -1; echo "[$now] $*" >> "$log"; echo "[$now] $*"; }
+say() { local line; printf -v line '[%(%H:%M:%S)T] %s' -1 "$*"; echo "$line" >> "$log"; echo "$line"; }
 py=python3                                      # there: the python3 that holds PyTorch
 [ $cpu = 1 ] && py=/usr/bin/python3
 export PYTHONUNBUFFERED=1
