@@ -9,7 +9,7 @@ raw bytes of the file (bit flips, bytes, inserts, deletes, truncation, splices),
 arguments, globals swapped for dangerous / unknown / allowed ones or the sentinel, ops deleted,
 duplicated, inserted, sentinel calls injected), the archive rewritten with valid CRCs.
 
-Deterministic for a seed. Bounded in CI (CTest py_test_checkpoint_fuzz: 20000 mutants, about
+Deterministic for a seed. Bounded in CI (CTest py_converter: 20000 mutants, about
 6 s); longer:
     SPAR_FUZZ_EXECS=100000 SPAR_FUZZ_SEED=1 /usr/bin/python3 -m pytest -q -s converter/tests/test_checkpoint_fuzz.py
 A finding is saved to $SPAR_FUZZ_FINDINGS (default: <tmp>/spar_checkpoint_fuzz/) and named in
