@@ -118,6 +118,10 @@ EngineOptions EngineOptions::fromEnvironment(EngineOptions base) {
   if (!t.coopMatTiles) t.coopMatTiles = ints<5>("SPAR_COOPMAT_TILES", "WM,WN,SGM,SGN,KSTEPS");
   if (!t.measureKernels)
     if (const char* m = env("SPAR_MEASURE_KERNELS")) t.measureKernels = std::string(m) != "0";
+  if (!t.gemmLanesSplitK)
+    if (const char* g = env("SPAR_GEMM_LANES")) t.gemmLanesSplitK = std::string(g) != "0";
+  if (!t.freezeConstants)
+    if (const char* f = env("SPAR_FREEZE_CONSTANTS")) t.freezeConstants = std::string(f) != "0";
   t.validate();
   return o;
 }

@@ -80,6 +80,28 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
     // 128x128: 22.3 -> 18.8 ms and 16.4 -> 13.4 ms; CV-DRP's 1x1 head 4.3 -> 2.6 and 8.4 -> 3.7
     // ms), not on Mesa 25.0.7 (the same 31.5 ms; the head 2.2 -> 3.8 ms), which keeps its blocks.
     plan.convSharedWeights = share && !tuning.convTiles && ops::cpuTiles(caps) != ops::CpuTiles::Newer;
+    // SwiftShader (docs/portability.md, "SwiftShader's kernels"): 1024^3 GEMM 0.6-0.8 -> 4.7
+    // GFLOPS, attention 1.0 -> 1.6.
+    const bool swiftShader = caps.driverId == VK_DRIVER_ID_GOOGLE_SWIFTSHADER;
+    plan.gemmLanesSplitK = tuning.gemmLanesSplitK.value_or(swiftShader && !tuning.gemmTiles);
+    if (plan.gemmLanesSplitK && !(caps.subgroupArithmetic && caps.fullSubgroups)) {
+      if (tuning.gemmLanesSplitK) throw Error("SPAR_GEMM_LANES=1: the device has no subgroup arithmetic with full subgroups");
+      plan.gemmLanesSplitK = false;
+    }
+    plan.freezeConstants = tuning.freezeConstants.value_or(swiftShader);
+    if (tuning.gemmLanesSplitK)
+      plan.reasons.push_back(std::string("GEMMs of fp32 weights with the subgroup's lanes splitting k (gemm_lanes.comp): ") +
+                             (plan.gemmLanesSplitK ? "forced" : "forced off") + " (SPAR_GEMM_LANES)");
+    else if (plan.gemmLanesSplitK)
+      plan.reasons.push_back("SwiftShader: GEMMs of fp32 weights with the subgroup's lanes splitting k (gemm_lanes.comp): its "
+                             "loads are vector loads only where the lanes' addresses are consecutive");
+    if (tuning.freezeConstants)
+      plan.reasons.push_back(std::string("GEMM and attention kernels: specialization constants ") +
+                             (plan.freezeConstants ? "written into the modules" : "specialized") + ": forced (SPAR_FREEZE_CONSTANTS)");
+    else if (plan.freezeConstants)
+      plan.reasons.push_back("GEMM and attention kernels: specialization constants written into the modules, attention in "
+                             "blocks of 2 queries x 4 keys: SwiftShader specializes by changing the constants' defaults, and "
+                             "its optimizer then unrolls no loop and keeps no array in registers that they bound");
     if (share)
       plan.reasons.push_back("llvmpipe with subgroup shuffles and full subgroups: a workgroup is one subgroup whose lanes "
                              "share the texels all of them read (a texel fetch there is a call that spills the registers)" +
@@ -203,12 +225,18 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
     return "gemm_tiled.comp (" + plan.gemmTiles.text() + ", small " + plan.gemmSmallTiles.text() +
            (f16 && plan.fp16Math ? ", fp16 arithmetic" : "") + ")";
   };
-  out.push_back("linear, fp32 weights: " + gemmText(plan.gemm, false));
+  out.push_back("linear, fp32 weights: " +
+                (plan.gemm == KernelFamily::CpuBlocks && plan.gemmLanesSplitK
+                     ? std::string("gemm_lanes.comp (4 x 8 a subgroup, its lanes splitting k") +
+                           (plan.freezeConstants ? "; constants written into the module)" : ")")
+                     : gemmText(plan.gemm, false)));
   out.push_back("linear, fp16 weights: " + gemmText(plan.gemmF16, true));
   out.push_back("linear, q8 / q4 weights: " + gemmText(plan.quantizedGemm(), false) + ", dequantizing");
   out.push_back(plan.attention == KernelFamily::CpuBlocks
                     ? std::string("attention: attention.comp (cpu register blocks") +
-                          (plan.attentionSharedKeys ? "; each block's keys shared by the subgroup's lanes)" : ")")
+                          (plan.attentionSharedKeys ? "; each block's keys shared by the subgroup's lanes)"
+                           : plan.freezeConstants   ? "; 2 queries x 4 keys, constants written into the module)"
+                                                    : ")")
                     : "attention: attention_tiled.comp (" + std::to_string(plan.attentionQueries) + " queries, " +
                           std::to_string(plan.attentionKeys) + "-key blocks)");
   if (plan.attentionF16 == KernelFamily::CoopMat)

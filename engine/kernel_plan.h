@@ -67,6 +67,15 @@ struct KernelPlan {
   // against 128 MiB), so splitting by the storage range is all the ops need; SPAR_INPUTS forces
   // either way. fp16 inputs are read as pairs of halves in 32-bit words: no 16-bit storage needed.
   bool storageInputs = false;
+  // The CPU family's GEMM of fp32 x and w as shaders/gemm_lanes.comp (a subgroup's lanes split
+  // k, every load one vector load) instead of gemm.comp's register blocks: SwiftShader, whose
+  // loads are per-lane gathers unless the lanes' addresses are consecutive.
+  bool gemmLanesSplitK = false;
+  // The CPU family's GEMM (gemm_lanes.comp) and attention kernels with their specialization
+  // constants written into the modules (engine/spirv_freeze.h), and attention in blocks small
+  // enough to unroll: SwiftShader optimizes a shader only as far as its constants are plain
+  // constants. (Its convolutions ran no faster so and took 3-8x longer to compile: not there.)
+  bool freezeConstants = false;
   TiledGemmTiles gemmTiles;                          // products that fill the device
   TiledGemmTiles gemmSmallTiles{32, 32, 16, 2, 2};   // products with few output tiles
   CoopMatTiles coop;

@@ -14,6 +14,7 @@
 
 #include "engine/error.h"
 #include "engine/shader_registry.h"
+#include "engine/spirv_freeze.h"
 
 namespace spar {
 namespace {
@@ -24,6 +25,7 @@ std::string keyOf(const KernelSpec& spec) {
   key += "|" + std::to_string(spec.pushBytes) + "|";
   for (auto c : spec.constants) key += std::to_string(c) + ",";
   if (spec.subgroupSize) key += "|sg" + std::to_string(spec.subgroupSize);
+  if (spec.freezeConstants) key += "|frozen";
   return key;
 }
 
@@ -155,13 +157,6 @@ VkPipeline PipelineCache::build(const Kernel& kernel, const std::string& signatu
   const DeviceCaps& caps = device_.caps();
   if (kernel.spec.subgroupSize && !caps.fullSubgroups)
     throw Error("kernel " + kernel.name + " needs full subgroups (VK_EXT_subgroup_size_control)");
-  auto words = findShader(kernel.spec.shader);
-  VkShaderModuleCreateInfo moduleInfo{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
-  moduleInfo.codeSize = words.size() * sizeof(uint32_t);
-  moduleInfo.pCode = words.data();
-  VkShaderModule module = VK_NULL_HANDLE;
-  SPAR_VK(vkCreateShaderModule(dev, &moduleInfo, nullptr, &module));
-
   std::vector<int32_t> constants = kernel.spec.constants;
   std::vector<VkSpecializationMapEntry> entries;
   for (uint32_t i = 0; i < constants.size(); ++i)
@@ -172,6 +167,19 @@ VkPipeline PipelineCache::build(const Kernel& kernel, const std::string& signatu
     entries.push_back({kStorageInputF16ConstantId, static_cast<uint32_t>(constants.size() * sizeof(int32_t)), sizeof(int32_t)});
     constants.push_back(storageInputF16Bits(kernel, signature));
   }
+
+  const auto words = findShader(kernel.spec.shader);
+  std::vector<uint32_t> frozen;
+  if (kernel.spec.freezeConstants) {  // the values go into the module itself (engine/spirv_freeze.h)
+    std::vector<std::pair<uint32_t, uint32_t>> values;
+    for (const auto& e : entries) values.push_back({e.constantID, static_cast<uint32_t>(constants[e.offset / sizeof(int32_t)])});
+    frozen = freezeSpecConstants(words, values);
+  }
+  VkShaderModuleCreateInfo moduleInfo{VK_STRUCTURE_TYPE_SHADER_MODULE_CREATE_INFO};
+  moduleInfo.codeSize = (kernel.spec.freezeConstants ? frozen.size() : words.size()) * sizeof(uint32_t);
+  moduleInfo.pCode = kernel.spec.freezeConstants ? frozen.data() : words.data();
+  VkShaderModule module = VK_NULL_HANDLE;
+  SPAR_VK(vkCreateShaderModule(dev, &moduleInfo, nullptr, &module));
   VkSpecializationInfo specInfo{};
   specInfo.mapEntryCount = static_cast<uint32_t>(entries.size());
   specInfo.pMapEntries = entries.data();
@@ -183,7 +191,7 @@ VkPipeline PipelineCache::build(const Kernel& kernel, const std::string& signatu
   info.stage.stage = VK_SHADER_STAGE_COMPUTE_BIT;
   info.stage.module = module;
   info.stage.pName = "main";
-  info.stage.pSpecializationInfo = &specInfo;
+  info.stage.pSpecializationInfo = kernel.spec.freezeConstants ? nullptr : &specInfo;
   VkPipelineShaderStageRequiredSubgroupSizeCreateInfoEXT requiredSize{
       VK_STRUCTURE_TYPE_PIPELINE_SHADER_STAGE_REQUIRED_SUBGROUP_SIZE_CREATE_INFO_EXT};
   if (kernel.spec.subgroupSize) {

@@ -48,6 +48,9 @@ struct KernelSpec {
   // workgroup's x size, is a multiple of it): the pipeline requires full subgroups, and this
   // size where the device lets a pipeline choose (DeviceCaps::requiredSubgroupSize).
   uint32_t subgroupSize = 0;
+  // Write the constants' values into the module instead of specializing it (engine/spirv_freeze.h):
+  // set by ops whose family the plan says needs it (KernelPlan::freezeConstants).
+  bool freezeConstants = false;
 };
 
 struct Kernel {

@@ -47,6 +47,52 @@ INSTANTIATE_TEST_SUITE_P(
                       LinearCase{21, 35, 9, true, Activation::Relu},
                       LinearCase{130, 768, 518, true, Activation::None}));
 
+// SwiftShader's GEMM (gemm_lanes.comp: a subgroup's lanes split k, combined by subgroupAdd;
+// its constants written into the module, engine/spirv_freeze.h) forced on this device, through
+// texel buffers and through storage buffers (SwiftShader's inputs): K below, at and past the
+// subgroup's width and not a multiple of it (the masked last trip), M and N past a block's
+// edge, bias and every activation. Where the device has no subgroup arithmetic with full
+// subgroups (some device-limit profiles) the plan must refuse it.
+TEST_F(EngineTest, LinearLanesSplitKMatchesFloat64) {
+  const DeviceCaps& caps = eng().caps();
+  if (!(caps.subgroupArithmetic && caps.fullSubgroups)) {
+    KernelTuning t = eng().options().tuning;
+    t.kernels = "cpu";
+    t.gemmLanesSplitK = true;
+    EXPECT_THROW(eng().setTuning(t), Error);
+    return;
+  }
+  const KernelTuning saved = eng().options().tuning;
+  for (const char* inputs : {"texel", "storage"}) {
+    KernelTuning t = saved;
+    t.kernels = "cpu";  // the CPU family's GEMM, also in this program's GPU-family run
+    t.gemmLanesSplitK = true;
+    t.freezeConstants = true;
+    t.inputs = inputs;
+    eng().setTuning(t);
+    ASSERT_TRUE(eng().plan().gemmLanesSplitK);
+    for (const LinearCase c : {LinearCase{7, 61, 64, false, Activation::None}, LinearCase{61, 7, 61, true, Activation::None},
+                               LinearCase{1, 1, 1, false, Activation::None}, LinearCase{33, 65, 130, true, Activation::Gelu},
+                               LinearCase{19, 40, 3, true, Activation::QuickGelu}, LinearCase{64, 17, 20, false, Activation::Silu},
+                               LinearCase{9, 30, 12, true, Activation::Sigmoid}, LinearCase{21, 35, 9, true, Activation::Relu}}) {
+      auto x = randomUniform(c.M * c.K, -1, 1, 11), w = randomUniform(c.N * c.K, -1, 1, 12);
+      auto b = c.bias ? randomUniform(c.N, -1, 1, 13) : std::vector<float>{};
+      Tensor tx = eng().fromFloats({c.M, c.K}, x), tw = eng().fromFloats({c.N, c.K}, w);
+      Tensor tb = c.bias ? eng().fromFloats({c.N}, b) : Tensor();
+      GuardedOutput y(eng(), {c.M, c.N});
+      Recorder rec(eng());
+      linear(rec, tx, tw, tb, y.tensor(), c.act);
+      rec.run();
+      const std::string what = std::string(inputs) + " " + std::to_string(c.M) + "x" + std::to_string(c.N) + "x" +
+                               std::to_string(c.K);
+      expectClose(y.read(), linearRef(x, w, b, 1, c.M, c.N, c.K, false, c.act), 1e-10 * std::max<int64_t>(1, c.K / 16),
+                  1e-4, "lanes " + what);
+      y.expectAllWritten();
+    }
+  }
+  eng().setTuning(saved);
+}
+
 // llvmpipe's plan shares a workgroup's columns among its subgroup's lanes (gemm.comp's
 // SHARED_COLUMNS, engine/ops/linear.cpp chooseGemmTiles; the other tests here: 16 columns), from
 // 2^28 multiply-adds 32 columns, 16 where N is narrower: odd M and N past the last block's edge, fp32 and q8 weights (the thresholds of the

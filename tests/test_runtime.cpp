@@ -1,10 +1,13 @@
 // The Vulkan runtime itself: device choice, memory, recorder barriers, profiling,
-// validation plumbing, fp16 conversion.
+// validation plumbing, fp16 conversion, specialization constants frozen into a module.
 #include <cstring>
+#include <map>
 
 #include "engine/engine.h"
 #include "engine/half.h"
 #include "engine/ops/linear.h"
+#include "engine/shader_registry.h"
+#include "engine/spirv_freeze.h"
 #include "tests/test_support.h"
 
 namespace spar::test {
@@ -216,6 +219,56 @@ TEST(Half, RoundsToNearestEven) {
   EXPECT_EQ(halfToFloat(floatToHalf(2.9e-8f)), 0.0f);                            // below half of it
   EXPECT_TRUE(std::isinf(halfToFloat(floatToHalf(65520.0f))));                   // IEEE: overflow to inf
   EXPECT_EQ(halfToFloat(floatToHalf(65519.0f)), 65504.0f);
+}
+
+// Each instruction of a module by its result id (types and constants have it at word 2).
+struct SpirvConstants {
+  std::map<uint32_t, uint32_t> specIdOf;                   // result id -> SpecId
+  std::map<uint32_t, std::vector<uint32_t>> instruction;   // result id -> its words (constants only)
+  int specConstants = 0;
+};
+SpirvConstants readConstants(std::span<const uint32_t> m) {
+  SpirvConstants out;
+  for (size_t i = 5; i < m.size(); i += m[i] >> 16) {
+    const uint32_t op = m[i] & 0xFFFF, n = m[i] >> 16;
+    if (op == 71 && n == 4 && m[i + 2] == 1) out.specIdOf[m[i + 1]] = m[i + 3];  // OpDecorate SpecId
+    if (op >= 41 && op <= 43) out.instruction[m[i + 2]] = {m.begin() + i, m.begin() + i + n};
+    if (op >= 48 && op <= 50) {
+      out.instruction[m[i + 2]] = {m.begin() + i, m.begin() + i + n};
+      ++out.specConstants;
+    }
+  }
+  return out;
+}
+
+// engine/spirv_freeze.h on a real kernel: gemm_lanes.comp's RM (SpecId 3, int), HAS_BIAS
+// (7, bool) given values, RN (4) left at its default 8; no specialization constant or SpecId
+// left. (Run on devices in test_linear's LinearLanesSplitKMatchesFloat64, where the validation
+// layer checks the modules.)
+TEST(SpirvFreeze, WritesTheValuesAndDropsTheSpecIds) {
+  const std::span<const uint32_t> module = findShader("gemm_lanes_f32");
+  const SpirvConstants before = readConstants(module);
+  ASSERT_GT(before.specConstants, 5);
+  std::map<uint32_t, uint32_t> idOfSpec;
+  for (const auto& [id, spec] : before.specIdOf) idOfSpec[spec] = id;
+  ASSERT_TRUE(idOfSpec.count(3) && idOfSpec.count(4) && idOfSpec.count(7));
+
+  const std::vector<uint32_t> frozen = freezeSpecConstants(module, {{3, 5}, {7, 1}, {60, 9}});
+  const SpirvConstants after = readConstants(frozen);
+  EXPECT_EQ(after.specConstants, 0);
+  EXPECT_TRUE(after.specIdOf.empty());
+  EXPECT_EQ(after.instruction.at(idOfSpec[3]), (std::vector<uint32_t>{(4u << 16) | 43, before.instruction.at(idOfSpec[3])[1], idOfSpec[3], 5}));
+  EXPECT_EQ(after.instruction.at(idOfSpec[4]).back(), 8u);                      // RN's default
+  EXPECT_EQ(after.instruction.at(idOfSpec[7])[0], (3u << 16) | 41);              // OpConstantTrue
+  EXPECT_EQ(frozen.size(), module.size() - 4 * before.specIdOf.size());
+}
+
+TEST(SpirvFreeze, RefusesWhatIsNotSpirv) {
+  const std::vector<uint32_t> words = {1, 2, 3, 4, 5, 6};
+  EXPECT_THROW(freezeSpecConstants(words, {}), Error);
+  std::vector<uint32_t> truncated(findShader("gemm_lanes_f32").begin(), findShader("gemm_lanes_f32").begin() + 40);
+  truncated.push_back(0x00FF0000u | 71);  // an instruction claiming 255 words
+  EXPECT_THROW(freezeSpecConstants(truncated, {}), Error);
 }
 
 }  // namespace

@@ -128,6 +128,12 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   const bool newer = cpu && ops::cpuTiles(engine.caps()) == ops::CpuTiles::Newer;
   const int newerQueries = headDim < 64 ? 2 : 4;
   int queriesPerInvocation = cpu ? (newer ? newerQueries : 8) : 2, keysPerBlock = cpu && headDim < 64 ? 8 : 16;
+  // Constants written into the module (SwiftShader, KernelPlan::freezeConstants): the blocks
+  // unroll, so they must stay small for its JIT (8 queries of 64-wide heads did not compile in
+  // 8 GB). 12 heads x 64, 1280 tokens: 2 x 4 1.6 GFLOPS (0.7 s to compile), 1 x 4 1.0, and 8 x
+  // 16 not frozen 1.0.
+  const bool frozen = cpu && plan.freezeConstants;
+  if (frozen) queriesPerInvocation = 2, keysPerBlock = 4;
   int localX = cpu ? ops::cpuLanes(engine.caps()) : 64;
   if (const auto& t = engine.options().tuning.attentionTiles) {
     queriesPerInvocation = (*t)[0];
@@ -141,7 +147,8 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
                                         {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
                                         sizeof(AttentionPush),
                                         {localX, 1, 1, headDim, queriesPerInvocation, keysPerBlock, causal ? 1 : 0, localX},
-                                        sharedKeys ? uint32_t(localX) : 0u});
+                                        sharedKeys ? uint32_t(localX) : 0u,
+                                        frozen});
   const int64_t perGroup = int64_t(queriesPerInvocation) * localX;
   rec.dispatch(kernel, args, push, static_cast<uint32_t>((gq.rows + perGroup - 1) / perGroup),
                static_cast<uint32_t>(heads), static_cast<uint32_t>(gq.batch));

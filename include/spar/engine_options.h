@@ -38,6 +38,13 @@ struct SPAR_API KernelTuning {
   // Measure the GPU tile candidates (GEMM, attention, cooperative matrices) at first use
   // (SPAR_MEASURE_KERNELS=1 / 0); unset: on GPUs only; off when any tile above is forced. The choice is kept in kernel-choice.json beside the pipeline cache file.
   std::optional<bool> measureKernels;
+  // Write the specialization constants' values into each module instead of specializing it
+  // (SPAR_FREEZE_CONSTANTS=1 / 0); unset: where the driver needs it to optimize (SwiftShader;
+  // engine/spirv_freeze.h).
+  std::optional<bool> freezeConstants;
+  // The CPU family's GEMMs of fp32 weights with a subgroup's lanes splitting k (gemm_lanes.comp;
+  // SPAR_GEMM_LANES=1 / 0); unset: SwiftShader's plan. Needs subgroup arithmetic and full subgroups.
+  std::optional<bool> gemmLanesSplitK;
 
   // Throws Error (one line, naming the field) for a value no kernel can take.
   void validate() const;

@@ -1,0 +1,102 @@
+#version 450
+// Linear layer as GEMM whose subgroup's lanes split k: y[b][m][n] = act(sum_k x[b][m][k] *
+// w[b][n][k] + bias[n]), fp32 x and w. Host side: engine/ops/linear.cpp (gemmLaunch, where
+// KernelPlan::gemmLanesSplitK says so).
+//
+// For JIT drivers that load a vector only when the lanes' addresses are consecutive words, and
+// otherwise one lane at a time behind a branch (SwiftShader: its loads check at run time
+// whether the lanes' offsets are equal or consecutive). gemm.comp's lanes each own rows of m,
+// so their x loads are K words apart and every one is such a per-lane gather. Here the
+// workgroup's x is one subgroup whose lane l reads words k + l of the same rows of x and w:
+// every load is one vector load. Each lane sums its share of k for an RM x RN block, and
+// subgroupAdd combines the lanes' sums once at the end. The workgroup's y subgroups take
+// consecutive blocks of columns.
+//
+// Measured on SwiftShader 5.0.0 (Subzero, 2 cores), 1024^3 (spar-bench, docs/portability.md):
+// 4.7 GFLOPS at 4 x 8 and 2 subgroups, against 0.6-0.8 for gemm.comp's blocks; the
+// specialization constants must be written into the module for it (engine/spirv_freeze.h:
+// 0.5 GFLOPS without), which the host does.
+//! variant gemm_lanes_f32 OUT_F16=0
+#extension GL_GOOGLE_include_directive : require
+#extension GL_KHR_shader_subgroup_arithmetic : require
+#include "common.glsl"
+
+layout(local_size_x_id = 0, local_size_y_id = 1, local_size_z_id = 2) in;
+layout(constant_id = 3) const int RM = 4;         // rows of y per subgroup
+layout(constant_id = 4) const int RN = 8;         // columns of y per subgroup
+layout(constant_id = 5) const int TEXEL_K = 4;    // k values per texel of the bindings (4 or 1)
+layout(constant_id = 6) const int ACT = ACT_NONE;
+layout(constant_id = 7) const bool HAS_BIAS = false;
+layout(constant_id = 8) const int LANES = 4;      // the workgroup's x size, one full subgroup
+
+TEXEL_INPUT(0, X, TEXEL_K)
+TEXEL_INPUT(1, W, TEXEL_K)
+TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
+layout(binding = 3) writeonly buffer Y { OUT_T y[]; };
+
+// Word i of x and w (fp32: the host binds no fp16 here).
+#if defined(STORAGE_INPUTS) && STORAGE_INPUTS
+#define X_AT(i) uintBitsToFloat(X_w[i])
+#define W_AT(i) uintBitsToFloat(W_w[i])
+#else
+#define X_AT(i) fetch_X((i) / TEXEL_K)[(i) % TEXEL_K]
+#define W_AT(i) fetch_W((i) / TEXEL_K)[(i) % TEXEL_K]
+#endif
+
+layout(push_constant) uniform Push {
+  int M, N, K;       // K in texels
+  int ldx, ldw;      // row strides of x and w in texels
+  int ldy;           // row stride of y in elements
+  int xBatch, wBatch, yBatch;  // batch strides (texels, texels, elements); wBatch 0 shares w
+} p;
+
+void main() {
+  const int lane = int(gl_SubgroupInvocationID);
+  const int m0 = int(gl_WorkGroupID.x) * RM;
+  const int n0 = int(gl_WorkGroupID.y * gl_WorkGroupSize.y + gl_LocalInvocationID.y) * RN;
+  const int b = int(gl_GlobalInvocationID.z);
+  const int K = p.K * TEXEL_K;  // in words
+  // Rows and columns past the edge re-read the last one; their results are not stored.
+  int xRow[RM], wRow[RN];
+  [[unroll]] for (int r = 0; r < RM; ++r) xRow[r] = (b * p.xBatch + min(m0 + r, p.M - 1) * p.ldx) * TEXEL_K + lane;
+  [[unroll]] for (int c = 0; c < RN; ++c) wRow[c] = (b * p.wBatch + min(n0 + c, p.N - 1) * p.ldw) * TEXEL_K + lane;
+
+  float acc[RM * RN];
+  [[unroll]] for (int i = 0; i < RM * RN; ++i) acc[i] = 0.0;
+#define GEMM_LANES_STEP(k, inside)                                                          \
+  {                                                                                         \
+    float a[RM], w[RN];                                                                     \
+    [[unroll]] for (int r = 0; r < RM; ++r) {                                               \
+      const float v = X_AT(xRow[r] + (k));                                                  \
+      a[r] = (inside) ? v : 0.0;                                                            \
+    }                                                                                       \
+    [[unroll]] for (int c = 0; c < RN; ++c) {                                               \
+      const float v = W_AT(wRow[c] + (k));                                                  \
+      w[c] = (inside) ? v : 0.0;                                                            \
+    }                                                                                       \
+    [[unroll]] for (int c = 0; c < RN; ++c)                                                 \
+      [[unroll]] for (int r = 0; r < RM; ++r) acc[r * RN + c] = fma(a[r], w[c], acc[r * RN + c]); \
+  }
+  // Every lane runs the same trips (no lane masked off, so every load stays a vector load);
+  // in the last, partial one the lanes past K read their row's first word and use zeros.
+  const int whole = K - K % LANES;
+  int k = 0;
+  for (; k < whole; k += LANES) GEMM_LANES_STEP(k, true)
+  if (k < K) {
+    const bool inside = k + lane < K;
+    GEMM_LANES_STEP(inside ? k : -lane, inside)
+  }
+  [[unroll]] for (int i = 0; i < RM * RN; ++i) acc[i] = subgroupAdd(acc[i]);
+
+  // Lane l stores the columns c with c % LANES == l.
+  [[unroll]] for (int r = 0; r < RM; ++r) {
+    const int m = m0 + r;
+    [[unroll]] for (int c = 0; c < RN; ++c) {
+      const int n = n0 + c;
+      if (c % LANES != lane || m >= p.M || n >= p.N) continue;
+      float v = acc[r * RN + c];
+      if (HAS_BIAS) v += fetch_BIAS(n).x;
+      y[b * p.yBatch + m * p.ldy + n] = TO_OUT(activate(v, ACT));
+    }
+  }
+}
