@@ -1,4 +1,4 @@
-// Linear layer (shaders/gemm.comp via engine/ops/linear.cpp) against a float64 reference.
+// Linear layer (shaders/gemm.comp, and gemm_lanes.comp where the plan says, via engine/ops/linear.cpp) against a float64 reference.
 #include "engine/ops/linear.h"
 
 #include <algorithm>
@@ -22,21 +22,23 @@ struct LinearCase {
 
 class LinearTest : public EngineTest, public ::testing::WithParamInterface<LinearCase> {};
 
-TEST_P(LinearTest, MatchesFloat64Reference) {
-  const auto c = GetParam();
-  auto x = randomUniform(c.M * c.K, -1, 1, 1);
-  auto w = randomUniform(c.N * c.K, -1, 1, 2);
-  auto b = c.bias ? randomUniform(c.N, -1, 1, 3) : std::vector<float>{};
-  Tensor tx = eng().fromFloats({c.M, c.K}, x), tw = eng().fromFloats({c.N, c.K}, w);
-  Tensor tb = c.bias ? eng().fromFloats({c.N}, b) : Tensor();
-  GuardedOutput y(eng(), {c.M, c.N});
-  Recorder rec(eng());
+// One product of random values in [-1, 1] (seeds seed .. seed + 2) against float64.
+void expectLinearMatches(Engine& engine, const LinearCase& c, uint32_t seed, const std::string& what) {
+  auto x = randomUniform(c.M * c.K, -1, 1, seed), w = randomUniform(c.N * c.K, -1, 1, seed + 1);
+  auto b = c.bias ? randomUniform(c.N, -1, 1, seed + 2) : std::vector<float>{};
+  Tensor tx = engine.fromFloats({c.M, c.K}, x), tw = engine.fromFloats({c.N, c.K}, w);
+  Tensor tb = c.bias ? engine.fromFloats({c.N}, b) : Tensor();
+  GuardedOutput y(engine, {c.M, c.N});
+  Recorder rec(engine);
   linear(rec, tx, tw, tb, y.tensor(), c.act);
   rec.run();
-  auto ref = linearRef(x, w, b, 1, c.M, c.N, c.K, false, c.act);
-  expectClose(y.read(), ref, 1e-10 * std::max<int64_t>(1, c.K / 16), 1e-4, "linear");
+  const std::string shape = std::to_string(c.M) + "x" + std::to_string(c.N) + "x" + std::to_string(c.K);
+  expectClose(y.read(), linearRef(x, w, b, 1, c.M, c.N, c.K, false, c.act), 1e-10 * std::max<int64_t>(1, c.K / 16), 1e-4,
+              what + " " + shape);
   y.expectAllWritten();
 }
+
+TEST_P(LinearTest, MatchesFloat64Reference) { expectLinearMatches(eng(), GetParam(), 1, "linear"); }
 
 INSTANTIATE_TEST_SUITE_P(
     OddShapes, LinearTest,
@@ -75,19 +77,7 @@ TEST_F(EngineTest, LinearLanesSplitKMatchesFloat64) {
                                LinearCase{1, 1, 1, false, Activation::None}, LinearCase{33, 65, 130, true, Activation::Gelu},
                                LinearCase{19, 40, 3, true, Activation::QuickGelu}, LinearCase{64, 17, 20, false, Activation::Silu},
                                LinearCase{9, 30, 12, true, Activation::Sigmoid}, LinearCase{21, 35, 9, true, Activation::Relu}}) {
-      auto x = randomUniform(c.M * c.K, -1, 1, 11), w = randomUniform(c.N * c.K, -1, 1, 12);
-      auto b = c.bias ? randomUniform(c.N, -1, 1, 13) : std::vector<float>{};
-      Tensor tx = eng().fromFloats({c.M, c.K}, x), tw = eng().fromFloats({c.N, c.K}, w);
-      Tensor tb = c.bias ? eng().fromFloats({c.N}, b) : Tensor();
-      GuardedOutput y(eng(), {c.M, c.N});
-      Recorder rec(eng());
-      linear(rec, tx, tw, tb, y.tensor(), c.act);
-      rec.run();
-      const std::string what = std::string(inputs) + " " + std::to_string(c.M) + "x" + std::to_string(c.N) + "x" +
-                               std::to_string(c.K);
-      expectClose(y.read(), linearRef(x, w, b, 1, c.M, c.N, c.K, false, c.act), 1e-10 * std::max<int64_t>(1, c.K / 16),
-                  1e-4, "lanes " + what);
-      y.expectAllWritten();
+      expectLinearMatches(eng(), c, 11, std::string("lanes, ") + inputs + " inputs,");
     }
   }
   eng().setTuning(saved);
