@@ -354,6 +354,11 @@ void Recorder::collectTimings(const std::vector<Pipeline*>& pipelines) {
   }
 }
 
+Tensor Recorder::scratch(int64_t elements) {
+  if (!scratch_.defined() || scratch_.numel() < elements) scratch_ = engine_.tensor({elements});
+  return scratch_.view(0, {elements});
+}
+
 double Recorder::totalMs() const {
   double t = 0;
   for (const auto& d : timings_) t += d.ms;

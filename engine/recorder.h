@@ -72,6 +72,12 @@ class Recorder {
 
   Engine& engine() { return engine_; }
 
+  // A buffer of `elements` floats that this recorder keeps until it is destroyed and hands to
+  // every caller (its barriers order the uses, as for any buffer): for ops that stage data
+  // between two of their own dispatches (conv2d's im2col patches, engine/ops/conv2d.cpp). A
+  // larger request replaces it (the old one lives until its dispatches complete).
+  Tensor scratch(int64_t elements);
+
  private:
   struct Pending {
     const Kernel* kernel = nullptr;
@@ -98,6 +104,7 @@ class Recorder {
   VkFence fence_ = VK_NULL_HANDLE;
   std::vector<Pending> pending_;
   size_t barrierCount_ = 0;
+  Tensor scratch_;  // scratch()
 
   std::vector<VkDescriptorPool> descriptorPools_;
   size_t currentPool_ = 0;

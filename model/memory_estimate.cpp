@@ -265,6 +265,10 @@ MemoryNeed estimateMemory(const PackedModel& model, const SparConfig& c, const M
          uint64_t(rMax * std::max<int64_t>(q.prompts, 1) * (hw / 4)) * 4});
     upper += largest;
   }
+  // engine/ops/conv2d.cpp, conv2dAsIm2colGemm: the patches, in the scratch of each recorder
+  // that records a convolution (Recorder::scratch), of which two may be alive at once (a
+  // stage's and a setup's inside it)
+  upper += 2 * q.im2colBandBytes;
   need.upperBytes = std::max<uint64_t>(upper, q.peakBefore);
   return need;
 }

@@ -1,7 +1,8 @@
 #version 450
 // Linear layer as GEMM whose subgroup's lanes split k: y[b][m][n] = act(sum_k x[b][m][k] *
 // w[b][n][k] + bias[n]), fp32 x and w. Host side: engine/ops/linear.cpp (gemmLaunch, where
-// KernelPlan::gemmLanesSplitK says so).
+// KernelPlan::gemmLanesSplitK says so; gemmLanesRowBias for conv2d's im2col products, whose
+// bias is per row m: BIAS_PER_ROW).
 //
 // For JIT drivers that load a vector only when the lanes' addresses are consecutive words, and
 // otherwise one lane at a time behind a branch (SwiftShader: its loads check at run time
@@ -28,6 +29,7 @@ layout(constant_id = 5) const int TEXEL_K = 4;    // k values per texel of the b
 layout(constant_id = 6) const int ACT = ACT_NONE;
 layout(constant_id = 7) const bool HAS_BIAS = false;
 layout(constant_id = 8) const int LANES = 4;      // the workgroup's x size, one full subgroup
+layout(constant_id = 9) const bool BIAS_PER_ROW = false;  // bias[m] instead of bias[n]
 
 TEXEL_INPUT(0, X, TEXEL_K)
 TEXEL_INPUT(1, W, TEXEL_K)
@@ -48,6 +50,7 @@ layout(push_constant) uniform Push {
   int ldx, ldw;      // row strides of x and w in texels
   int ldy;           // row stride of y in elements
   int xBatch, wBatch, yBatch;  // batch strides (texels, texels, elements); wBatch 0 shares w
+  int yBase;         // y[0][0] in y's binding
 } p;
 
 void main() {
@@ -95,8 +98,8 @@ void main() {
       const int n = n0 + c;
       if (c % LANES != lane || m >= p.M || n >= p.N) continue;
       float v = acc[r * RN + c];
-      if (HAS_BIAS) v += fetch_BIAS(n).x;
-      y[b * p.yBatch + m * p.ldy + n] = TO_OUT(activate(v, ACT));
+      if (HAS_BIAS) v += fetch_BIAS(BIAS_PER_ROW ? m : n).x;
+      y[p.yBase + b * p.yBatch + m * p.ldy + n] = TO_OUT(activate(v, ACT));
     }
   }
 }

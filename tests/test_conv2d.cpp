@@ -304,6 +304,8 @@ TEST_F(EngineTest, Conv2dRejectsBadShapes) {
   Conv2dParams pad1;
   pad1.padY = pad1.padX = 1;
   EXPECT_NO_THROW(conv2d(rec, x, w, b, y, pad1));
+  const size_t recorded = rec.pending();  // one dispatch, or im2col's two (where the plan has the lanes GEMM)
+  EXPECT_GE(recorded, 1u);
   EXPECT_THROW(conv2d(rec, x, w, b, y), Error);  // no padding: output would be 6x6
   EXPECT_THROW(conv2d(rec, x, eng().tensor({6, 5, 3, 3}), b, y, pad1), Error);            // Cin mismatch
   EXPECT_THROW(conv2d(rec, x, w, eng().tensor({5}), y, pad1), Error);                     // bias size
@@ -317,8 +319,58 @@ TEST_F(EngineTest, Conv2dRejectsBadShapes) {
   if (eng().caps().supportsFp16Storage()) {
     EXPECT_THROW(conv2d(rec, eng().tensor({1, 4, 8, 8}, DType::F16), w, b, y, pad1), Error);  // f32 only
   }
-  EXPECT_EQ(rec.pending(), 1u);
+  EXPECT_EQ(rec.pending(), recorded);  // the refused calls recorded nothing
   rec.run();
+}
+
+// SwiftShader's convolutions (KernelPlan::gemmLanesSplitK): im2col (shaders/im2col.comp) and the
+// lanes GEMM with the bias per row (gemmLanesRowBias), forced on this device through texel and
+// storage inputs, constants written into the modules: padding, stride 2, 1x1, 5x5, K not a
+// multiple of 4 or of the subgroup, every activation, and a plane in two bands of output rows
+// (64 channels x 3x3 at 128 columns: 14 rows a band of the 4 MiB of patches).
+TEST_F(EngineTest, Conv2dIm2colLanesGemmMatchesFloat64) {
+  const DeviceCaps& caps = eng().caps();
+  const KernelTuning saved = eng().options().tuning;
+  if (!(caps.subgroupArithmetic && caps.fullSubgroups)) {  // some device-limit profiles: the plan refuses it
+    KernelTuning t = saved;
+    t.kernels = "cpu";
+    t.gemmLanesSplitK = true;
+    EXPECT_THROW(eng().setTuning(t), Error);
+    return;
+  }
+  for (const char* inputs : {"texel", "storage"}) {
+    KernelTuning t = saved;
+    t.kernels = "cpu";
+    t.gemmLanesSplitK = true;
+    t.freezeConstants = true;
+    t.inputs = inputs;
+    eng().setTuning(t);
+    for (const ConvCase& c : {ConvCase{1, 7, 13, 13, 61, 3, 3, 1, 1, 1, true, Activation::None},
+                              ConvCase{2, 61, 13, 7, 7, 3, 3, 2, 1, 1, false, Activation::Gelu},
+                              ConvCase{1, 3, 61, 61, 16, 3, 3, 2, 0, 0, true, Activation::Silu},
+                              ConvCase{2, 13, 61, 17, 5, 1, 1, 2, 0, 0, false, Activation::QuickGelu},
+                              ConvCase{3, 4, 9, 8, 9, 5, 5, 1, 2, 2, true, Activation::Sigmoid},
+                              ConvCase{3, 16, 21, 12, 1, 1, 1, 1, 0, 0, true, Activation::Relu},
+                              ConvCase{1, 64, 16, 128, 5, 3, 3, 1, 1, 1, true, Activation::Gelu}}) {
+      // texel inputs: only where an image fits one texel binding (SwiftShader's hold 65536)
+      if (t.inputs == "texel" && uint64_t(c.Cin * c.H * c.W) > caps.maxTexelBufferElements) continue;
+      auto x = randomUniform(c.N * c.Cin * c.H * c.W, -1, 1, 31);
+      auto w = randomUniform(c.Cout * c.Cin * c.KH * c.KW, -1, 1, 32);
+      auto b = randomUniform(c.Cout, -1, 1, 33);
+      Tensor tx = eng().fromFloats({c.N, c.Cin, c.H, c.W}, x), tw = eng().fromFloats({c.Cout, c.Cin, c.KH, c.KW}, w);
+      Tensor tb = c.bias ? eng().fromFloats({c.Cout}, b) : Tensor();
+      GuardedOutput y(eng(), outShape(c));
+      Recorder rec(eng());
+      conv2d(rec, tx, tw, tb, y.tensor(), paramsOf(c));
+      const int64_t Ho = outShape(c)[2], bands = c.Cin == 64 ? 2 : 1;
+      EXPECT_EQ(rec.pending(), size_t(2 * c.N * bands)) << describe(c);  // im2col and the GEMM per band
+      rec.run();
+      expectClose(y.read(), conv2dRef(c, x, w, c.bias ? b : std::vector<float>{}), 1e-8, 1e-4,
+                  std::string("im2col, ") + inputs + " inputs, " + describe(c) + ", " + std::to_string(Ho) + " rows");
+      y.expectAllWritten();
+    }
+  }
+  eng().setTuning(saved);
 }
 
 }  // namespace

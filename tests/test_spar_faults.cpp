@@ -111,6 +111,19 @@ TEST(spar_faults, MemoryEstimatesBracketThePeak) {
   EXPECT_GT(counts()["max_input_views"].get<int64_t>(), 3);
 }
 
+// The same where convolutions run as im2col and the lanes GEMM (SwiftShader's plan, forced
+// here: engine/ops/conv2d.cpp): the recorders' patch scratch is in the upper bound.
+TEST(spar_faults, MemoryEstimatesBracketThePeakWithIm2colConvolutions) {
+  const CommandResult r = render("SPAR_KERNELS=cpu SPAR_GEMM_LANES=1");
+  ASSERT_EQ(r.code, 0) << r.err;
+  std::ifstream in(out() / "report.json");
+  const auto report = nlohmann::json::parse(in);
+  bool im2col = false;
+  for (const auto& k : report["kernels"]["list"]) im2col = im2col || k["name"].get<std::string>().rfind("im2col", 0) == 0;
+  EXPECT_TRUE(im2col);
+  expectMemoryBounds(report, "targets and a path, tiny model, im2col convolutions");
+}
+
 // Less memory than the estimate: refused before any work, saying how much it needs.
 TEST(spar_faults, RequestLargerThanTheDeviceIsRefusedBeforeWork) {
   const uint64_t needMiB = counts()["estimated_min_bytes"].get<uint64_t>() >> 20;

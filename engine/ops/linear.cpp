@@ -17,6 +17,7 @@ namespace {
 
 struct GemmPush {
   int32_t M, N, K, ldx, ldw, ldy, xBatch, wBatch, yBatch;
+  int32_t yBase = 0;  // gemm_lanes.comp only: y[0][0] in y's binding
 };
 
 // The kernel of a product and the outputs one workgroup covers (rows x columns).
@@ -24,6 +25,20 @@ struct GemmLaunch {
   const Kernel* kernel;
   int64_t rowsPerGroup, colsPerGroup;
 };
+
+// gemm_lanes.comp (KernelPlan::gemmLanesSplitK): 4 rows x 8 columns a subgroup, 2 subgroups a
+// workgroup: on SwiftShader (1024^3) 4.7 GFLOPS, against 3.7-3.9 for 4 x 4 and 8 x 8 and 4.1
+// for 8 x 4 with 4 subgroups. biasPerRow: bias[m] (conv2d's im2col products) instead of bias[n].
+GemmLaunch lanesLaunch(Engine& engine, int texelK, Activation act, bool hasBias, bool biasPerRow) {
+  const int lanes = int(engine.caps().subgroupSize), rows = 4, cols = 8, subgroups = 2;
+  const Kernel& k = engine.kernel({"gemm_lanes_f32",
+                                   {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                                   sizeof(GemmPush),
+                                   {lanes, subgroups, 1, rows, cols, texelK, static_cast<int>(act), hasBias, lanes, biasPerRow},
+                                   uint32_t(lanes),
+                                   engine.plan().freezeConstants});
+  return {&k, rows, int64_t(cols) * subgroups};
+}
 
 // By the device's plan (engine/kernel_plan.h): gemm.comp's register blocks on CPU devices
 // (gemm_lanes.comp for fp32 x and w where the plan splits k among lanes), gemm_tiled.comp's
@@ -68,18 +83,8 @@ GemmLaunch gemmLaunch(Engine& engine, DType xType, DType wType, DType yType, int
     const Kernel& k = engine.kernel({name, {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write}, sizeof(GemmPush), constants});
     return {&k, t.bm, t.bn};
   }
-  if (family == KernelFamily::CpuBlocks && plan.gemmLanesSplitK && xType == DType::F32 && wType == DType::F32 && !f16Out) {
-    // 4 rows x 8 columns a subgroup, 2 subgroups a workgroup: on SwiftShader (1024^3) 4.7
-    // GFLOPS, against 3.7-3.9 for 4 x 4 and 8 x 8 and 4.1 for 8 x 4 with 4 subgroups.
-    const int lanes = int(caps.subgroupSize), rows = 4, cols = 8, subgroups = 2;
-    const Kernel& k = engine.kernel({"gemm_lanes_f32",
-                                     {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                                     sizeof(GemmPush),
-                                     {lanes, subgroups, 1, rows, cols, texelK, static_cast<int>(act), hasBias, lanes},
-                                     uint32_t(lanes),
-                                     plan.freezeConstants});
-    return {&k, rows, int64_t(cols) * subgroups};
-  }
+  if (family == KernelFamily::CpuBlocks && plan.gemmLanesSplitK && xType == DType::F32 && wType == DType::F32 && !f16Out)
+    return lanesLaunch(engine, texelK, act, hasBias, false);
   GemmTiles tiles = chooseGemmTiles(caps, engine.options().tuning, double(B) * double(M) * double(N) * double(K), N);
   // Small outputs (heads with N = 1 or 9, a handful of rows) would mostly compute clamped
   // duplicates with big blocks: on GPUs the blocks are halved down to the problem. CPU blocks
@@ -250,5 +255,30 @@ void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& 
 }
 
 }  // namespace
+
+void gemmLanesRowBias(Recorder& rec, const Tensor& a, const Tensor& b, const Tensor& bias, const Tensor& y, int64_t ldy,
+                      Activation act) {
+  Engine& engine = rec.engine();
+  if (!engine.plan().gemmLanesSplitK) throw Error("gemmLanesRowBias: the device's plan has no lanes GEMM");
+  if (a.rank() != 2 || b.rank() != 2 || a.dim(1) != b.dim(1) || a.dtype() != DType::F32 || b.dtype() != DType::F32 ||
+      y.dtype() != DType::F32)
+    throw Error("gemmLanesRowBias: a " + a.describe() + " and b " + b.describe() + " must be fp32 [M, K] and [N, K]");
+  const int64_t M = a.dim(0), N = b.dim(0), K = a.dim(1);
+  if (M == 0 || N == 0) return;
+  if (K == 0) throw Error("gemmLanesRowBias: K = 0");
+  if (ldy < N || y.numel() != (M - 1) * ldy + N)
+    throw Error("gemmLanesRowBias: y " + y.describe() + " does not hold " + std::to_string(M) + " rows of " +
+                std::to_string(N) + " a stride " + std::to_string(ldy) + " apart");
+  if (bias.defined() && bias.numel() != M) throw Error("gemmLanesRowBias: bias " + bias.describe() + " should have " + std::to_string(M));
+  const int texelK = K % 4 == 0 ? 4 : 1;
+  const GemmLaunch launch = lanesLaunch(engine, texelK, act, bias.defined(), true);
+  const Tensor ax = ops::alignedInput(rec, a, true), bx = ops::alignedInput(rec, b, true);
+  const Tensor biasArg = bias.defined() ? ops::alignedInput(rec, bias, true) : ax;
+  const ops::BoundRange yr = ops::bindRange(engine.caps(), y, 0, y.numel(), false);
+  const int32_t kTexels = int32_t(K / texelK);
+  GemmPush push{int32_t(M), int32_t(N), kTexels, kTexels, kTexels, int32_t(ldy), 0, 0, 0, -yr.base};
+  rec.dispatch(*launch.kernel, {Arg::texel(ax, texelK), Arg::texel(bx, texelK), Arg::texel(biasArg, 1), Arg::out(yr.view)},
+               push, ops::ceilDiv(M, launch.rowsPerGroup), ops::ceilDiv(N, launch.colsPerGroup), 1);
+}
 
 }  // namespace spar

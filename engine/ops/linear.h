@@ -28,4 +28,11 @@ GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, do
 void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
             Activation act = Activation::None);
 
+// conv2d's im2col products (engine/ops/conv2d.cpp) on the lanes GEMM (shaders/gemm_lanes.comp;
+// only where KernelPlan::gemmLanesSplitK): y[m * ldy + n] = act(sum_k a[m][k] * b[n][k] + bias[m])
+// for fp32 a: [M, K], b: [N, K], bias: [M] or undefined; y: the (M - 1) * ldy + N elements from
+// the first row's start (a block of columns of a wider matrix). Every binding must fit the device.
+void gemmLanesRowBias(Recorder& rec, const Tensor& a, const Tensor& b, const Tensor& bias, const Tensor& y, int64_t ldy,
+                      Activation act);
+
 }  // namespace spar
