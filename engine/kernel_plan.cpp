@@ -95,8 +95,8 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
                              (plan.gemmLanesSplitK ? "forced" : "forced off") + " (SPAR_GEMM_LANES)");
     else if (plan.gemmLanesSplitK)
       plan.reasons.push_back("SwiftShader: GEMMs of fp32 weights with the subgroup's lanes splitting k (gemm_lanes.comp), "
-                             "and convolutions as im2col and that GEMM: its loads are vector loads only where the lanes' "
-                             "addresses are consecutive");
+                             "and convolutions (transposed ones too) as im2col and that GEMM: its loads are vector "
+                             "loads only where the lanes' addresses are consecutive");
     if (tuning.freezeConstants)
       plan.reasons.push_back(std::string("GEMM and attention kernels: specialization constants ") +
                              (plan.freezeConstants ? "written into the modules" : "specialized") + ": forced (SPAR_FREEZE_CONSTANTS)");
@@ -245,7 +245,8 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
     out.push_back("attention, fp16 layers: attention_coopmat.comp (" + std::to_string(plan.coop.m) + "x" +
                   std::to_string(plan.coop.n) + "x" + std::to_string(plan.coop.k) + " MMA)");
   out.push_back(plan.conv == KernelFamily::CpuBlocks && plan.gemmLanesSplitK
-                    ? std::string("conv2d: im2col.comp and gemm_lanes.comp (fp32 kernels; quantized ones conv2d.comp)")
+                    ? std::string("conv2d, conv_transpose2d: im2col.comp and gemm_lanes.comp (fp32 kernels; quantized "
+                                  "ones conv2d.comp)")
                 : plan.conv == KernelFamily::CpuBlocks
                     ? std::string("conv2d: conv2d.comp (cpu register blocks") +
                           (plan.convSharedWeights ? "; each step's weights shared by the subgroup's lanes)" : ")")

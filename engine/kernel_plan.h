@@ -70,7 +70,7 @@ struct KernelPlan {
   // The CPU family's GEMM of fp32 x and w as shaders/gemm_lanes.comp (a subgroup's lanes split
   // k, every load one vector load) instead of gemm.comp's register blocks: SwiftShader, whose
   // loads are per-lane gathers unless the lanes' addresses are consecutive. fp32 convolutions
-  // then run as im2col and that GEMM (engine/ops/conv2d.cpp, conv2dAsIm2colGemm).
+  // then run as im2col and that GEMM (engine/ops/im2col.h: conv2d, conv_transpose2d).
   bool gemmLanesSplitK = false;
   // The CPU family's GEMM (gemm_lanes.comp) and attention kernels with their specialization
   // constants written into the modules (engine/spirv_freeze.h), and attention in blocks small

@@ -1,8 +1,9 @@
 #version 450
 // Linear layer as GEMM whose subgroup's lanes split k: y[b][m][n] = act(sum_k x[b][m][k] *
 // w[b][n][k] + bias[n]), fp32 x and w. Host side: engine/ops/linear.cpp (gemmLaunch, where
-// KernelPlan::gemmLanesSplitK says so; gemmLanesRowBias for conv2d's im2col products, whose
-// bias is per row m: BIAS_PER_ROW).
+// KernelPlan::gemmLanesSplitK says so; gemmLanesRowBias for the convolutions' im2col products,
+// whose bias is per row m: BIAS_PER_ROW, and for conv_transpose2d's, whose rows and columns
+// scatter into its k x k output blocks: SCATTER_K).
 //
 // For JIT drivers that load a vector only when the lanes' addresses are consecutive words, and
 // otherwise one lane at a time behind a branch (SwiftShader: its loads check at run time
@@ -30,6 +31,10 @@ layout(constant_id = 6) const int ACT = ACT_NONE;
 layout(constant_id = 7) const bool HAS_BIAS = false;
 layout(constant_id = 8) const int LANES = 4;      // the workgroup's x size, one full subgroup
 layout(constant_id = 9) const bool BIAS_PER_ROW = false;  // bias[m] instead of bias[n]
+// SCATTER_K = k > 0 (conv_transpose2d, kernel = stride = k): row m = (co, a, b) of the kernel and
+// column n = (i, j) of an input plane scatterW wide go to y[co * ldy + (i k + a) * scatterW k +
+// j k + b], with bias[co].
+layout(constant_id = 10) const int SCATTER_K = 0;
 
 TEXEL_INPUT(0, X, TEXEL_K)
 TEXEL_INPUT(1, W, TEXEL_K)
@@ -51,6 +56,7 @@ layout(push_constant) uniform Push {
   int ldy;           // row stride of y in elements
   int xBatch, wBatch, yBatch;  // batch strides (texels, texels, elements); wBatch 0 shares w
   int yBase;         // y[0][0] in y's binding
+  int scatterW;      // SCATTER_K: the input plane's width
 } p;
 
 void main() {
@@ -97,9 +103,16 @@ void main() {
     [[unroll]] for (int c = 0; c < RN; ++c) {
       const int n = n0 + c;
       if (c % LANES != lane || m >= p.M || n >= p.N) continue;
+      int at = m * p.ldy + n, bi = BIAS_PER_ROW ? m : n;
+      if (SCATTER_K > 0) {
+        const int co = m / (SCATTER_K * SCATTER_K), a = (m / SCATTER_K) % SCATTER_K, e = m % SCATTER_K;
+        const int i = n / p.scatterW, j = n - i * p.scatterW;
+        at = co * p.ldy + (i * SCATTER_K + a) * p.scatterW * SCATTER_K + j * SCATTER_K + e;
+        bi = co;
+      }
       float v = acc[r * RN + c];
-      if (HAS_BIAS) v += fetch_BIAS(BIAS_PER_ROW ? m : n).x;
-      y[p.yBase + b * p.yBatch + m * p.ldy + n] = TO_OUT(activate(v, ACT));
+      if (HAS_BIAS) v += fetch_BIAS(bi).x;
+      y[p.yBase + b * p.yBatch + at] = TO_OUT(activate(v, ACT));
     }
   }
 }

@@ -330,21 +330,7 @@ TEST_F(EngineTest, Conv2dRejectsBadShapes) {
 // (64 channels x 3x3 at 128 columns: 14 rows a band of the 4 MiB of patches).
 TEST_F(EngineTest, Conv2dIm2colLanesGemmMatchesFloat64) {
   const DeviceCaps& caps = eng().caps();
-  const KernelTuning saved = eng().options().tuning;
-  if (!(caps.subgroupArithmetic && caps.fullSubgroups)) {  // some device-limit profiles: the plan refuses it
-    KernelTuning t = saved;
-    t.kernels = "cpu";
-    t.gemmLanesSplitK = true;
-    EXPECT_THROW(eng().setTuning(t), Error);
-    return;
-  }
-  for (const char* inputs : {"texel", "storage"}) {
-    KernelTuning t = saved;
-    t.kernels = "cpu";
-    t.gemmLanesSplitK = true;
-    t.freezeConstants = true;
-    t.inputs = inputs;
-    eng().setTuning(t);
+  withLanesGemmForced(eng(), [&](const std::string& inputs) {
     for (const ConvCase& c : {ConvCase{1, 7, 13, 13, 61, 3, 3, 1, 1, 1, true, Activation::None},
                               ConvCase{2, 61, 13, 7, 7, 3, 3, 2, 1, 1, false, Activation::Gelu},
                               ConvCase{1, 3, 61, 61, 16, 3, 3, 2, 0, 0, true, Activation::Silu},
@@ -353,7 +339,7 @@ TEST_F(EngineTest, Conv2dIm2colLanesGemmMatchesFloat64) {
                               ConvCase{3, 16, 21, 12, 1, 1, 1, 1, 0, 0, true, Activation::Relu},
                               ConvCase{1, 64, 16, 128, 5, 3, 3, 1, 1, 1, true, Activation::Gelu}}) {
       // texel inputs: only where an image fits one texel binding (SwiftShader's hold 65536)
-      if (t.inputs == "texel" && uint64_t(c.Cin * c.H * c.W) > caps.maxTexelBufferElements) continue;
+      if (inputs == "texel" && uint64_t(c.Cin * c.H * c.W) > caps.maxTexelBufferElements) continue;
       auto x = randomUniform(c.N * c.Cin * c.H * c.W, -1, 1, 31);
       auto w = randomUniform(c.Cout * c.Cin * c.KH * c.KW, -1, 1, 32);
       auto b = randomUniform(c.Cout, -1, 1, 33);
@@ -366,11 +352,10 @@ TEST_F(EngineTest, Conv2dIm2colLanesGemmMatchesFloat64) {
       EXPECT_EQ(rec.pending(), size_t(2 * c.N * bands)) << describe(c);  // im2col and the GEMM per band
       rec.run();
       expectClose(y.read(), conv2dRef(c, x, w, c.bias ? b : std::vector<float>{}), 1e-8, 1e-4,
-                  std::string("im2col, ") + inputs + " inputs, " + describe(c) + ", " + std::to_string(Ho) + " rows");
+                  "im2col, " + inputs + " inputs, " + describe(c) + ", " + std::to_string(Ho) + " rows");
       y.expectAllWritten();
     }
-  }
-  eng().setTuning(saved);
+  });
 }
 
 }  // namespace

@@ -147,6 +147,41 @@ TEST_F(EngineTest, ConvTranspose2dOutputSplitIntoChunks) {
   y.expectAllWritten();
 }
 
+// SwiftShader's transposed convolutions (KernelPlan::gemmLanesSplitK): the kernel and the
+// input transposed by im2col's 1x1 patches, the lanes GEMM scattering its products into the
+// k x k blocks (SCATTER_K) with the bias per channel; forced on this device through texel and
+// storage inputs, constants written into the modules: k = 1, 2, 4, odd sizes, every
+// activation, and an input in two bands of rows (256 channels x 64 columns: 63 rows a band of
+// the 4 MiB scratch after the kernel).
+TEST_F(EngineTest, ConvTranspose2dIm2colLanesGemmMatchesFloat64) {
+  const DeviceCaps& caps = eng().caps();
+  withLanesGemmForced(eng(), [&](const std::string& inputs) {
+    for (const ConvTCase& c : {ConvTCase{1, 7, 13, 13, 61, 2, true, Activation::None},
+                               ConvTCase{2, 61, 7, 9, 7, 2, false, Activation::Gelu},
+                               ConvTCase{2, 9, 7, 12, 13, 4, true, Activation::Silu},
+                               ConvTCase{3, 5, 5, 3, 6, 1, true, Activation::Sigmoid},
+                               ConvTCase{1, 16, 6, 10, 3, 2, true, Activation::QuickGelu},
+                               ConvTCase{1, 3, 9, 7, 5, 2, false, Activation::Relu},
+                               ConvTCase{1, 256, 70, 64, 8, 2, true, Activation::Gelu}}) {
+      // texel inputs: only where an image fits one texel binding (SwiftShader's hold 65536)
+      if (inputs == "texel" && uint64_t(c.Cin * c.H * c.W) > caps.maxTexelBufferElements) continue;
+      auto x = randomUniform(c.N * c.Cin * c.H * c.W, -1, 1, 41), w = randomUniform(c.Cin * c.Cout * c.k * c.k, -1, 1, 42);
+      auto b = randomUniform(c.Cout, -1, 1, 43);
+      Tensor tx = eng().fromFloats({c.N, c.Cin, c.H, c.W}, x), tw = eng().fromFloats({c.Cin, c.Cout, c.k, c.k}, w);
+      Tensor tb = c.bias ? eng().fromFloats({c.Cout}, b) : Tensor();
+      GuardedOutput y(eng(), {c.N, c.Cout, c.H * c.k, c.W * c.k});
+      Recorder rec(eng());
+      convTranspose2d(rec, tx, tw, tb, y.tensor(), c.act);
+      const int64_t bands = c.Cin == 256 ? 2 : 1;
+      EXPECT_EQ(rec.pending(), size_t(1 + 2 * c.N * bands)) << describe(c);  // the kernel's im2col, then im2col and GEMM a band
+      rec.run();
+      expectClose(y.read(), convTRef(c, x, w, c.bias ? b : std::vector<float>{}), 1e-8, 1e-4,
+                  "im2col, " + inputs + " inputs, " + describe(c));
+      y.expectAllWritten();
+    }
+  });
+}
+
 TEST_F(EngineTest, ConvTranspose2dRejectsBadShapes) {
   Tensor x = eng().tensor({1, 4, 5, 6}), w = eng().tensor({4, 3, 2, 2}), b = eng().tensor({3});
   Tensor y = eng().tensor({1, 3, 10, 12});

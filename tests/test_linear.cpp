@@ -56,31 +56,14 @@ INSTANTIATE_TEST_SUITE_P(
 // edge, bias and every activation. Where the device has no subgroup arithmetic with full
 // subgroups (some device-limit profiles) the plan must refuse it.
 TEST_F(EngineTest, LinearLanesSplitKMatchesFloat64) {
-  const DeviceCaps& caps = eng().caps();
-  if (!(caps.subgroupArithmetic && caps.fullSubgroups)) {
-    KernelTuning t = eng().options().tuning;
-    t.kernels = "cpu";
-    t.gemmLanesSplitK = true;
-    EXPECT_THROW(eng().setTuning(t), Error);
-    return;
-  }
-  const KernelTuning saved = eng().options().tuning;
-  for (const char* inputs : {"texel", "storage"}) {
-    KernelTuning t = saved;
-    t.kernels = "cpu";  // the CPU family's GEMM, also in this program's GPU-family run
-    t.gemmLanesSplitK = true;
-    t.freezeConstants = true;
-    t.inputs = inputs;
-    eng().setTuning(t);
-    ASSERT_TRUE(eng().plan().gemmLanesSplitK);
+  withLanesGemmForced(eng(), [&](const std::string& inputs) {
     for (const LinearCase c : {LinearCase{7, 61, 64, false, Activation::None}, LinearCase{61, 7, 61, true, Activation::None},
                                LinearCase{1, 1, 1, false, Activation::None}, LinearCase{33, 65, 130, true, Activation::Gelu},
                                LinearCase{19, 40, 3, true, Activation::QuickGelu}, LinearCase{64, 17, 20, false, Activation::Silu},
                                LinearCase{9, 30, 12, true, Activation::Sigmoid}, LinearCase{21, 35, 9, true, Activation::Relu}}) {
-      expectLinearMatches(eng(), c, 11, std::string("lanes, ") + inputs + " inputs,");
+      expectLinearMatches(eng(), c, 11, "lanes, " + inputs + " inputs,");
     }
-  }
-  eng().setTuning(saved);
+  });
 }
 
 // llvmpipe's plan shares a workgroup's columns among its subgroup's lanes (gemm.comp's

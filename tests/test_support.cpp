@@ -201,6 +201,26 @@ CommandResult runValidated(const std::vector<std::string>& argv, const std::file
   return r;
 }
 
+void withLanesGemmForced(Engine& engine, const std::function<void(const std::string& inputs)>& body) {
+  const DeviceCaps& caps = engine.caps();
+  const KernelTuning saved = engine.options().tuning;
+  KernelTuning t = saved;
+  t.kernels = "cpu";  // the CPU family's kernels, also in a program's GPU-family run
+  t.gemmLanesSplitK = true;
+  if (!(caps.subgroupArithmetic && caps.fullSubgroups)) {
+    EXPECT_THROW(engine.setTuning(t), Error);
+    return;
+  }
+  t.freezeConstants = true;
+  for (const char* inputs : {"texel", "storage"}) {
+    t.inputs = inputs;
+    engine.setTuning(t);
+    EXPECT_TRUE(engine.plan().gemmLanesSplitK);
+    body(inputs);
+  }
+  engine.setTuning(saved);
+}
+
 VideoInfo probeVideo(const std::filesystem::path& video, const std::filesystem::path& dir) {
   const CommandResult r = runCommand({"ffprobe", "-v", "error", "-select_streams", "v:0", "-count_frames",
                                       "-show_entries", "stream=codec_name,width,height,nb_read_frames", "-of",

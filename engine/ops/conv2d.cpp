@@ -7,7 +7,7 @@
 
 #include "engine/ops/binding_range.h"
 #include "engine/ops/cpu_tiles.h"
-#include "engine/ops/dispatch_helpers.h"
+#include "engine/ops/im2col.h"
 #include "engine/ops/linear.h"
 
 namespace spar {
@@ -77,19 +77,12 @@ void conv2dAsGemm(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor&
 }
 
 // Where the plan splits a GEMM's k among a subgroup's lanes (KernelPlan::gemmLanesSplitK,
-// SwiftShader): fp32 convolutions as im2col (shaders/im2col.comp) and that GEMM
+// SwiftShader): fp32 convolutions as im2col (engine/ops/im2col.h) and that GEMM
 // (gemmLanesRowBias, bias and activation in its epilogue). conv2d.comp's per-lane register
 // blocks load lane by lane there (its lanes' addresses are neither equal nor consecutive):
 // conv3x3 64 -> 64 at 128x128 ran at 0.3-0.5 GFLOPS at every block shape tried, 2.4 so. The
-// patches of a band of output rows at a time, at most kIm2colBandBytes, in the recorder's
-// scratch; the band's products go straight into y's rows (a column block of y[n] as
-// [Cout, Ho * Wo]).
-constexpr int64_t kIm2colBandBytes = int64_t(4) << 20;
-
-struct Im2colPush {
-  int32_t Cin, H, W, Wo, KH, KW, stride, padY, padX, oy0, count, xBase;
-};
-
+// patches of a band of output rows at a time, in the recorder's scratch; the band's products
+// go straight into y's rows (a column block of y[n] as [Cout, Ho * Wo]).
 // False (and nothing recorded) where a binding would not fit: conv2d.comp then runs it.
 bool conv2dAsIm2colGemm(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
                         const Conv2dParams& params, int64_t KH, int64_t KW) {
@@ -100,27 +93,20 @@ bool conv2dAsIm2colGemm(Recorder& rec, const Tensor& x, const Tensor& w, const T
   const int64_t Cout = w.dim(0), Ho = y.dim(2), Wo = y.dim(3), K = Cin * KH * KW;
   const int64_t image = Cin * H * W, plane = Ho * Wo;
   const int64_t room = std::min(bindingElements(engine, true), bindingElements(engine, false)) - alignmentSlack(caps, true);
-  const int64_t bandRows = std::min<int64_t>(Ho, kIm2colBandBytes / 4 / std::max<int64_t>(1, K * Wo));
+  const int64_t bandRows = std::min<int64_t>(Ho, kIm2colScratchBytes / 4 / std::max<int64_t>(1, K * Wo));
   if (bandRows < 1 || image > room || Cout * K > room || Cout * plane > room || bandRows * Wo * K > room) return false;
-  const Kernel& im2col = engine.kernel({"im2col_f32", {Bind::Texel, Bind::Write}, sizeof(Im2colPush), {256, 1, 1}});
   const Tensor wm = w.reshape({Cout, K});
   // The recorder's scratch, of the cap's size whatever this call needs: one buffer serves every
   // convolution it records (the memory estimate counts one per recorder alive at once).
-  const Tensor band = rec.scratch(kIm2colBandBytes / 4).view(0, {bandRows * Wo, K});
-  for (int64_t n = 0; n < N; ++n) {
-    const BoundRange xr = bindRange(caps, x, n * image, (n + 1) * image, true);
+  const Tensor scratch = rec.scratch(kIm2colScratchBytes / 4);
+  for (int64_t n = 0; n < N; ++n)
     for (int64_t oy0 = 0; oy0 < Ho; oy0 += bandRows) {
       const int64_t rows = std::min(bandRows, Ho - oy0), pixels = rows * Wo;
-      const Tensor p = band.view(0, {pixels, K});
-      const Im2colPush push{int32_t(Cin), int32_t(H), int32_t(W), int32_t(Wo), int32_t(KH), int32_t(KW),
-                            params.stride, params.padY, params.padX, int32_t(oy0), int32_t(pixels * K),
-                            int32_t(n * image - xr.base)};
-      const Grid g = linearGrid(caps, ceilDiv(uint64_t(pixels * K), 256), "conv2d");
-      rec.dispatch(im2col, {Arg::texel(xr.view, 1), Arg::out(p)}, push, g.x, g.y, 1);
+      const Tensor p = scratch.view(0, {pixels, K});
+      im2col(rec, x, n * image, {Cin, H, W, Wo, KH, KW, params.stride, params.padY, params.padX, oy0, rows}, p);
       gemmLanesRowBias(rec, wm, p, bias, y.view(n * Cout * plane + oy0 * Wo, {(Cout - 1) * plane + pixels}), plane,
                        params.act);
     }
-  }
   return true;
 }
 
@@ -158,7 +144,7 @@ ConvTiles chooseConvTiles(const DeviceCaps& caps, const KernelTuning& tuning, in
 }
 
 uint64_t conv2dIm2colBandBytes(Engine& engine) {
-  return engine.plan().gemmLanesSplitK ? uint64_t(kIm2colBandBytes) : 0;
+  return engine.plan().gemmLanesSplitK ? uint64_t(ops::kIm2colScratchBytes) : 0;
 }
 
 int64_t conv2dOutputSize(int64_t in, int64_t kernel, int stride, int pad) {

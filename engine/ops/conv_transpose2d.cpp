@@ -6,6 +6,8 @@
 
 #include "engine/ops/binding_range.h"
 #include "engine/ops/cpu_tiles.h"
+#include "engine/ops/im2col.h"
+#include "engine/ops/linear.h"
 
 namespace spar {
 namespace {
@@ -38,6 +40,39 @@ Tiles chooseTiles(const DeviceCaps& caps, bool cpu, const KernelTuning& tuning, 
   return {2, 1, 4, 16, 8};
 }
 
+// Where the plan splits a GEMM's k among a subgroup's lanes (KernelPlan::gemmLanesSplitK,
+// SwiftShader), as conv2d does (engine/ops/conv2d.cpp): with kernel = stride = k every output
+// block is a product, y's k x k block at (i, j) = w^T x[:, i, j]. im2col's 1x1 patches give the
+// two transposes (the kernel as [Cout k k, Cin], the input's band of rows as [pixels, Cin]) in
+// the recorder's scratch, and gemm_lanes.comp scatters the products into the blocks (SCATTER_K)
+// with the bias and the activation. False (nothing recorded) where they do not fit.
+bool convTranspose2dAsIm2colGemm(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
+                                 Activation act) {
+  using namespace ops;
+  Engine& engine = rec.engine();
+  const DeviceCaps& caps = engine.caps();
+  const int64_t N = x.dim(0), Cin = x.dim(1), H = x.dim(2), W = x.dim(3), Cout = w.dim(1), k = w.dim(2);
+  const int64_t rowsOfW = Cout * k * k, image = Cin * H * W, plane = H * k * W * k;
+  const int64_t room = std::min(bindingElements(engine, true), bindingElements(engine, false)) - alignmentSlack(caps, true);
+  const int64_t cap = kIm2colScratchBytes / 4;
+  // the transposed kernel first in the scratch, then the band's patches from an aligned start
+  const int64_t kernelEnd = (rowsOfW * Cin + 255) / 256 * 256;
+  const int64_t bandRows = std::min<int64_t>(H, (cap - kernelEnd) / std::max<int64_t>(1, W * Cin));
+  if (kernelEnd >= cap || bandRows < 1 || image > room || rowsOfW * Cin > room || Cout * plane > room) return false;
+  const Tensor scratch = rec.scratch(cap);
+  const Tensor wt = scratch.view(0, {rowsOfW, Cin});
+  im2col(rec, w, 0, {Cin, 1, rowsOfW, rowsOfW, 1, 1, 1, 0, 0, 0, 1}, wt);
+  for (int64_t n = 0; n < N; ++n)
+    for (int64_t i0 = 0; i0 < H; i0 += bandRows) {
+      const int64_t rows = std::min(bandRows, H - i0), pixels = rows * W;
+      const Tensor p = scratch.view(kernelEnd, {pixels, Cin});
+      im2col(rec, x, n * image, {Cin, H, W, W, 1, 1, 1, 0, 0, i0, rows}, p);
+      gemmLanesRowBias(rec, wt, p, bias, y.view(n * Cout * plane + i0 * k * W * k, {(Cout - 1) * plane + pixels * k * k}),
+                       plane, act, int(k), W);
+    }
+  return true;
+}
+
 }  // namespace
 
 void convTranspose2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
@@ -63,6 +98,7 @@ void convTranspose2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tens
   for (const Tensor* t : {&x, &w, &y}) checkElementCount(*t, "convTranspose2d");
   if (y.numel() == 0) return;
   if (Cin == 0) throw Error("convTranspose2d: input has no channels");
+  if (engine.plan().gemmLanesSplitK && convTranspose2dAsIm2colGemm(rec, x, w, bias, y, act)) return;
 
   const int ks = static_cast<int>(k);
   const Tiles tiles = chooseTiles(caps, engine.plan().cpuShapes, engine.options().tuning, ks, double(N) * double(Cin) * double(Cout) * double(H * W) * double(k * k));

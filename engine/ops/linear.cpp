@@ -17,7 +17,8 @@ namespace {
 
 struct GemmPush {
   int32_t M, N, K, ldx, ldw, ldy, xBatch, wBatch, yBatch;
-  int32_t yBase = 0;  // gemm_lanes.comp only: y[0][0] in y's binding
+  int32_t yBase = 0;     // gemm_lanes.comp only: y[0][0] in y's binding
+  int32_t scatterW = 0;  // gemm_lanes.comp, SCATTER_K: the input plane's width
 };
 
 // The kernel of a product and the outputs one workgroup covers (rows x columns).
@@ -28,13 +29,15 @@ struct GemmLaunch {
 
 // gemm_lanes.comp (KernelPlan::gemmLanesSplitK): 4 rows x 8 columns a subgroup, 2 subgroups a
 // workgroup: on SwiftShader (1024^3) 4.7 GFLOPS, against 3.7-3.9 for 4 x 4 and 8 x 8 and 4.1
-// for 8 x 4 with 4 subgroups. biasPerRow: bias[m] (conv2d's im2col products) instead of bias[n].
-GemmLaunch lanesLaunch(Engine& engine, int texelK, Activation act, bool hasBias, bool biasPerRow) {
+// for 8 x 4 with 4 subgroups. biasPerRow: bias[m] (conv2d's im2col products) instead of bias[n];
+// scatterK: conv_transpose2d's output blocks (gemm_lanes.comp, SCATTER_K).
+GemmLaunch lanesLaunch(Engine& engine, int texelK, Activation act, bool hasBias, bool biasPerRow, int scatterK = 0) {
   const int lanes = int(engine.caps().subgroupSize), rows = 4, cols = 8, subgroups = 2;
   const Kernel& k = engine.kernel({"gemm_lanes_f32",
                                    {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
                                    sizeof(GemmPush),
-                                   {lanes, subgroups, 1, rows, cols, texelK, static_cast<int>(act), hasBias, lanes, biasPerRow},
+                                   {lanes, subgroups, 1, rows, cols, texelK, static_cast<int>(act), hasBias, lanes, biasPerRow,
+                                    scatterK},
                                    uint32_t(lanes),
                                    engine.plan().freezeConstants});
   return {&k, rows, int64_t(cols) * subgroups};
@@ -257,7 +260,7 @@ void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& 
 }  // namespace
 
 void gemmLanesRowBias(Recorder& rec, const Tensor& a, const Tensor& b, const Tensor& bias, const Tensor& y, int64_t ldy,
-                      Activation act) {
+                      Activation act, int scatterK, int64_t scatterW) {
   Engine& engine = rec.engine();
   if (!engine.plan().gemmLanesSplitK) throw Error("gemmLanesRowBias: the device's plan has no lanes GEMM");
   if (a.rank() != 2 || b.rank() != 2 || a.dim(1) != b.dim(1) || a.dtype() != DType::F32 || b.dtype() != DType::F32 ||
@@ -266,17 +269,25 @@ void gemmLanesRowBias(Recorder& rec, const Tensor& a, const Tensor& b, const Ten
   const int64_t M = a.dim(0), N = b.dim(0), K = a.dim(1);
   if (M == 0 || N == 0) return;
   if (K == 0) throw Error("gemmLanesRowBias: K = 0");
-  if (ldy < N || y.numel() != (M - 1) * ldy + N)
+  const int64_t kk = int64_t(scatterK) * scatterK;
+  if (scatterK > 0 && (M % kk || scatterW < 1 || N % scatterW))
+    throw Error("gemmLanesRowBias: " + std::to_string(M) + " x " + std::to_string(N) + " is no set of " +
+                std::to_string(scatterK) + "x" + std::to_string(scatterK) + " blocks of rows " + std::to_string(scatterW) +
+                " wide");
+  // the elements from y[0][0] to the last one written
+  const int64_t span = scatterK > 0 ? (M / kk - 1) * ldy + N * kk : (M - 1) * ldy + N;
+  if (ldy < (scatterK > 0 ? N * kk : N) || y.numel() != span)
     throw Error("gemmLanesRowBias: y " + y.describe() + " does not hold " + std::to_string(M) + " rows of " +
                 std::to_string(N) + " a stride " + std::to_string(ldy) + " apart");
-  if (bias.defined() && bias.numel() != M) throw Error("gemmLanesRowBias: bias " + bias.describe() + " should have " + std::to_string(M));
+  if (bias.defined() && bias.numel() != (scatterK > 0 ? M / kk : M))
+    throw Error("gemmLanesRowBias: bias " + bias.describe() + " does not match " + std::to_string(M) + " rows");
   const int texelK = K % 4 == 0 ? 4 : 1;
-  const GemmLaunch launch = lanesLaunch(engine, texelK, act, bias.defined(), true);
+  const GemmLaunch launch = lanesLaunch(engine, texelK, act, bias.defined(), true, scatterK);
   const Tensor ax = ops::alignedInput(rec, a, true), bx = ops::alignedInput(rec, b, true);
   const Tensor biasArg = bias.defined() ? ops::alignedInput(rec, bias, true) : ax;
   const ops::BoundRange yr = ops::bindRange(engine.caps(), y, 0, y.numel(), false);
   const int32_t kTexels = int32_t(K / texelK);
-  GemmPush push{int32_t(M), int32_t(N), kTexels, kTexels, kTexels, int32_t(ldy), 0, 0, 0, -yr.base};
+  GemmPush push{int32_t(M), int32_t(N), kTexels, kTexels, kTexels, int32_t(ldy), 0, 0, 0, -yr.base, int32_t(scatterW)};
   rec.dispatch(*launch.kernel, {Arg::texel(ax, texelK), Arg::texel(bx, texelK), Arg::texel(biasArg, 1), Arg::out(yr.view)},
                push, ops::ceilDiv(M, launch.rowsPerGroup), ops::ceilDiv(N, launch.colsPerGroup), 1);
 }

@@ -28,11 +28,14 @@ GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, do
 void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
             Activation act = Activation::None);
 
-// conv2d's im2col products (engine/ops/conv2d.cpp) on the lanes GEMM (shaders/gemm_lanes.comp;
-// only where KernelPlan::gemmLanesSplitK): y[m * ldy + n] = act(sum_k a[m][k] * b[n][k] + bias[m])
-// for fp32 a: [M, K], b: [N, K], bias: [M] or undefined; y: the (M - 1) * ldy + N elements from
-// the first row's start (a block of columns of a wider matrix). Every binding must fit the device.
+// The convolutions' im2col products (engine/ops/conv2d.cpp, conv_transpose2d.cpp) on the lanes
+// GEMM (shaders/gemm_lanes.comp; only where KernelPlan::gemmLanesSplitK): y[m * ldy + n] =
+// act(sum_k a[m][k] * b[n][k] + bias[m]) for fp32 a: [M, K], b: [N, K], bias: [M] or undefined;
+// y: the elements from the first row's start to the last written (a block of columns of a wider
+// matrix). scatterK = k > 0 (transposed convolutions, kernel = stride = k): row m = (co, a, e)
+// and column n = (i, j) of an input plane scatterW wide go to y[co * ldy + (i k + a) * scatterW k
+// + j k + e], bias [M / k^2]. Every binding must fit the device.
 void gemmLanesRowBias(Recorder& rec, const Tensor& a, const Tensor& b, const Tensor& bias, const Tensor& y, int64_t ldy,
-                      Activation act);
+                      Activation act, int scatterK = 0, int64_t scatterW = 0);
 
 }  // namespace spar
