@@ -268,7 +268,7 @@ MemoryNeed estimateMemory(const PackedModel& model, const SparConfig& c, const M
   // engine/ops/conv2d.cpp, conv2dAsIm2colGemm: the patches, in the scratch of each recorder
   // that records a convolution (Recorder::scratch), of which two may be alive at once (a
   // stage's and a setup's inside it)
-  upper += 2 * q.im2colBandBytes;
+  upper += 2 * q.im2colScratchBytes;
   need.upperBytes = std::max<uint64_t>(upper, q.peakBefore);
   return need;
 }

@@ -48,8 +48,8 @@ struct MemoryQuery {
   // both device-local and mappable): the largest such copy is added to the upper bound.
   bool staging = false;
   // Where convolutions run as im2col and a GEMM (the plan's gemmLanesSplitK): the bytes of a
-  // recorder's scratch for their patches (conv2dIm2colBandBytes), 0 elsewhere.
-  uint64_t im2colBandBytes = 0;
+  // recorder's scratch for their patches (ops::im2colScratchBytes), 0 elsewhere.
+  uint64_t im2colScratchBytes = 0;
   // What the engine's memory peaked at before the request (the kernel tuner's measurement on
   // a GPU): the upper bound is at least that, as the measured peak never resets.
   uint64_t peakBefore = 0;

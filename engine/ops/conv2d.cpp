@@ -143,10 +143,6 @@ ConvTiles chooseConvTiles(const DeviceCaps& caps, const KernelTuning& tuning, in
   return t;
 }
 
-uint64_t conv2dIm2colBandBytes(Engine& engine) {
-  return engine.plan().gemmLanesSplitK ? uint64_t(ops::kIm2colScratchBytes) : 0;
-}
-
 int64_t conv2dOutputSize(int64_t in, int64_t kernel, int stride, int pad) {
   const int64_t span = in + 2 * int64_t(pad) - kernel;
   if (stride < 1 || pad < 0 || span < 0)
@@ -189,9 +185,7 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
   if (Cin == 0) throw Error("conv2d: input has no channels");
   if ((quantized ? engine.plan().quantizedConv() : engine.plan().conv) == KernelFamily::Tiled)
     return conv2dAsGemm(rec, x, w, bias, y, params, KH, KW);
-  if (!quantized && engine.plan().conv == KernelFamily::CpuBlocks && engine.plan().gemmLanesSplitK &&
-      conv2dAsIm2colGemm(rec, x, w, bias, y, params, KH, KW))
-    return;
+  if (!quantized && engine.plan().gemmLanesSplitK && conv2dAsIm2colGemm(rec, x, w, bias, y, params, KH, KW)) return;
 
   const ConvTiles tiles = chooseConvTiles(caps, engine.options().tuning, KH, KW, Cout);
   // Weights and bias may sit at any offset: they are bound from an aligned start. A quantized

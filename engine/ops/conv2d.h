@@ -41,11 +41,6 @@ void conv2d(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias,
             const Conv2dParams& params = {});
 
 // Output size along one axis, PyTorch's formula; throws if the kernel does not fit.
-// Where the plan splits GEMMs' k among a subgroup's lanes (KernelPlan::gemmLanesSplitK), fp32
-// convolutions run as im2col and that GEMM; their patches take this many bytes of the
-// recorder's scratch (Recorder::scratch; bands of output rows). 0 elsewhere.
-uint64_t conv2dIm2colBandBytes(Engine& engine);
-
 int64_t conv2dOutputSize(int64_t in, int64_t kernel, int stride, int pad);
 
 }  // namespace spar

@@ -14,6 +14,10 @@ struct Im2colPush {
 
 }  // namespace
 
+uint64_t im2colScratchBytes(Engine& engine) {
+  return engine.plan().gemmLanesSplitK ? uint64_t(kIm2colScratchBytes) : 0;
+}
+
 void im2col(Recorder& rec, const Tensor& x, int64_t first, const Im2colBand& b, const Tensor& p) {
   Engine& engine = rec.engine();
   const DeviceCaps& caps = engine.caps();

@@ -10,8 +10,12 @@
 namespace spar::ops {
 
 // The most bytes of patches a convolution stages at once: the size of the recorder's scratch
-// it uses (Recorder::scratch; the memory estimate counts it, MemoryQuery::im2colBandBytes).
+// it uses (Recorder::scratch; the memory estimate counts it, MemoryQuery::im2colScratchBytes).
 constexpr int64_t kIm2colScratchBytes = int64_t(4) << 20;
+
+// The bytes of scratch the device's convolutions stage their patches in: kIm2colScratchBytes
+// where the plan has the lanes GEMM (KernelPlan::gemmLanesSplitK), 0 elsewhere.
+uint64_t im2colScratchBytes(Engine& engine);
 
 // An image [Cin, H, W] (element `first` of x on) and the band of output rows [oy0, oy0 + rows)
 // of a KH x KW convolution with that stride and padding, Wo output columns.

@@ -9,7 +9,7 @@
 
 #include "engine/engine.h"
 #include "engine/memory.h"
-#include "engine/ops/conv2d.h"
+#include "engine/ops/im2col.h"
 #include "engine/recorder.h"
 #include "formats/cameras.h"
 #include "formats/camera_files.h"
@@ -261,7 +261,7 @@ void runRender(const RenderArgs& a, RenderContext* shared) {
     mq.refine = a.refine || a.maskSource == "refined";
     mq.matrixType = po.weightType;
     mq.staging = !engine.caps().hostVisibleDeviceLocal;
-    mq.im2colBandBytes = conv2dIm2colBandBytes(engine);
+    mq.im2colScratchBytes = ops::im2colScratchBytes(engine);
     engine.plan();  // a GPU measures its kernel choice now (once), not inside the request
     mq.peakBefore = engine.memory().peakBytes();
     const MemoryNeed need = estimateMemory(*v.model, cfg, mq);
