@@ -48,6 +48,7 @@ void addGemm(std::vector<BenchCase>& cases, Engine& engine, int64_t M, int64_t K
   c.name = prefix + (storage == DType::F16 ? "gemm_f16" : "gemm_f32");
   c.shape = std::to_string(M) + "x" + std::to_string(K) + "x" + std::to_string(N);
   c.flops = 2.0 * M * N * K;
+  c.peer = {{"op", "gemm"}, {"m", M}, {"k", K}, {"n", N}};
   c.record = [=](Recorder& rec) { linear(rec, tx, tw, Tensor(), ty); };
   c.nmse = [=, &engine]() {
     auto y = engine.download(ty);
@@ -75,6 +76,7 @@ void addAttention(std::vector<BenchCase>& cases, Engine& engine, int64_t N, int 
   c.shape = std::to_string(heads) + "x" + std::to_string(dh) + " heads, " +
             (B > 1 ? std::to_string(B) + " windows of " : std::string()) + std::to_string(N) + " tokens";
   c.flops = 4.0 * double(B) * N * N * dh * heads;
+  c.peer = {{"op", "attention"}, {"batch", B}, {"tokens", N}, {"heads", heads}, {"dim", dh}};
   c.record = [=](Recorder& rec) { attention(rec, {t, 0}, {t, D}, {t, 2 * D}, {o, 0}, heads, dh); };
   c.nmse = [=, &engine]() {
     auto out = engine.download(o);
@@ -119,6 +121,7 @@ void addRowOp(std::vector<BenchCase>& cases, Engine& engine, const std::string& 
   c.name = op + "_f32";
   c.shape = std::to_string(rows) + "x" + std::to_string(D);
   c.bytes = 2.0 * rows * D * 4;
+  c.peer = {{"op", op}, {"rows", rows}, {"cols", D}};
   c.record = [=](Recorder& rec) {
     if (ln) layerNorm(rec, tx, tw, tb, ty);
     else softmax(rec, tx, ty);
@@ -157,6 +160,7 @@ void addConv3x3(std::vector<BenchCase>& cases, Engine& engine, int64_t C, int64_
   c.name = "conv3x3_f32";
   c.shape = std::to_string(C) + "->" + std::to_string(C) + " at " + std::to_string(H) + "x" + std::to_string(W);
   c.flops = 2.0 * C * C * 9 * H * W;
+  c.peer = {{"op", "conv2d"}, {"n", 1}, {"cin", C}, {"cout", C}, {"h", H}, {"w", W}, {"k", 3}, {"pad", 1}};
   c.record = [=](Recorder& rec) { conv2d(rec, tx, tw, Tensor(), ty, {1, 1, 1}); };
   c.nmse = [=, &engine]() {
     auto y = engine.download(ty);
@@ -197,6 +201,8 @@ void addDecoderConv(std::vector<BenchCase>& cases, Engine& engine, const std::st
   c.shape = std::to_string(N) + "x" + std::to_string(Cin) + "->" + std::to_string(Cout) + " k" + std::to_string(k) +
             " at " + std::to_string(H) + "x" + std::to_string(W);
   c.flops = 2.0 * N * Cout * Cin * k * k * H * W;
+  c.peer = {{"op", "conv2d"}, {"n", N},   {"cin", Cin}, {"cout", Cout}, {"h", H},
+            {"w", W},         {"k", k},   {"pad", pad}, {"bias", true}, {"gelu", true}};
   c.record = [=](Recorder& rec) {
     conv2d(rec, tx, tw, tb, ty, {.stride = 1, .padY = pad, .padX = pad, .act = Activation::Gelu});
   };
@@ -238,6 +244,8 @@ void addDecoderConvT(std::vector<BenchCase>& cases, Engine& engine, const std::s
   c.shape = std::to_string(N) + "x" + std::to_string(Cin) + "->" + std::to_string(Cout) + " k2s2 from " +
             std::to_string(H) + "x" + std::to_string(W);
   c.flops = 2.0 * N * Cout * Cin * k * k * H * W;
+  c.peer = {{"op", "conv_transpose2d"}, {"n", N}, {"cin", Cin}, {"cout", Cout}, {"h", H},
+            {"w", W},                   {"k", k}, {"bias", true}, {"gelu", true}};
   c.record = [=](Recorder& rec) { convTranspose2d(rec, tx, tw, tb, ty, Activation::Gelu); };
   c.nmse = [=, &engine]() {
     auto y = engine.download(ty);

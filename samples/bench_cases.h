@@ -3,6 +3,7 @@
 #pragma once
 #include <functional>
 #include <memory>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
@@ -18,6 +19,9 @@ struct BenchCase {
   double bytes = 0;     // memory traffic per run (for memory-bound ops)
   std::function<void(Recorder&)> record;  // records one run
   std::function<double()> nmse;           // error of the last run's output vs float64
+  // The same op for the CPU peer (samples/bench_peer.h; scripts/compare/bench_peer.py): {"op":
+  // "gemm", "m", "k", "n"}, {"op": "attention", ...}, ...; null where there is none.
+  nlohmann::json peer;
 };
 
 // Every case of the benchmark, with inputs uploaded. `only` filters by name substring; `large`

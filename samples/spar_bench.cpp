@@ -3,6 +3,8 @@
 // the op's kernels cost: pipeline creation and the driver's build at the first dispatch
 // (compile time, kept apart from run time). --json prints one JSON object. --model M.spar times
 // the whole SPAR pipeline instead, stage by stage, on synthetic inputs (samples/bench_model.h).
+// --peer times every case's op on the CPU with numpy / PyTorch in the same run and gives the
+// engine's speed as a multiple of it (samples/bench_peer.h).
 #include "samples/spar_cli/selftest_command.h"
 #include <CLI/CLI.hpp>
 #include <algorithm>
@@ -13,7 +15,34 @@
 #include "engine/error.h"
 #include "samples/bench_cases.h"
 #include "samples/bench_model.h"
+#include "samples/bench_peer.h"
 #include "model/weight_set.h"
+
+namespace {
+
+// The CPU peer's times beside the engine's (report["ops"] in case order): "peer_ms" and
+// "vs_peer", the engine's speed as a multiple of the peer's (above 1: the engine is faster).
+void addPeerTimes(const std::vector<spar::bench::BenchCase>& cases, int repeats, nlohmann::json& report, bool json) {
+  const spar::bench::PeerTimes peer = spar::bench::runPeer(cases, repeats);
+  report["peer"] = peer.peer;
+  if (!json) std::printf("\nCPU peer: %s\n%-15s %-30s %10s %10s %10s\n", peer.peer.c_str(), "op", "shape", "ms",
+                         "peer ms", "x peer");
+  for (size_t i = 0; i < cases.size(); ++i) {
+    nlohmann::json& op = report["ops"][i];
+    if (!peer.ms[i]) {
+      op["peer_ms"] = op["vs_peer"] = nullptr;
+      continue;
+    }
+    const double ms = op["ms"].get<double>(), ratio = *peer.ms[i] / ms;
+    op["peer_ms"] = *peer.ms[i];
+    op["vs_peer"] = ratio;
+    if (!json)
+      std::printf("%-15s %-30s %10.2f %10.2f %10.2f\n", cases[i].name.c_str(), cases[i].shape.c_str(), ms, *peer.ms[i],
+                  ratio);
+  }
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{"spar-bench: time, throughput and error of the engine's ops"};
@@ -29,6 +58,12 @@ int main(int argc, char** argv) {
                "say which kernel family and tiles each op uses on the device, and why, and exit (on a GPU "
                "this may first measure the GEMM tiles; kept in kernel-choice.json beside the pipeline cache)");
   app.add_flag("--large", large, "also the 4096x4096x4096 GEMMs (default on GPUs)");
+  bool peer = false;
+  app.add_flag("--peer", peer,
+               "then time each case's op on this machine's CPU cores, in the same run: numpy (OpenBLAS) for GEMMs "
+               "and attention, PyTorch for convolutions and row ops, float32, with OPENBLAS_CORETYPE and "
+               "OPENBLAS_L2_SIZE removed from its environment (scripts/compare/bench_peer.py); prints the "
+               "engine's speed as a multiple of it");
   bool selftest = false;
   app.add_flag("--selftest", selftest,
                "run `spar selftest` (the device, limits, plan and op checks against float64, with the validation "
@@ -51,6 +86,10 @@ int main(int argc, char** argv) {
   app.add_flag("--assume-static", m.assumeStatic, "with --model: no DINOv3 / CV-DRP")->needs(modelOpt);
   app.add_flag("--semantic", m.semantic, "with --model: render semantic features too")->needs(modelOpt);
   CLI11_PARSE(app, argc, argv);
+  if (peer && !m.model.empty()) {
+    std::cerr << "spar-bench: --peer times the op cases; with --model use scripts/compare/compare_onnx.py\n";
+    return 2;
+  }
 
   try {
     if (listDevices) {
@@ -130,6 +169,7 @@ int main(int argc, char** argv) {
                     rate, c.flops > 0 ? "" : " GB/s", nmse, createMs, buildMs);
       std::fflush(stdout);
     }
+    if (peer) addPeerTimes(cases, repeats, report, json);
     if (json) std::cout << report.dump(2) << "\n";
     return 0;
   } catch (const std::exception& e) {

@@ -4,7 +4,8 @@
 //  - every stage that runs is reported with its GPU time, and the timed total is their sum;
 //  - --assume-static leaves out DINOv3 and CV-DRP (no stage, fewer weights loaded);
 //  - the program needs no image library (what the GPU check carries links only libvulkan of
-//    the system's graphics stack: no OpenImageIO, libpng or ICU in its NEEDED entries).
+//    the system's graphics stack: no OpenImageIO, libpng or ICU in its NEEDED entries);
+//  - --peer times the op cases' CPU peer in the same run (samples/bench_peer.h).
 // The suite is named "spar_bench_model" (`ctest -R spar_bench_model`).
 #include <gtest/gtest.h>
 
@@ -86,6 +87,33 @@ TEST(spar_bench_model, NeedsNoImageLibrary) {
   EXPECT_NE(r.out.find("libvulkan"), std::string::npos) << r.out;
   for (const char* lib : {"OpenImageIO", "libpng", "libicu", "libjpeg"})
     EXPECT_EQ(r.out.find(lib), std::string::npos) << lib << " in\n" << r.out;
+}
+
+// --peer: every case gets the CPU peer's time and the engine's speed as a multiple of it, and
+// the peer runs with OpenBLAS's own choice of kernels even where the caller's environment holds
+// it to Haswell's (OPENBLAS_CORETYPE, as this project's machines set it).
+TEST(spar_bench_model, PeerTimesTheSameOpsInTheSameRun) {
+  const CommandResult r = runValidated({SPAR_BENCH, "--only", "layernorm", "--repeat", "1", "--peer", "--json"},
+                                       scratch(), "OPENBLAS_CORETYPE=Haswell OPENBLAS_L2_SIZE=512");
+  ASSERT_EQ(r.code, 0) << r.err;
+  const json doc = json::parse(r.out);
+  const std::string peer = doc["peer"].get<std::string>();
+  EXPECT_NE(peer.find("numpy"), std::string::npos) << peer;
+  EXPECT_NE(peer.find("PyTorch"), std::string::npos) << peer;  // the row ops' peer
+  const size_t kernels = peer.find("OpenBLAS, ");
+  ASSERT_NE(kernels, std::string::npos) << peer;
+  const CommandResult cpu = runCommand({"grep", "-c", "avx512f", "/proc/cpuinfo"}, scratch());
+  if (cpu.code == 0) EXPECT_EQ(peer.find("Haswell kernels"), std::string::npos) << peer;
+  ASSERT_EQ(doc["ops"].size(), 2u) << doc.dump();
+  for (const auto& op : doc["ops"]) {
+    ASSERT_TRUE(op["peer_ms"].is_number()) << op.dump();
+    EXPECT_GT(op["peer_ms"].get<double>(), 0.0) << op.dump();
+    EXPECT_NEAR(op["vs_peer"].get<double>(), op["peer_ms"].get<double>() / op["ms"].get<double>(), 1e-9) << op.dump();
+  }
+  const CommandResult model =
+      runValidated({SPAR_BENCH, "--model", goldenPath("tiny.spar"), "--peer"}, scratch());
+  EXPECT_EQ(model.code, 2);
+  EXPECT_NE(model.err.find("--peer times the op cases"), std::string::npos) << model.err;
 }
 
 // --list-kernels: what each op runs and why, from the device's properties (CPU family here)
