@@ -1,15 +1,16 @@
 #!/usr/bin/env python3
 """The CPU peer of spar-bench's cases: the same op, shape and float32 data size, timed with
-numpy (GEMMs and attention: OpenBLAS's sgemm, softmax in numpy) and PyTorch eager (convolutions:
-oneDNN; row ops), on all of this machine's cores. spar-bench --peer runs it after its own cases, in the same run, with
-OPENBLAS_CORETYPE and OPENBLAS_L2_SIZE removed from this process's environment (they hold
-OpenBLAS to narrower kernels than the CPU has; docs/benchmarks.md).
+numpy (GEMMs and attention: OpenBLAS's sgemm, softmax in numpy) and PyTorch eager
+(convolutions: oneDNN; row ops), on all of this machine's cores. spar-bench --peer runs it
+after its own cases, in the same run, with OPENBLAS_CORETYPE and OPENBLAS_L2_SIZE removed from
+this process's environment (they hold OpenBLAS to narrower kernels than the CPU has;
+docs/benchmarks.md).
 
     bench_peer.py IN.json OUT.json
 
 IN: {"repeat": R, "cases": [spec or null, ...]}; a spec is spar-bench's description of a case
 (samples/bench_cases.cpp, BenchCase::peer). OUT: {"peer": "what ran", "ms": [median or null,
-...]}, the median of R timed runs after one warm-up run, in milliseconds.
+...]}, the median of R timed runs after warm-up runs, in milliseconds.
 """
 import json
 import os
@@ -103,7 +104,13 @@ def blas_name():
 
 
 def median_ms(run, repeat):
-    run()  # warm-up: first-touch of the buffers, thread pools started
+    # Warm-up: buffers touched, thread pools started, and the allocator settled (PyTorch's first
+    # 5 layernorms of 1280x768 take 7-9 ms, the next 0.3: glibc maps each fresh output anew until
+    # its mmap threshold has grown past the output's size).
+    start, runs = time.perf_counter(), 0
+    while runs < 2 or (runs < 20 and time.perf_counter() - start < 0.25):
+        run()
+        runs += 1
     times = []
     for _ in range(repeat):
         t = time.perf_counter()
