@@ -38,14 +38,25 @@ struct NmseAccumulator {
   double value() const { return den > 0 ? num / den : num; }
 };
 
-void addGemm(std::vector<BenchCase>& cases, Engine& engine, int64_t M, int64_t K, int64_t N, DType storage,
+// The cases being made and the filter they are made for: a case whose name the filter rules
+// out is never made, so `--only` uploads no other case's inputs (SAM2's alone are ~200 MB).
+struct CaseList {
+  std::vector<BenchCase> cases;
+  std::string only;
+  bool wants(const std::string& name) const { return only.empty() || name.find(only) != std::string::npos; }
+  void push_back(BenchCase c) { cases.push_back(std::move(c)); }
+};
+
+void addGemm(CaseList& cases, Engine& engine, int64_t M, int64_t K, int64_t N, DType storage,
              const std::string& prefix = "") {
+  const std::string name = prefix + (storage == DType::F16 ? "gemm_f16" : "gemm_f32");
+  if (!cases.wants(name)) return;
   auto x = std::make_shared<std::vector<float>>(randomValues(M * K, 1));
   auto w = std::make_shared<std::vector<float>>(randomValues(N * K, 2, 0.05f));
   Tensor tx = engine.fromFloats({M, K}, *x, storage), tw = engine.fromFloats({N, K}, *w, storage);
   Tensor ty = engine.tensor({M, N}, storage);
   BenchCase c;
-  c.name = prefix + (storage == DType::F16 ? "gemm_f16" : "gemm_f32");
+  c.name = name;
   c.shape = std::to_string(M) + "x" + std::to_string(K) + "x" + std::to_string(N);
   c.flops = 2.0 * M * N * K;
   c.peer = {{"op", "gemm"}, {"m", M}, {"k", K}, {"n", N}};
@@ -65,14 +76,16 @@ void addGemm(std::vector<BenchCase>& cases, Engine& engine, int64_t M, int64_t K
 }
 
 // Self-attention of B independent sequences of N tokens (B > 1: windows, as SAM2's Hiera has).
-void addAttention(std::vector<BenchCase>& cases, Engine& engine, int64_t N, int heads, int dh, DType storage,
+void addAttention(CaseList& cases, Engine& engine, int64_t N, int heads, int dh, DType storage,
                   int64_t B = 1, const std::string& prefix = "") {
+  const std::string name = prefix + (storage == DType::F16 ? "attention_f16" : "attention_f32");
+  if (!cases.wants(name)) return;
   const int64_t D = int64_t(heads) * dh;
   auto qkv = std::make_shared<std::vector<float>>(randomValues(B * N * 3 * D, 3, 1.5f));
   Tensor t = engine.fromFloats({B, N, 3 * D}, *qkv, storage);
   Tensor o = engine.tensor({B, N, D}, storage);
   BenchCase c;
-  c.name = prefix + (storage == DType::F16 ? "attention_f16" : "attention_f32");
+  c.name = name;
   c.shape = std::to_string(heads) + "x" + std::to_string(dh) + " heads, " +
             (B > 1 ? std::to_string(B) + " windows of " : std::string()) + std::to_string(N) + " tokens";
   c.flops = 4.0 * double(B) * N * N * dh * heads;
@@ -109,7 +122,8 @@ void addAttention(std::vector<BenchCase>& cases, Engine& engine, int64_t N, int 
 
 // Row ops over [rows, D]: LayerNorm (weight and bias) and softmax. Memory-bound: GB/s
 // counts one read and one write of the tensor.
-void addRowOp(std::vector<BenchCase>& cases, Engine& engine, const std::string& op, int64_t rows, int64_t D) {
+void addRowOp(CaseList& cases, Engine& engine, const std::string& op, int64_t rows, int64_t D) {
+  if (!cases.wants(op + "_f32")) return;
   auto x = std::make_shared<std::vector<float>>(randomValues(rows * D, 4, 3.0f));
   for (auto& v : *x) v += 2.0f;  // a mean away from 0, as activations have
   auto w = std::make_shared<std::vector<float>>(randomValues(D, 5));
@@ -151,7 +165,8 @@ void addRowOp(std::vector<BenchCase>& cases, Engine& engine, const std::string& 
   cases.push_back(std::move(c));
 }
 
-void addConv3x3(std::vector<BenchCase>& cases, Engine& engine, int64_t C, int64_t H, int64_t W) {
+void addConv3x3(CaseList& cases, Engine& engine, int64_t C, int64_t H, int64_t W) {
+  if (!cases.wants("conv3x3_f32")) return;
   auto x = std::make_shared<std::vector<float>>(randomValues(C * H * W, 7));
   auto w = std::make_shared<std::vector<float>>(randomValues(C * C * 9, 8, 0.1f));
   Tensor tx = engine.fromFloats({1, C, H, W}, *x), tw = engine.fromFloats({C, C, 3, 3}, *w);
@@ -188,8 +203,9 @@ double geluRef(double v) { return 0.5 * v * std::erfc(-v / std::sqrt(2.0)); }
 
 // One conv of the CV-DRP decoder (model/cv_drp.cpp) at its full-size shape: N images,
 // k x k kernel, padding (k - 1) / 2, bias and GELU fused as the decoder runs it.
-void addDecoderConv(std::vector<BenchCase>& cases, Engine& engine, const std::string& name, int64_t N, int64_t Cin,
+void addDecoderConv(CaseList& cases, Engine& engine, const std::string& name, int64_t N, int64_t Cin,
                     int64_t Cout, int64_t H, int64_t W, int64_t k) {
+  if (!cases.wants(name)) return;
   auto x = std::make_shared<std::vector<float>>(randomValues(N * Cin * H * W, 11));
   auto w = std::make_shared<std::vector<float>>(randomValues(Cout * Cin * k * k, 12, 1.0f / std::sqrt(float(Cin * k * k))));
   auto b = std::make_shared<std::vector<float>>(randomValues(Cout, 13, 0.1f));
@@ -231,8 +247,9 @@ void addDecoderConv(std::vector<BenchCase>& cases, Engine& engine, const std::st
 
 // One transposed conv (kernel = stride = 2) of the CV-DRP decoder at its full-size shape:
 // N images of H x W in, bias and GELU fused.
-void addDecoderConvT(std::vector<BenchCase>& cases, Engine& engine, const std::string& name, int64_t N, int64_t Cin,
+void addDecoderConvT(CaseList& cases, Engine& engine, const std::string& name, int64_t N, int64_t Cin,
                      int64_t Cout, int64_t H, int64_t W) {
+  if (!cases.wants(name)) return;
   constexpr int64_t k = 2;
   auto x = std::make_shared<std::vector<float>>(randomValues(N * Cin * H * W, 14));
   auto w = std::make_shared<std::vector<float>>(randomValues(Cin * Cout * k * k, 15, 1.0f / std::sqrt(float(Cin))));
@@ -269,7 +286,7 @@ void addDecoderConvT(std::vector<BenchCase>& cases, Engine& engine, const std::s
 
 // The CV-DRP decoder's convolutions at the official size (16x16 tokens -> 256x256), for the
 // 4 images of 2 view pairs, in decoder order (`--only drp_` runs them all).
-void addDecoderCases(std::vector<BenchCase>& cases, Engine& engine) {
+void addDecoderCases(CaseList& cases, Engine& engine) {
   constexpr int64_t N = 4;
   const int64_t chans[] = {256, 128, 64, 32};
   int64_t s = 16;
@@ -287,7 +304,7 @@ void addDecoderCases(std::vector<BenchCase>& cases, Engine& engine) {
 // of it; `--only sam2_` runs them): stage 1's qkv GEMM (65536 tokens of 144) and its attention
 // in 1024 windows of 8x8, stage 3's MLP GEMM (4096 tokens of 576 -> 2304), its attention in 16
 // windows of 16x16, and its global blocks over all 4096 tokens (8 heads of 72).
-void addSam2Cases(std::vector<BenchCase>& cases, Engine& engine, DType s) {
+void addSam2Cases(CaseList& cases, Engine& engine, DType s) {
   addGemm(cases, engine, 65536, 144, 432, s, "sam2_l_s1_qkv_");
   addGemm(cases, engine, 4096, 576, 2304, s, "sam2_l_s3_mlp_");
   addAttention(cases, engine, 64, 2, 72, s, 1024, "sam2_l_s1_window_");
@@ -299,7 +316,8 @@ void addSam2Cases(std::vector<BenchCase>& cases, Engine& engine, DType s) {
 // no memory traffic, so the GEMMs' GFLOPS can be read against what the device can do at all.
 // Its "NMSE" is the relative error of one invocation's result against float64 (a check that
 // the work was done, not a precision claim).
-void addPeak(std::vector<BenchCase>& cases, Engine& engine, int chains, bool useFma, int unroll) {
+void addPeak(CaseList& cases, Engine& engine, int chains, bool useFma, int unroll) {
+  if (!cases.wants(std::string("peak_") + (useFma ? "fma" : "mul_add") + "_f32")) return;
   const int64_t invocations = 1 << 18;
   const int iterations = 1024;
   Tensor ty = engine.tensor({invocations});
@@ -328,7 +346,7 @@ void addPeak(std::vector<BenchCase>& cases, Engine& engine, int chains, bool use
 }  // namespace
 
 std::vector<BenchCase> makeCases(Engine& engine, const std::string& only, bool large) {
-  std::vector<BenchCase> cases;
+  CaseList cases{{}, only};
   for (int chains : {8, 16, 32})
     for (int unroll : {1, 8}) addPeak(cases, engine, chains, true, unroll);
   addPeak(cases, engine, 16, false, 8);
@@ -351,9 +369,7 @@ std::vector<BenchCase> makeCases(Engine& engine, const std::string& only, bool l
   addConv3x3(cases, engine, 64, 128, 128);
   addDecoderCases(cases, engine);
   for (DType s : storages) addSam2Cases(cases, engine, s);
-  if (!only.empty())
-    std::erase_if(cases, [&](const BenchCase& c) { return c.name.find(only) == std::string::npos; });
-  return cases;
+  return std::move(cases.cases);
 }
 
 }  // namespace spar::bench

@@ -24,8 +24,8 @@ struct BenchCase {
   nlohmann::json peer;
 };
 
-// Every case of the benchmark, with inputs uploaded. `only` filters by name substring; `large`
-// adds the 4096^3 GEMMs (GPUs; minutes on a CPU device).
+// Every case of the benchmark, with inputs uploaded. `only` filters by name substring (before any
+// input is made); `large` adds the 4096^3 GEMMs (GPUs; minutes on a CPU device).
 std::vector<BenchCase> makeCases(Engine& engine, const std::string& only, bool large);
 
 }  // namespace spar::bench

@@ -50,7 +50,7 @@ int main(int argc, char** argv) {
   bool json = false, listDevices = false, listKernels = false, large = false;
   int repeats = 5;
   app.add_option("--device", device, "device index or name part (default: SPAR_DEVICE, else the first GPU)");
-  app.add_option("--only", only, "run the cases whose name contains this");
+  app.add_option("--only", only, "run the cases whose name contains this (no other case's inputs are made)");
   app.add_option("--repeat", repeats, "timed runs per case (the median is reported)")->check(CLI::Range(1, 1000));
   app.add_flag("--json", json, "print one JSON object instead of a table");
   app.add_flag("--list-devices", listDevices, "list Vulkan devices and exit");
