@@ -7,17 +7,9 @@
 #include <fstream>
 
 #include "engine/error.h"
+#include "samples/shell_quote.h"
 
 namespace spar::bench {
-namespace {
-
-std::string quote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
-
-}  // namespace
 
 PeerTimes runPeer(const std::vector<BenchCase>& cases, int repeats) {
   namespace fs = std::filesystem;
@@ -28,8 +20,8 @@ PeerTimes runPeer(const std::vector<BenchCase>& cases, int repeats) {
   const fs::path out = fs::temp_directory_path() / (stem + "-out.json");
   std::ofstream(in) << job.dump() << "\n";
   const std::string script = std::string(SPAR_SOURCE_DIR) + "/scripts/compare/bench_peer.py";
-  const std::string cmd = "env -u OPENBLAS_CORETYPE -u OPENBLAS_L2_SIZE " + quote(SPAR_PYTHON) + " " + quote(script) +
-                          " " + quote(in.string()) + " " + quote(out.string());
+  const std::string cmd = "env -u OPENBLAS_CORETYPE -u OPENBLAS_L2_SIZE " + shellQuote(SPAR_PYTHON) + " " + shellQuote(script) +
+                          " " + shellQuote(in.string()) + " " + shellQuote(out.string());
   const int code = std::system(cmd.c_str());
   fs::remove(in);
   std::ifstream result(out);

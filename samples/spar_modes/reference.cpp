@@ -8,17 +8,12 @@
 
 #include "engine/error.h"
 #include "formats/npy.h"
+#include "samples/shell_quote.h"
 
 namespace spar::modes {
 namespace {
 
 namespace fs = std::filesystem;
-
-std::string quote(const std::string& s) {
-  std::string q = "'";
-  for (char c : s) q += c == '\'' ? std::string("'\\''") : std::string(1, c);
-  return q + "'";
-}
 
 const char* runName(ReferenceRun run) {
   switch (run) {
@@ -83,16 +78,16 @@ std::vector<std::string> goldensArgv(const ReferenceInputs& in, ReferenceRun run
 // is imported once, about 1.5 s a run saved).
 void makeGoldens(const ReferenceInputs& in, const std::vector<std::pair<ReferenceRun, fs::path>>& runs,
                  const fs::path& scratch) {
-  std::string cmd = quote(in.python) + " " + quote(in.sourceDir + "/reference/spar-reference");
+  std::string cmd = shellQuote(in.python) + " " + shellQuote(in.sourceDir + "/reference/spar-reference");
   fs::path batchFile;
   if (runs.size() == 1) {
-    for (const std::string& a : goldensArgv(in, runs[0].first, runs[0].second)) cmd += " " + quote(a);
+    for (const std::string& a : goldensArgv(in, runs[0].first, runs[0].second)) cmd += " " + shellQuote(a);
   } else {
     nlohmann::json batch = nlohmann::json::array();
     for (const auto& [run, dir] : runs) batch.push_back(goldensArgv(in, run, dir));
     batchFile = scratch / "reference_batch.json";
     std::ofstream(batchFile) << batch.dump(1) << "\n";
-    cmd += " batch " + quote(batchFile.string());
+    cmd += " batch " + shellQuote(batchFile.string());
   }
   const int code = std::system(cmd.c_str());
   if (!batchFile.empty()) fs::remove(batchFile);
