@@ -120,6 +120,8 @@ EngineOptions EngineOptions::fromEnvironment(EngineOptions base) {
     if (const char* m = env("SPAR_MEASURE_KERNELS")) t.measureKernels = std::string(m) != "0";
   if (!t.gemmLanesSplitK)
     if (const char* g = env("SPAR_GEMM_LANES")) t.gemmLanesSplitK = std::string(g) != "0";
+  if (!t.attentionLanesSplitDim)
+    if (const char* a = env("SPAR_ATTENTION_LANES")) t.attentionLanesSplitDim = std::string(a) != "0";
   if (!t.freezeConstants)
     if (const char* f = env("SPAR_FREEZE_CONSTANTS")) t.freezeConstants = std::string(f) != "0";
   t.validate();

@@ -88,6 +88,12 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
       if (tuning.gemmLanesSplitK) throw Error("SPAR_GEMM_LANES=1: the device has no subgroup arithmetic with full subgroups");
       plan.gemmLanesSplitK = false;
     }
+    plan.attentionLanesSplitDim = tuning.attentionLanesSplitDim.value_or(swiftShader && !tuning.attentionTiles);
+    if (plan.attentionLanesSplitDim && !(caps.subgroupArithmetic && caps.fullSubgroups)) {
+      if (tuning.attentionLanesSplitDim)
+        throw Error("SPAR_ATTENTION_LANES=1: the device has no subgroup arithmetic with full subgroups");
+      plan.attentionLanesSplitDim = false;
+    }
     plan.freezeConstants = tuning.freezeConstants.value_or(swiftShader);
     if (tuning.gemmLanesSplitK)
       plan.reasons.push_back(std::string("GEMMs of fp32 weights with the subgroup's lanes splitting k (gemm_lanes.comp; "
@@ -97,6 +103,13 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
       plan.reasons.push_back("SwiftShader: GEMMs of fp32 weights with the subgroup's lanes splitting k (gemm_lanes.comp), "
                              "and convolutions (transposed ones too) as im2col and that GEMM: its loads are vector "
                              "loads only where the lanes' addresses are consecutive");
+    if (tuning.attentionLanesSplitDim)
+      plan.reasons.push_back(std::string("attention of fp32 q, k and v with the subgroup's lanes splitting the head "
+                                         "dimension (attention_lanes.comp): ") +
+                             (plan.attentionLanesSplitDim ? "forced" : "forced off") + " (SPAR_ATTENTION_LANES)");
+    else if (plan.attentionLanesSplitDim)
+      plan.reasons.push_back("SwiftShader: attention of fp32 q, k and v with the subgroup's lanes splitting the head "
+                             "dimension (attention_lanes.comp), for the same reason");
     if (tuning.freezeConstants)
       plan.reasons.push_back(std::string("GEMM and attention kernels: specialization constants ") +
                              (plan.freezeConstants ? "written into the modules" : "specialized") + ": forced (SPAR_FREEZE_CONSTANTS)");
@@ -234,6 +247,10 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
                      : gemmText(plan.gemm, false)));
   out.push_back("linear, fp16 weights: " + gemmText(plan.gemmF16, true));
   out.push_back("linear, q8 / q4 weights: " + gemmText(plan.quantizedGemm(), false) + ", dequantizing");
+  if (plan.attention == KernelFamily::CpuBlocks && plan.attentionLanesSplitDim)
+    out.push_back(std::string("attention, fp32 q, k, v: attention_lanes.comp (2 queries x 4 keys a subgroup, its lanes "
+                              "splitting the head dimension") +
+                  (plan.freezeConstants ? "; constants written into the module)" : ")"));
   out.push_back(plan.attention == KernelFamily::CpuBlocks
                     ? std::string("attention: attention.comp (cpu register blocks") +
                           (plan.attentionSharedKeys ? "; each block's keys shared by the subgroup's lanes)"

@@ -72,6 +72,10 @@ struct KernelPlan {
   // loads are per-lane gathers unless the lanes' addresses are consecutive. fp32 convolutions
   // then run as im2col and that GEMM (engine/ops/im2col.h: conv2d, conv_transpose2d).
   bool gemmLanesSplitK = false;
+  // The CPU family's attention of fp32 q, k and v as shaders/attention_lanes.comp (a subgroup's
+  // lanes split the head dimension, every load one word a lane at consecutive addresses)
+  // instead of attention.comp's blocks of queries: SwiftShader, for the same reason.
+  bool attentionLanesSplitDim = false;
   // The CPU family's GEMM (gemm_lanes.comp) and attention kernels with their specialization
   // constants written into the modules (engine/spirv_freeze.h), and attention in blocks small
   // enough to unroll: SwiftShader optimizes a shader only as far as its constants are plain

@@ -15,66 +15,92 @@ struct AttentionCase {
 class AttentionTest : public EngineTest, public ::testing::WithParamInterface<AttentionCase> {};
 
 // Self-attention reading q, k, v straight out of one fused qkv tensor [B, N, 3D].
-TEST_P(AttentionTest, FusedQkvMatchesFloat64) {
-  const auto c = GetParam();
+void expectFusedQkvMatches(Engine& engine, const AttentionCase& c, const std::string& what) {
   const int64_t D = int64_t(c.heads) * c.dh;
   auto qkv = randomNormal(c.B * c.N * 3 * D, 0, 1, 21);
-  Tensor t = eng().fromFloats({c.B, c.N, 3 * D}, qkv);
-  GuardedOutput out(eng(), {c.B, c.N, D});
-  Recorder rec(eng());
+  Tensor t = engine.fromFloats({c.B, c.N, 3 * D}, qkv);
+  GuardedOutput out(engine, {c.B, c.N, D});
+  Recorder rec(engine);
   attention(rec, {t, 0}, {t, D}, {t, 2 * D}, {out.tensor(), 0}, c.heads, c.dh, c.causal);
   rec.run();
   auto ref = attentionRef(qkv, 3 * D, 0, qkv, 3 * D, D, qkv, 3 * D, 2 * D, c.B, c.N, c.N, c.heads, c.dh, c.causal,
                           1.0 / std::sqrt(double(c.dh)));
-  expectClose(out.read(), ref, 1e-9, 1e-4, "attention");
+  expectClose(out.read(), ref, 1e-9, 1e-4, what);
   out.expectAllWritten();
 }
+
+TEST_P(AttentionTest, FusedQkvMatchesFloat64) { expectFusedQkvMatches(eng(), GetParam(), "attention"); }
 
 INSTANTIATE_TEST_SUITE_P(Shapes, AttentionTest,
                          ::testing::Values(AttentionCase{1, 61, 2, 32, false}, AttentionCase{2, 7, 3, 16, false},
                                            AttentionCase{1, 257, 2, 64, false}, AttentionCase{2, 61, 2, 32, true},
                                            AttentionCase{1, 130, 1, 64, true}, AttentionCase{1, 1, 1, 16, false}));
 
-// Cross attention: separate q, k, v tensors, fewer queries than keys, output written
-// into a column slice of a wider tensor.
-TEST_F(EngineTest, AttentionSeparateTensorsAndOutputSlice) {
+// Cross attention: separate q, k, v tensors, fewer queries than keys, k's heads at column 4,
+// output written into a column slice of a wider tensor.
+void expectCrossAttentionMatches(Engine& engine, const std::string& what) {
   const int64_t B = 2, Nq = 19, Nk = 45;
   const int heads = 2, dh = 24;
   auto q = randomNormal(B * Nq * 48, 0, 1, 22), k = randomNormal(B * Nk * 52, 0, 1, 23), v = randomNormal(B * Nk * 48, 0, 1, 24);
-  Tensor tq = eng().fromFloats({B, Nq, 48}, q), tk = eng().fromFloats({B, Nk, 52}, k), tv = eng().fromFloats({B, Nk, 48}, v);
-  Tensor wide = eng().tensor({B, Nq, 60});
+  Tensor tq = engine.fromFloats({B, Nq, 48}, q), tk = engine.fromFloats({B, Nk, 52}, k), tv = engine.fromFloats({B, Nk, 48}, v);
+  Tensor wide = engine.tensor({B, Nq, 60});
   std::vector<float> fill(B * Nq * 60, 7.0f);
-  eng().upload(wide, fill);
-  Recorder rec(eng());
+  engine.upload(wide, fill);
+  Recorder rec(engine);
   attention(rec, {tq, 0}, {tk, 4}, {tv, 0}, {wide, 10}, heads, dh, false, 0.3f);
   rec.run();
   auto ref = attentionRef(q, 48, 0, k, 52, 4, v, 48, 0, B, Nq, Nk, heads, dh, false, 0.3);
-  auto got = eng().download(wide);
+  auto got = engine.download(wide);
   std::vector<float> slice;
   for (int64_t r = 0; r < B * Nq; ++r) {
     for (int64_t c = 0; c < 60; ++c) {
       if (c >= 10 && c < 10 + heads * dh) slice.push_back(got[r * 60 + c]);
-      else ASSERT_EQ(got[r * 60 + c], 7.0f) << "wrote outside the head columns";
+      else ASSERT_EQ(got[r * 60 + c], 7.0f) << what << ": wrote outside the head columns";
     }
   }
-  expectClose(slice, ref, 1e-9, 1e-4, "cross");
+  expectClose(slice, ref, 1e-9, 1e-4, what);
 }
 
+TEST_F(EngineTest, AttentionSeparateTensorsAndOutputSlice) { expectCrossAttentionMatches(eng(), "cross"); }
+
 // Logits of +-1e4: the softmax is one-hot; the online max must keep it finite and exact.
-TEST_F(EngineTest, AttentionLogitsOfTenThousand) {
+void expectLogitsOfTenThousandMatch(Engine& engine, const std::string& what) {
   const int64_t N = 37;
   const int heads = 1, dh = 16;
   auto q = randomNormal(N * dh, 0, 1, 25), k = randomNormal(N * dh, 0, 1, 26), v = randomNormal(N * dh, 0, 1, 27);
   for (auto& x : q) x = x > 0 ? 25.0f : -25.0f;  // |q.k| ~ 1e4 with scale 1
   for (auto& x : k) x *= 25.0f;
-  Tensor tq = eng().fromFloats({N, dh}, q), tk = eng().fromFloats({N, dh}, k), tv = eng().fromFloats({N, dh}, v);
-  GuardedOutput out(eng(), {N, dh});
-  Recorder rec(eng());
+  Tensor tq = engine.fromFloats({N, dh}, q), tk = engine.fromFloats({N, dh}, k), tv = engine.fromFloats({N, dh}, v);
+  GuardedOutput out(engine, {N, dh});
+  Recorder rec(engine);
   attention(rec, {tq, 0}, {tk, 0}, {tv, 0}, {out.tensor(), 0}, heads, dh, false, 1.0f);
   rec.run();
   auto ref = attentionRef(q, dh, 0, k, dh, 0, v, dh, 0, 1, N, N, heads, dh, false, 1.0);
-  expectClose(out.read(), ref, 1e-9, 1e-4, "logits 1e4");
+  expectClose(out.read(), ref, 1e-9, 1e-4, what);
   out.expectAllWritten();
+}
+
+TEST_F(EngineTest, AttentionLogitsOfTenThousand) { expectLogitsOfTenThousandMatch(eng(), "logits 1e4"); }
+
+// SwiftShader's attention (attention_lanes.comp: a subgroup's lanes split the head dimension,
+// its constants written into the module) forced on this device, through texel and storage
+// inputs: the cases above, plus query and key counts that are no multiple of a workgroup's 4
+// queries or a block's 4 keys, causal masks, batches and 64-wide heads. Every case must have
+// run that kernel (on lavapipe's 8 lanes and SwiftShader's 4 these heads divide evenly).
+TEST_F(EngineTest, AttentionLanesSplitDimMatchesFloat64) {
+  withLanesKernelsForced(eng(), [&](const std::string& inputs) {
+    const std::string tag = "lanes, " + inputs + " inputs, ";
+    for (const AttentionCase c : {AttentionCase{2, 61, 2, 32, false}, AttentionCase{1, 37, 1, 64, true},
+                                  AttentionCase{2, 9, 3, 16, true}, AttentionCase{1, 1, 1, 16, false}})
+      expectFusedQkvMatches(eng(), c, tag + "N " + std::to_string(c.N) + ", dh " + std::to_string(c.dh));
+    expectCrossAttentionMatches(eng(), tag + "cross");
+    expectLogitsOfTenThousandMatch(eng(), tag + "logits 1e4");
+  });
+  size_t lanesPipelines = 0;
+  for (const Pipeline* p : eng().pipelines().pipelines()) lanesPipelines += p->name.rfind("attention_lanes", 0) == 0;
+  const DeviceCaps& caps = eng().caps();
+  if (caps.subgroupArithmetic && caps.fullSubgroups && 16 % caps.subgroupSize == 0)
+    EXPECT_GT(lanesPipelines, 0u) << "no case ran attention_lanes.comp";
 }
 
 // One key dominates every row (its logit exceeds the rest by ~60): output ~= that value row.

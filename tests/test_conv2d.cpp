@@ -330,7 +330,7 @@ TEST_F(EngineTest, Conv2dRejectsBadShapes) {
 // (64 channels x 3x3 at 128 columns: 14 rows a band of the 4 MiB of patches).
 TEST_F(EngineTest, Conv2dIm2colLanesGemmMatchesFloat64) {
   const DeviceCaps& caps = eng().caps();
-  withLanesGemmForced(eng(), [&](const std::string& inputs) {
+  withLanesKernelsForced(eng(), [&](const std::string& inputs) {
     for (const ConvCase& c : {ConvCase{1, 7, 13, 13, 61, 3, 3, 1, 1, 1, true, Activation::None},
                               ConvCase{2, 61, 13, 7, 7, 3, 3, 2, 1, 1, false, Activation::Gelu},
                               ConvCase{1, 3, 61, 61, 16, 3, 3, 2, 0, 0, true, Activation::Silu},

@@ -155,7 +155,7 @@ TEST_F(EngineTest, ConvTranspose2dOutputSplitIntoChunks) {
 // the 4 MiB scratch after the kernel).
 TEST_F(EngineTest, ConvTranspose2dIm2colLanesGemmMatchesFloat64) {
   const DeviceCaps& caps = eng().caps();
-  withLanesGemmForced(eng(), [&](const std::string& inputs) {
+  withLanesKernelsForced(eng(), [&](const std::string& inputs) {
     for (const ConvTCase& c : {ConvTCase{1, 7, 13, 13, 61, 2, true, Activation::None},
                                ConvTCase{2, 61, 7, 9, 7, 2, false, Activation::Gelu},
                                ConvTCase{2, 9, 7, 12, 13, 4, true, Activation::Silu},

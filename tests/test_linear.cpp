@@ -56,7 +56,7 @@ INSTANTIATE_TEST_SUITE_P(
 // edge, bias and every activation. Where the device has no subgroup arithmetic with full
 // subgroups (some device-limit profiles) the plan must refuse it.
 TEST_F(EngineTest, LinearLanesSplitKMatchesFloat64) {
-  withLanesGemmForced(eng(), [&](const std::string& inputs) {
+  withLanesKernelsForced(eng(), [&](const std::string& inputs) {
     for (const LinearCase c : {LinearCase{7, 61, 64, false, Activation::None}, LinearCase{61, 7, 61, true, Activation::None},
                                LinearCase{1, 1, 1, false, Activation::None}, LinearCase{33, 65, 130, true, Activation::Gelu},
                                LinearCase{19, 40, 3, true, Activation::QuickGelu}, LinearCase{64, 17, 20, false, Activation::Silu},

@@ -201,12 +201,13 @@ CommandResult runValidated(const std::vector<std::string>& argv, const std::file
   return r;
 }
 
-void withLanesGemmForced(Engine& engine, const std::function<void(const std::string& inputs)>& body) {
+void withLanesKernelsForced(Engine& engine, const std::function<void(const std::string& inputs)>& body) {
   const DeviceCaps& caps = engine.caps();
   const KernelTuning saved = engine.options().tuning;
   KernelTuning t = saved;
   t.kernels = "cpu";  // the CPU family's kernels, also in a program's GPU-family run
   t.gemmLanesSplitK = true;
+  t.attentionLanesSplitDim = true;
   if (!(caps.subgroupArithmetic && caps.fullSubgroups)) {
     EXPECT_THROW(engine.setTuning(t), Error);
     return;
@@ -215,7 +216,7 @@ void withLanesGemmForced(Engine& engine, const std::function<void(const std::str
   for (const char* inputs : {"texel", "storage"}) {
     t.inputs = inputs;
     engine.setTuning(t);
-    EXPECT_TRUE(engine.plan().gemmLanesSplitK);
+    EXPECT_TRUE(engine.plan().gemmLanesSplitK && engine.plan().attentionLanesSplitDim);
     body(inputs);
   }
   engine.setTuning(saved);

@@ -64,12 +64,13 @@ class EngineTest : public ::testing::Test {
   size_t messagesBefore_ = 0;
 };
 
-// SwiftShader's lanes GEMM (KernelPlan::gemmLanesSplitK; the convolutions' im2col with it) forced
-// on this device, the CPU family, its constants written into the modules: calls body("texel")
+// SwiftShader's lanes kernels (KernelPlan::gemmLanesSplitK, the convolutions' im2col with it, and
+// attentionLanesSplitDim) forced on this device, the CPU family, their constants written into the
+// modules: calls body("texel")
 // and body("storage") with the inputs so bound, then restores the tuning. Where the device has
 // no subgroup arithmetic with full subgroups (some device-limit profiles) it checks instead that
 // the plan refuses it, and calls nothing.
-void withLanesGemmForced(Engine& engine, const std::function<void(const std::string& inputs)>& body);
+void withLanesKernelsForced(Engine& engine, const std::function<void(const std::string& inputs)>& body);
 
 // Deterministic random values.
 std::vector<float> randomUniform(size_t n, float lo, float hi, uint32_t seed);

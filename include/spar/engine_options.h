@@ -45,6 +45,10 @@ struct SPAR_API KernelTuning {
   // The CPU family's GEMMs of fp32 weights with a subgroup's lanes splitting k (gemm_lanes.comp;
   // SPAR_GEMM_LANES=1 / 0); unset: SwiftShader's plan. Needs subgroup arithmetic and full subgroups.
   std::optional<bool> gemmLanesSplitK;
+  // The CPU family's attention of fp32 q, k and v with a subgroup's lanes splitting the head
+  // dimension (attention_lanes.comp; SPAR_ATTENTION_LANES=1 / 0); unset: SwiftShader's plan.
+  // Needs subgroup arithmetic and full subgroups.
+  std::optional<bool> attentionLanesSplitDim;
 
   // Throws Error (one line, naming the field) for a value no kernel can take.
   void validate() const;
