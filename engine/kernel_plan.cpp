@@ -83,33 +83,30 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
     // SwiftShader (docs/portability.md, "SwiftShader's kernels"): 1024^3 GEMM 0.6-0.8 -> 4.7
     // GFLOPS, attention 1.0 -> 1.6.
     const bool swiftShader = caps.driverId == VK_DRIVER_ID_GOOGLE_SWIFTSHADER;
-    plan.gemmLanesSplitK = tuning.gemmLanesSplitK.value_or(swiftShader && !tuning.gemmTiles);
-    if (plan.gemmLanesSplitK && !(caps.subgroupArithmetic && caps.fullSubgroups)) {
-      if (tuning.gemmLanesSplitK) throw Error("SPAR_GEMM_LANES=1: the device has no subgroup arithmetic with full subgroups");
-      plan.gemmLanesSplitK = false;
-    }
-    plan.attentionLanesSplitDim = tuning.attentionLanesSplitDim.value_or(swiftShader && !tuning.attentionTiles);
-    if (plan.attentionLanesSplitDim && !(caps.subgroupArithmetic && caps.fullSubgroups)) {
-      if (tuning.attentionLanesSplitDim)
-        throw Error("SPAR_ATTENTION_LANES=1: the device has no subgroup arithmetic with full subgroups");
-      plan.attentionLanesSplitDim = false;
-    }
+    // A kernel whose subgroup's lanes split a reduction (gemm_lanes.comp, attention_lanes.comp):
+    // SwiftShader's plan unless forced (ENV=1 / 0, KernelTuning); it needs subgroup arithmetic
+    // with full subgroups, and a device without them refuses it when forced.
+    auto lanesSplit = [&](const std::optional<bool>& forced, bool byDefault, const std::string& env,
+                          const std::string& what, const std::string& why) {
+      bool on = forced.value_or(byDefault);
+      if (on && !(caps.subgroupArithmetic && caps.fullSubgroups)) {
+        if (forced) throw Error(env + "=1: the device has no subgroup arithmetic with full subgroups");
+        on = false;
+      }
+      if (forced) plan.reasons.push_back(what + ": " + (on ? "forced" : "forced off") + " (" + env + ")");
+      else if (on) plan.reasons.push_back("SwiftShader: " + what + ", " + why);
+      return on;
+    };
+    plan.gemmLanesSplitK = lanesSplit(tuning.gemmLanesSplitK, swiftShader && !tuning.gemmTiles, "SPAR_GEMM_LANES",
+                                      "GEMMs of fp32 weights with the subgroup's lanes splitting k (gemm_lanes.comp), "
+                                      "and convolutions (transposed ones too) as im2col and that GEMM",
+                                      "its loads are vector loads only where the lanes' addresses are consecutive");
+    plan.attentionLanesSplitDim =
+        lanesSplit(tuning.attentionLanesSplitDim, swiftShader && !tuning.attentionTiles, "SPAR_ATTENTION_LANES",
+                   "attention of fp32 q, k and v with the subgroup's lanes splitting the head dimension "
+                   "(attention_lanes.comp)",
+                   "for the same reason");
     plan.freezeConstants = tuning.freezeConstants.value_or(swiftShader);
-    if (tuning.gemmLanesSplitK)
-      plan.reasons.push_back(std::string("GEMMs of fp32 weights with the subgroup's lanes splitting k (gemm_lanes.comp; "
-                                         "convolutions as im2col and that GEMM): ") +
-                             (plan.gemmLanesSplitK ? "forced" : "forced off") + " (SPAR_GEMM_LANES)");
-    else if (plan.gemmLanesSplitK)
-      plan.reasons.push_back("SwiftShader: GEMMs of fp32 weights with the subgroup's lanes splitting k (gemm_lanes.comp), "
-                             "and convolutions (transposed ones too) as im2col and that GEMM: its loads are vector "
-                             "loads only where the lanes' addresses are consecutive");
-    if (tuning.attentionLanesSplitDim)
-      plan.reasons.push_back(std::string("attention of fp32 q, k and v with the subgroup's lanes splitting the head "
-                                         "dimension (attention_lanes.comp): ") +
-                             (plan.attentionLanesSplitDim ? "forced" : "forced off") + " (SPAR_ATTENTION_LANES)");
-    else if (plan.attentionLanesSplitDim)
-      plan.reasons.push_back("SwiftShader: attention of fp32 q, k and v with the subgroup's lanes splitting the head "
-                             "dimension (attention_lanes.comp), for the same reason");
     if (tuning.freezeConstants)
       plan.reasons.push_back(std::string("GEMM and attention kernels: specialization constants ") +
                              (plan.freezeConstants ? "written into the modules" : "specialized") + ": forced (SPAR_FREEZE_CONSTANTS)");
