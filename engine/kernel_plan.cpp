@@ -81,7 +81,7 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
     // ms), not on Mesa 25.0.7 (the same 31.5 ms; the head 2.2 -> 3.8 ms), which keeps its blocks.
     plan.convSharedWeights = share && !tuning.convTiles && ops::cpuTiles(caps) != ops::CpuTiles::Newer;
     // SwiftShader (docs/portability.md, "SwiftShader's kernels"): 1024^3 GEMM 0.6-0.8 -> 4.7
-    // GFLOPS, attention 1.0 -> 1.6.
+    // GFLOPS, attention 1.0 -> 1.6 (constants written in) -> 2.2 (attention_lanes.comp).
     const bool swiftShader = caps.driverId == VK_DRIVER_ID_GOOGLE_SWIFTSHADER;
     // A kernel whose subgroup's lanes split a reduction (gemm_lanes.comp, attention_lanes.comp):
     // SwiftShader's plan unless forced (ENV=1 / 0, KernelTuning); it needs subgroup arithmetic

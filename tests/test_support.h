@@ -66,10 +66,9 @@ class EngineTest : public ::testing::Test {
 
 // SwiftShader's lanes kernels (KernelPlan::gemmLanesSplitK, the convolutions' im2col with it, and
 // attentionLanesSplitDim) forced on this device, the CPU family, their constants written into the
-// modules: calls body("texel")
-// and body("storage") with the inputs so bound, then restores the tuning. Where the device has
-// no subgroup arithmetic with full subgroups (some device-limit profiles) it checks instead that
-// the plan refuses it, and calls nothing.
+// modules: calls body("texel") and body("storage") with the inputs so bound, then restores the
+// tuning. Where the device has no subgroup arithmetic with full subgroups (some device-limit
+// profiles) it checks instead that the plan refuses them, and calls nothing.
 void withLanesKernelsForced(Engine& engine, const std::function<void(const std::string& inputs)>& body);
 
 // Deterministic random values.
