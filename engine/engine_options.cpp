@@ -1,5 +1,6 @@
 // EngineOptions::fromEnvironment and KernelTuning::validate (include/spar/engine_options.h):
 // the one place the engine's settings are read from the environment.
+#include <algorithm>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -83,6 +84,8 @@ void KernelTuning::validate() const {
     throw Error("kernel family (SPAR_KERNELS) must be cpu, gpu, gpu-fp16 or coopmat, got '" + kernels + "'");
   if (!inputs.empty() && inputs != "texel" && inputs != "storage")
     throw Error("kernel inputs (SPAR_INPUTS) must be texel or storage, got '" + inputs + "'");
+  if (gemmRowGroups && (*gemmRowGroups < 0 || *gemmRowGroups > 4096))
+    throw Error("GEMM row groups (SPAR_GEMM_ROW_GROUPS) must be 0 to 4096, got " + std::to_string(*gemmRowGroups));
   if (lineGroup) {
     const auto [split, x, y] = *lineGroup;
     if ((split != 0 && split != 1) || x <= 0 || x % 8 || y <= 0)
@@ -122,6 +125,10 @@ EngineOptions EngineOptions::fromEnvironment(EngineOptions base) {
     if (const char* g = env("SPAR_GEMM_LANES")) t.gemmLanesSplitK = std::string(g) != "0";
   if (!t.attentionLanesSplitDim)
     if (const char* a = env("SPAR_ATTENTION_LANES")) t.attentionLanesSplitDim = std::string(a) != "0";
+  if (!t.gemmRowGroups)
+    if (auto g = count("SPAR_GEMM_ROW_GROUPS")) t.gemmRowGroups = int(std::min<unsigned long long>(*g, 1u << 20));
+  if (!t.padAliasedRows)
+    if (const char* r = env("SPAR_ROW_PADDING")) t.padAliasedRows = std::string(r) != "0";
   if (!t.freezeConstants)
     if (const char* f = env("SPAR_FREEZE_CONSTANTS")) t.freezeConstants = std::string(f) != "0";
   t.validate();

@@ -106,6 +106,26 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
                    "attention of fp32 q, k and v with the subgroup's lanes splitting the head dimension "
                    "(attention_lanes.comp)",
                    "for the same reason");
+    // The official model on llvmpipe 22.3 (spar-bench --model, 4 + 4 views at 256x256, runs in the
+    // order A B C C B A): 25.1 s as dispatched, 24.3 s with the hidden rows widened, 22.3 s with
+    // them widened and 8 blocks of rows a group; one GEMM alone (2056 x 3072 x 768, its inputs
+    // in cache) 79-83 -> 108-118 GFLOPS from the widening. SwiftShader's gemm_lanes.comp ran the
+    // same either way (it is bound by its arithmetic), so its plan widens nothing.
+    plan.padAliasedRows = tuning.padAliasedRows.value_or(!plan.gemmLanesSplitK);
+    if (tuning.padAliasedRows)
+      plan.reasons.push_back(std::string("transformer MLPs' hidden rows: ") +
+                             (plan.padAliasedRows ? "widened" : "as the model has them") + ": forced (SPAR_ROW_PADDING)");
+    else if (plan.padAliasedRows)
+      plan.reasons.push_back("transformer MLPs' hidden rows 4 elements wider where a row is a multiple of 2048 bytes: rows "
+                             "4096 bytes apart share one set of a CPU's L1 cache, and a GEMM block reads 32 of them at once");
+    plan.gemmRowGroups = tuning.gemmRowGroups.value_or(8);
+    if (plan.gemmRowGroups == 0)
+      plan.reasons.push_back("gemm.comp's workgroups in the order dispatched: forced (SPAR_GEMM_ROW_GROUPS=0)");
+    else
+      plan.reasons.push_back("gemm.comp's workgroups through the columns in groups of " + std::to_string(plan.gemmRowGroups) +
+                             " blocks of rows" + (tuning.gemmRowGroups ? " (forced: SPAR_GEMM_ROW_GROUPS)" : "") +
+                             ": a CPU runs workgroups in index order, and x's rows stay in its caches only while a "
+                             "group reuses them");
     plan.freezeConstants = tuning.freezeConstants.value_or(swiftShader);
     if (tuning.freezeConstants)
       plan.reasons.push_back(std::string("GEMM and attention kernels: specialization constants ") +

@@ -81,6 +81,14 @@ struct KernelPlan {
   // enough to unroll: SwiftShader optimizes a shader only as far as its constants are plain
   // constants. (Its convolutions ran no faster so and took 3-8x longer to compile: not there.)
   bool freezeConstants = false;
+  // The CPU family with gemm.comp's register blocks: transformer MLPs lay their hidden rows out
+  // 4 elements wider where a row is a multiple of 2048 bytes, so that the 32 rows a block reads
+  // at once fall in different sets of the CPU's L1 cache (engine/ops/row_padding.h).
+  bool padAliasedRows = false;
+  // The CPU family's gemm.comp (GROUP_M): workgroups go through every block of columns in groups
+  // of this many blocks of rows, so that x's rows stay in cache while w streams (0: in the order
+  // dispatched, each block of columns reading all of x again).
+  int gemmRowGroups = 0;
   TiledGemmTiles gemmTiles;                          // products that fill the device
   TiledGemmTiles gemmSmallTiles{32, 32, 16, 2, 2};   // products with few output tiles
   CoopMatTiles coop;

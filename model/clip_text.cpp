@@ -6,6 +6,7 @@
 #include "engine/ops/binary.h"
 #include "engine/ops/embedding.h"
 #include "engine/ops/linear.h"
+#include "model/stack.h"
 #include "engine/ops/norm.h"
 
 namespace spar {
@@ -49,11 +50,11 @@ Shape shapeOf(Dims d, int64_t W) {
 
 WeightLookup blockWeights(WeightSet& weights, int64_t i, int64_t W) {
   const std::string prefix = std::string(ClipTextEncoder::kPrefix) + "transformer.resblocks." + std::to_string(i) + ".";
-  return [&weights, prefix, W](const std::string& name) -> Tensor {
+  return weightLookup(weights, [prefix, W](const std::string& name) -> std::pair<std::string, Shape> {
     for (const BlockKey& k : kBlockKeys)
-      if (name == k.block) return weights.require(prefix + k.clip, shapeOf(k.dims, W));
+      if (name == k.block) return {prefix + k.clip, shapeOf(k.dims, W)};
     throw Error("CLIP text: the transformer block asks for '" + name + "', which CLIP does not have");
-  };
+  });
 }
 
 int64_t positive(const nlohmann::json& j, const char* key, const std::string& where) {

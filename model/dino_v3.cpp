@@ -9,6 +9,7 @@
 #include "engine/ops/binary.h"
 #include "engine/ops/copy2d.h"
 #include "engine/ops/linear.h"
+#include "model/stack.h"
 #include "engine/ops/norm.h"
 #include "engine/ops/patchify.h"
 #include "engine/ops/rope.h"
@@ -59,11 +60,11 @@ Shape shapeOf(Dims d, int64_t E, int64_t F) {
 // Looks TransformerBlock's names up as block i's DINOv3 tensors.
 WeightLookup blockWeights(WeightSet& weights, int64_t i, int64_t E, int64_t F) {
   const std::string prefix = kPrefix + "blocks." + std::to_string(i) + ".";
-  return [&weights, prefix, E, F](const std::string& name) -> Tensor {
+  return weightLookup(weights, [prefix, E, F](const std::string& name) -> std::pair<std::string, Shape> {
     for (const BlockKey& k : kBlockKeys)
-      if (name == k.block) return weights.require(prefix + k.dino, shapeOf(k.dims, E, F));
+      if (name == k.block) return {prefix + k.dino, shapeOf(k.dims, E, F)};
     throw Error("DINOv3: the transformer block asks for '" + name + "', which DINOv3 does not have");
-  };
+  });
 }
 
 TransformerBlockOptions optionsFor(const DinoConfig& c) {

@@ -11,6 +11,7 @@
 #include "engine/ops/conv_transpose2d.h"
 #include "engine/ops/copy2d.h"
 #include "engine/ops/linear.h"
+#include "model/stack.h"
 #include "engine/ops/patchify.h"
 #include "engine/ops/resize.h"
 #include "engine/ops/unary.h"
@@ -52,14 +53,14 @@ constexpr BlockKey kBlockKeys[] = {
 // one-line error naming it).
 WeightLookup blockWeights(WeightSet& weights, int64_t i, int64_t W, int64_t F) {
   const std::string prefix = kVit + "blocks." + std::to_string(i) + ".";
-  return [&weights, prefix, W, F](const std::string& name) -> Tensor {
+  return weightLookup(weights, [prefix, W, F](const std::string& name) -> std::pair<std::string, Shape> {
     for (const BlockKey& k : kBlockKeys) {
       if (name != k.block) continue;
       const int64_t rows = k.rowsW * W + k.rowsF * F, cols = k.colsW * W + k.colsF * F;
-      return weights.require(prefix + k.timm, cols > 0 ? Shape{rows, cols} : Shape{rows});
+      return {prefix + k.timm, cols > 0 ? Shape{rows, cols} : Shape{rows}};
     }
     throw Error("LSeg: the transformer block asks for '" + name + "', which timm's ViT block does not have");
-  };
+  });
 }
 
 // timm's ViT block (vit_large_patch16_384 as lang-seg runs it): LayerNorm with bias, biases on

@@ -3,10 +3,27 @@
 namespace spar {
 
 WeightLookup weightLookup(WeightSet& weights) {
-  return [&weights](const std::string& name) -> Tensor {
+  WeightLookup lookup = [&weights](const std::string& name) -> Tensor {
     if (!weights.available(name)) return Tensor();
     return weights.require(name, weights.model().info(name).shape);
   };
+  lookup.padded = [&weights](const std::string& name, const Shape& paddedShape) -> Tensor {
+    if (!weights.available(name)) return Tensor();
+    return weights.requirePadded(name, weights.model().info(name).shape, paddedShape);
+  };
+  return lookup;
+}
+
+WeightLookup weightLookup(WeightSet& weights, WeightLocator locate) {
+  WeightLookup lookup = [&weights, locate](const std::string& name) -> Tensor {
+    const auto [key, shape] = locate(name);
+    return weights.require(key, shape);
+  };
+  lookup.padded = [&weights, locate](const std::string& name, const Shape& paddedShape) -> Tensor {
+    const auto [key, shape] = locate(name);
+    return weights.requirePadded(key, shape, paddedShape);
+  };
+  return lookup;
 }
 
 std::vector<TransformerBlock> loadStack(Engine& engine, WeightSet& weights, const TransformerBlockOptions& options,

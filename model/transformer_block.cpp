@@ -8,6 +8,7 @@
 #include "engine/ops/binary.h"
 #include "engine/ops/linear.h"
 #include "engine/ops/norm.h"
+#include "engine/ops/row_padding.h"
 
 namespace spar {
 namespace {
@@ -27,6 +28,15 @@ Tensor lookup(const WeightLookup& weights, const std::string& prefix, const std:
     throw Error(std::string(kWhat) + ": " + key + " is " + t.describe() + ", expected " + shapeString(shape));
   if (t.dtype() == DType::I32 || (needF32 && t.dtype() != DType::F32))
     throw Error(std::string(kWhat) + ": " + key + " is " + t.describe() + ", expected " + (needF32 ? "f32" : "f32 or f16"));
+  return t;
+}
+
+// A weight the lookup stored padded to `shape` (undefined where it could not pad it).
+Tensor paddedWeight(const WeightLookup& weights, const std::string& key, const Shape& shape) {
+  Tensor t = weights.padded(key, shape);
+  if (t.defined() && (t.shape() != shape || (t.dtype() != DType::F32 && t.dtype() != DType::F16)))
+    throw Error(std::string(kWhat) + ": " + key + " padded is " + t.describe() + ", expected f32 or f16 " +
+                shapeString(shape));
   return t;
 }
 
@@ -65,7 +75,8 @@ void TransformerWorkspace::reserve(Engine& engine, int64_t tokens, int64_t dim, 
     throw Error("transformer workspace: bad request (" + std::to_string(tokens) + " tokens, D " + std::to_string(dim) +
                 ", hidden " + std::to_string(hidden) + ")");
   const int64_t rows = std::max<int64_t>(tokens, 1);
-  const int64_t narrow = rows * dim, wide = rows * std::max(3 * dim, hidden);
+  // the hidden row as blocks on this device lay it out (engine/ops/row_padding.h)
+  const int64_t narrow = rows * dim, wide = rows * std::max(3 * dim, ops::unaliasedRow(engine.plan(), hidden));
   bool grew = false;
   if (!norm_.defined() || norm_.numel() < narrow) {
     norm_ = Tensor();  // release before allocating the larger one
@@ -157,12 +168,27 @@ TransformerBlock::TransformerBlock(Engine& engine, const TransformerBlockOptions
   }
   fcW_ = lookup(weights, p, "attn.fc.weight", {D, D}, false);
   if (o_.fcBias) fcB_ = lookup(weights, p, "attn.fc.bias", {D}, false);
-  mlp0W_ = lookup(weights, p, "mlp.mlp.0.weight", {H, D}, false);
-  mlp2W_ = lookup(weights, p, "mlp.mlp.2.weight", {D, H}, false);
-  if (o_.mlpBias) {
-    mlp0B_ = lookup(weights, p, "mlp.mlp.0.bias", {H}, false);
-    mlp2B_ = lookup(weights, p, "mlp.mlp.2.bias", {D}, false);
+  // The hidden row wider by zeros where the plan pads aliased rows: mlp.0 gains zero rows (and
+  // bias entries), so the hidden's extra columns hold act(0), and mlp.2 zero columns that
+  // multiply them: the same sums, on rows the L1 cache does not alias.
+  hiddenRow_ = H;
+  const int64_t wide = ops::unaliasedRow(engine.plan(), H);
+  if (wide != H && weights.padded) {
+    mlp2W_ = paddedWeight(weights, p + "mlp.mlp.2.weight", {D, wide});
+    if (mlp2W_.defined()) {
+      mlp0W_ = paddedWeight(weights, p + "mlp.mlp.0.weight", {wide, D});
+      if (o_.mlpBias) mlp0B_ = paddedWeight(weights, p + "mlp.mlp.0.bias", {wide});
+      if (!mlp0W_.defined() || (o_.mlpBias && !mlp0B_.defined()))
+        throw Error(std::string(kWhat) + ": " + p + "mlp.mlp.2.weight could be padded and mlp.mlp.0 not");
+      hiddenRow_ = wide;
+    }
   }
+  if (hiddenRow_ == H) {
+    mlp0W_ = lookup(weights, p, "mlp.mlp.0.weight", {H, D}, false);
+    mlp2W_ = lookup(weights, p, "mlp.mlp.2.weight", {D, H}, false);
+    if (o_.mlpBias) mlp0B_ = lookup(weights, p, "mlp.mlp.0.bias", {H}, false);
+  }
+  if (o_.mlpBias) mlp2B_ = lookup(weights, p, "mlp.mlp.2.bias", {D}, false);
   if (o_.layerScale) {
     ls1_ = lookup(weights, p, "ls1.gamma", {D}, true);
     ls2_ = lookup(weights, p, "ls2.gamma", {D}, true);
@@ -184,7 +210,7 @@ TransformerBlock::TransformerBlock(Engine& engine, const TransformerBlockOptions
 
 void TransformerBlock::forward(Recorder& rec, const Tensor& x, const TransformerWorkspace& ws,
                                const RopeHook& rope) const {
-  const int64_t D = o_.dim, H = o_.hidden(), heads = o_.heads(), dh = o_.headDim;
+  const int64_t D = o_.dim, H = hiddenRow_, heads = o_.heads(), dh = o_.headDim;
   if (x.rank() != 3 || x.dim(2) != D || x.dtype() != DType::F32)
     throw Error(std::string(kWhat) + ": x must be f32 [B, N, " + std::to_string(D) + "], got " + x.describe());
   const int64_t B = x.dim(0), N = x.dim(1);

@@ -23,6 +23,7 @@
 #include <cstdint>
 #include <functional>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "engine/engine.h"
@@ -56,8 +57,21 @@ struct TransformerBlockOptions {
   static TransformerBlockOptions dinov3(int64_t dim, int64_t headDim);
 };
 
-// Weight lookup by full key name. Return an undefined Tensor (or throw) when the key is missing.
-using WeightLookup = std::function<Tensor(const std::string& name)>;
+// Weight lookup by full key name: the tensor, or an undefined Tensor (or a throw) when the key is
+// missing. `padded`, where the lookup has it, gives the tensor stored with zeros appended up to a
+// larger shape (undefined where it cannot: a quantized matrix): the block asks for its MLP that
+// way where the device's plan lays the hidden rows out wider (engine/ops/row_padding.h), so that
+// only the padded copy reaches the device. A lookup without it gets the MLP as stored.
+struct WeightLookup {
+  std::function<Tensor(const std::string& name)> find;
+  std::function<Tensor(const std::string& name, const Shape& paddedShape)> padded;
+
+  WeightLookup() = default;
+  template <class F, class = std::enable_if_t<std::is_invocable_r_v<Tensor, F&, const std::string&>>>
+  WeightLookup(F f) : find(std::move(f)) {}
+  Tensor operator()(const std::string& name) const { return find(name); }
+  explicit operator bool() const { return bool(find); }
+};
 
 // RoPE hook point: called after QK-norm with the fused qkv tensor [B, N, 3D]; must rotate q
 // (columns [0, D)) and k (columns [D, 2D)) in place by recording dispatches. None of SPAR's own
@@ -107,9 +121,13 @@ class TransformerBlock {
   void forward(Recorder& rec, const Tensor& x, const TransformerWorkspace& ws, const RopeHook& rope = {}) const;
 
   const TransformerBlockOptions& options() const { return o_; }
+  // The MLP's hidden row as laid out on the device: options().hidden(), or wider by
+  // ops::kRowPadding zeros where the plan pads aliased rows and the lookup can pad.
+  int64_t hiddenRow() const { return hiddenRow_; }
 
  private:
   TransformerBlockOptions o_;
+  int64_t hiddenRow_ = 0;
   Tensor norm1W_, norm1B_, qkvW_, qkvB_, qNormW_, kNormW_, fcW_, fcB_, norm2W_, norm2B_;
   Tensor mlp0W_, mlp0B_, mlp2W_, mlp2B_, ls1_, ls2_;
 };

@@ -68,8 +68,7 @@ DType WeightSet::uploadType(const std::string& name) const {
   return want;
 }
 
-Tensor WeightSet::uploadRounded(const std::string& name, DType want) const {
-  std::vector<float> v = model_.floats(name);
+void WeightSet::roundToHalf(const std::string& name, std::vector<float>& v) const {
   // As `spar-convert --fp16` does: a value fp16 cannot hold refuses, it is not saturated.
   for (float& x : v) {
     if (!(std::abs(x) <= 65504.0f))
@@ -77,13 +76,23 @@ Tensor WeightSet::uploadRounded(const std::string& name, DType want) const {
                   ", beyond float16's range: run it with f32 weights");
     x = halfToFloat(floatToHalf(x));
   }
+}
+
+Tensor WeightSet::uploadRounded(const std::string& name, DType want) const {
+  std::vector<float> v = model_.floats(name);
+  roundToHalf(name, v);
   return engine_.fromFloats(model_.info(name).shape, v, want);
 }
 
 const Tensor& WeightSet::require(const std::string& name, const Shape& shape, DType want) {
   checkShape(name, shape);
   auto key = std::make_pair(name, want);
-  if (auto it = loaded_.find(key); it != loaded_.end()) return it->second;
+  if (auto it = loaded_.find(key); it != loaded_.end()) {
+    if (padded_.count(key))
+      throw Error("weight '" + name + "' is on the device padded to " + shapeString(it->second.shape()) +
+                  "; asked for as stored too");
+    return it->second;
+  }
   const PackedTensorInfo& info = model_.info(name);
   const bool rounded = matrixType_ == DType::F16 && info.dtype == FileDType::F32 && isMatrix(name, info.shape) &&
                        (want == DType::F32 || want == DType::F16);
@@ -119,6 +128,45 @@ void WeightSet::checkQuantizable(const std::string& name, DType want) const {
   if (!isQuantizedMatrix(name, model_.info(name).shape))
     throw Error(model_.errorPrefix() + "tensor '" + name + "' is not a matrix the " + dtypeName(want) +
                 " rule quantizes (converter/FORMAT.md, Quantized matrices)");
+}
+
+Tensor WeightSet::requirePadded(const std::string& name, const Shape& shape, const Shape& paddedShape) {
+  checkShape(name, shape);
+  const DType want = uploadType(name);
+  if (isQuantized(want)) return {};
+  const Shape& stored = model_.info(name).shape;
+  bool ok = paddedShape.size() == stored.size() && !stored.empty();
+  for (size_t i = 0; ok && i < stored.size(); ++i) ok = paddedShape[i] >= stored[i];
+  if (!ok)
+    throw Error("weight '" + name + "' " + shapeString(stored) + " cannot be padded to " + shapeString(paddedShape));
+  auto key = std::make_pair(name, want);
+  if (auto it = loaded_.find(key); it != loaded_.end()) {
+    if (!padded_.count(key) || it->second.shape() != paddedShape)
+      throw Error("weight '" + name + "' is on the device as " + shapeString(it->second.shape()) + "; asked for padded to " +
+                  shapeString(paddedShape) + " too");
+    return it->second;
+  }
+  // The values require would upload (fp16-rounded under matrixType F16), placed in a zero tensor
+  // of the padded shape a row of the last dimension at a time: stored row r's multi-index over
+  // the leading dimensions, then that index's row in the padded tensor.
+  std::vector<float> v = model_.floats(name);
+  if (matrixType_ == DType::F16 && isMatrix(name, stored)) roundToHalf(name, v);
+  const int64_t cols = stored.back();
+  std::vector<float> padded(static_cast<size_t>(shapeNumel(paddedShape)), 0.0f);
+  for (int64_t r = 0, rows = cols > 0 ? int64_t(v.size()) / cols : 0; r < rows; ++r) {
+    int64_t rest = r, row = 0, rowsBelow = 1;
+    for (size_t d = stored.size() - 1; d-- > 0;) {
+      row += (rest % stored[d]) * rowsBelow;
+      rest /= stored[d];
+      rowsBelow *= paddedShape[d];
+    }
+    std::copy(v.begin() + r * cols, v.begin() + (r + 1) * cols, padded.begin() + row * paddedShape.back());
+  }
+  Tensor t = engine_.fromFloats(paddedShape, padded, want);
+  bytes_ += t.bytes();
+  order_.push_back(key);
+  padded_.insert(key);
+  return loaded_.emplace(std::move(key), std::move(t)).first->second;
 }
 
 Tensor WeightSet::optional(const std::string& name, const Shape& shape) {

@@ -11,6 +11,7 @@
 #pragma once
 #include <cstdint>
 #include <map>
+#include <set>
 #include <string>
 #include <utility>
 #include <vector>
@@ -44,6 +45,12 @@ class WeightSet {
   const Tensor& require(const std::string& name, const Shape& shape, DType want);
   // Same as require when the file has the tensor; an undefined Tensor when it has not.
   Tensor optional(const std::string& name, const Shape& shape);
+  // `name` (of `shape`, checked as require does) on the device with zeros appended up to
+  // paddedShape, no dimension smaller than the file's and the rank the same, in the dtype
+  // require would give it; undefined where that dtype is quantized (its rows are blocks of 32).
+  // Only the padded tensor reaches the device; asking for a tensor both padded and as stored
+  // throws. For layouts a layer chooses itself (engine/ops/row_padding.h).
+  Tensor requirePadded(const std::string& name, const Shape& shape, const Shape& paddedShape);
 
   // Drops every uploaded tensor (the device memory returns once no Tensor copy holds it).
   void clear();
@@ -68,6 +75,8 @@ class WeightSet {
   void checkShape(const std::string& name, const Shape& shape) const;
   // Throws unless `name` is a matrix the q8 / q4 rule quantizes (model/quantized_matrices.h).
   void checkQuantizable(const std::string& name, DType want) const;
+  // Rounds an F32 file's matrix values to fp16 ones (throws for one beyond fp16's range).
+  void roundToHalf(const std::string& name, std::vector<float>& v) const;
   // An F32 file's matrix with fp16 values, in `want` (matrixType F16 only).
   Tensor uploadRounded(const std::string& name, DType want) const;
 
@@ -75,6 +84,7 @@ class WeightSet {
   const PackedModel& model_;
   DType matrixType_;
   std::map<std::pair<std::string, DType>, Tensor> loaded_;
+  std::set<std::pair<std::string, DType>> padded_;  // the loaded_ entries requirePadded made
   std::vector<std::pair<std::string, DType>> order_;
   uint64_t bytes_ = 0;
 };

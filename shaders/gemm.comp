@@ -48,6 +48,7 @@ layout(constant_id = 7) const bool HAS_BIAS = false;
 layout(constant_id = 8) const int KU = 2;          // k texels per loop iteration
 layout(constant_id = 9) const int W_BITS = 8;      // W_QUANT: 8 (q8) or 4 (q4)
 layout(constant_id = 10) const int LANES = 8;      // SHARED_COLUMNS: the workgroup's x size, one full subgroup
+layout(constant_id = 11) const int GROUP_M = 0;    // workgroups walk the columns in groups of this many blocks of rows (0: as dispatched)
 
 TEXEL_INPUT(0, X, TEXEL_K)
 #if W_QUANT
@@ -67,18 +68,34 @@ layout(push_constant) uniform Push {
   int xBatch, wBatch, yBatch;  // batch strides (texels, texels, elements); wBatch 0 shares w
 } p;
 
+// The workgroup's block of rows (x) and of columns (y). A CPU driver runs workgroups in the
+// order of their index, x fastest: as dispatched, every block of columns then reads all of x
+// again, and x of a large product does not stay in cache between them. With GROUP_M the index
+// is remapped so that GROUP_M blocks of rows go through every block of columns together: their
+// rows of x stay in cache, and w is read once per group.
+ivec2 workgroupBlock() {
+  const ivec2 id = ivec2(gl_WorkGroupID.xy);
+  if (GROUP_M <= 0) return id;
+  const int across = int(gl_NumWorkGroups.x), down = int(gl_NumWorkGroups.y);
+  const int index = id.y * across + id.x, perGroup = GROUP_M * down;
+  const int group = index / perGroup, first = group * GROUP_M, size = min(GROUP_M, across - first);
+  const int i = index - group * perGroup;
+  return ivec2(first + i % size, i / size);
+}
+
 void main() {
-  const int m0 = int(gl_GlobalInvocationID.x) * RM;
+  const ivec2 block = workgroupBlock();
+  const int m0 = (block.x * int(gl_WorkGroupSize.x) + int(gl_LocalInvocationID.x)) * RM;
   const int b = int(gl_GlobalInvocationID.z);
 #if SHARED_COLUMNS
   // Every lane stays to the end, past the edges too: the shuffles need all of them.
-  const int n0 = int(gl_WorkGroupID.y) * RN;
+  const int n0 = block.y * RN;
   const int WT = RN / LANES;  // column texels a lane fetches
   int wRow[WT];
   [[unroll]] for (int j = 0; j < WT; ++j)
     wRow[j] = b * p.wBatch + min(n0 + j * LANES + int(gl_SubgroupInvocationID), p.N - 1) * p.ldw;
 #else
-  const int n0 = int(gl_GlobalInvocationID.y) * RN;
+  const int n0 = (block.y * int(gl_WorkGroupSize.y) + int(gl_LocalInvocationID.y)) * RN;
   if (m0 >= p.M || n0 >= p.N) return;
   const int WT = RN;
   int wRow[WT];

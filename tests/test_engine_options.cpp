@@ -35,13 +35,14 @@ std::string errorOf(const EngineOptions& base = {}) {
 
 TEST_F(Environment, EmptyEnvironmentChangesNothing) {
   for (const char* n : {"SPAR_DEVICE", "SPAR_VALIDATION", "SPAR_LOG_PIPELINES", "SPAR_PROFILE", "SPAR_GEMM_TILES",
-                        "SPAR_ATTENTION_TILES", "SPAR_CONV_TILES", "SPAR_CONVT_TILES", "SPAR_LINE_GROUP"})
+                        "SPAR_ATTENTION_TILES", "SPAR_CONV_TILES", "SPAR_CONVT_TILES", "SPAR_LINE_GROUP",
+                        "SPAR_ROW_PADDING", "SPAR_GEMM_ROW_GROUPS"})
     unsetenv(n);
   const EngineOptions o = EngineOptions::fromEnvironment();
   EXPECT_TRUE(o.device.empty());
   EXPECT_FALSE(o.validation || o.logPipelines || o.profileDispatches);
   EXPECT_FALSE(o.tuning.gemmTiles || o.tuning.attentionTiles || o.tuning.convTiles || o.tuning.convTransposeTiles ||
-               o.tuning.lineGroup);
+               o.tuning.lineGroup || o.tuning.padAliasedRows || o.tuning.gemmRowGroups);
 }
 
 TEST_F(Environment, EveryKnobIsRead) {
@@ -54,6 +55,8 @@ TEST_F(Environment, EveryKnobIsRead) {
   set("SPAR_CONV_TILES", "8,1,8,8,1");
   set("SPAR_CONVT_TILES", "4,1,4,8,1");
   set("SPAR_LINE_GROUP", "1,16,4");
+  set("SPAR_ROW_PADDING", "0");
+  set("SPAR_GEMM_ROW_GROUPS", "3");
   const EngineOptions o = EngineOptions::fromEnvironment();
   EXPECT_EQ(o.device, "llvmpipe");
   EXPECT_TRUE(o.validation && o.logPipelines && o.profileDispatches);
@@ -62,6 +65,8 @@ TEST_F(Environment, EveryKnobIsRead) {
   EXPECT_EQ(*o.tuning.convTiles, (std::array<int, 5>{8, 1, 8, 8, 1}));
   EXPECT_EQ(*o.tuning.convTransposeTiles, (std::array<int, 5>{4, 1, 4, 8, 1}));
   EXPECT_EQ(*o.tuning.lineGroup, (std::array<int, 3>{1, 16, 4}));
+  EXPECT_EQ(o.tuning.padAliasedRows, std::optional<bool>(false));
+  EXPECT_EQ(o.tuning.gemmRowGroups, std::optional<int>(3));
 }
 
 TEST_F(Environment, FieldsSetByTheProgramWin) {
@@ -80,6 +85,7 @@ TEST_F(Environment, MalformedValuesNameTheirVariable) {
       {"SPAR_GEMM_TILES", "4,16,8"},       {"SPAR_GEMM_TILES", "4,16,8,8,2,1"}, {"SPAR_GEMM_TILES", "4,x,8,8,2"},
       {"SPAR_GEMM_TILES", "0,16,8,8,2"},   {"SPAR_ATTENTION_TILES", "8,6,8"},   {"SPAR_CONV_TILES", "8,1,8,-8,1"},
       {"SPAR_CONVT_TILES", "4 1 4 8 1"},   {"SPAR_LINE_GROUP", "2,16,4"},       {"SPAR_LINE_GROUP", "1,12,4"},
+      {"SPAR_GEMM_ROW_GROUPS", "-1"},      {"SPAR_GEMM_ROW_GROUPS", "4097"},    {"SPAR_GEMM_ROW_GROUPS", "8x"},
   };
   for (const auto& [name, value] : bad) {
     set(name, value);

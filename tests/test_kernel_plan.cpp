@@ -12,6 +12,7 @@
 #include "engine/kernel_tuner.h"
 #include "engine/ops/attention.h"
 #include "engine/ops/linear.h"
+#include "engine/ops/row_padding.h"
 #include "tests/test_support.h"
 
 namespace spar::test {
@@ -105,6 +106,44 @@ TEST(KernelPlan, LlvmpipeSharesColumnsByDriverAndProduct) {
   wide.subgroupSize = wide.minSubgroupSize = wide.maxSubgroupSize = 16;
   EXPECT_EQ(chooseGemmTiles(wide, {}, large, 1003).localX, 16);
   EXPECT_TRUE(chooseGemmTiles(wide, {}, large, 20).sharedColumns);
+}
+
+// Transformer MLPs' hidden rows are widened where they alias in a CPU's L1 cache
+// (engine/ops/row_padding.h): the CPU family with gemm.comp, not SwiftShader's lanes GEMM, not
+// GPUs; SPAR_ROW_PADDING forces either way on a CPU plan.
+TEST(KernelPlan, AliasedRowsPaddedWhereGemmCompReadsThem) {
+  DeviceCaps c = cpuCaps();
+  c.driverId = VK_DRIVER_ID_MESA_LLVMPIPE;
+  c.mesaMajor = 22;
+  const KernelPlan plan = planKernels(c, {});
+  EXPECT_TRUE(plan.padAliasedRows);
+  EXPECT_EQ(ops::unaliasedRow(plan, 3072), 3076);  // 12288 bytes: every row in one set
+  EXPECT_EQ(ops::unaliasedRow(plan, 1536), 1540);  // 6144: two sets
+  EXPECT_EQ(ops::unaliasedRow(plan, 512), 516);
+  EXPECT_EQ(ops::unaliasedRow(plan, 768), 768);    // 3072: four sets, measured within 3 %
+  EXPECT_EQ(ops::unaliasedRow(plan, 256), 256);
+  EXPECT_EQ(ops::unaliasedRow(plan, 0), 0);
+  DeviceCaps swiftshader = c;
+  swiftshader.driverId = VK_DRIVER_ID_GOOGLE_SWIFTSHADER;
+  swiftshader.mesaMajor = 0;
+  swiftshader.subgroupArithmetic = swiftshader.fullSubgroups = true;
+  const KernelPlan ss = planKernels(swiftshader, {});
+  ASSERT_TRUE(ss.gemmLanesSplitK);
+  EXPECT_FALSE(ss.padAliasedRows);
+  EXPECT_EQ(ops::unaliasedRow(ss, 3072), 3072);
+  EXPECT_FALSE(planKernels(gpuCaps(), {}).padAliasedRows);
+  KernelTuning off, on;
+  off.padAliasedRows = false;
+  on.padAliasedRows = true;
+  EXPECT_FALSE(planKernels(c, off).padAliasedRows);
+  EXPECT_TRUE(planKernels(swiftshader, on).padAliasedRows);
+  auto lists = [&](const KernelPlan& p, const std::string& what) {
+    for (const auto& line : describePlan(p, c))
+      if (line.find(what) != std::string::npos) return true;
+    return false;
+  };
+  EXPECT_TRUE(lists(plan, "hidden rows 4 elements wider"));
+  EXPECT_TRUE(lists(planKernels(c, off), "hidden rows: as the model has them: forced (SPAR_ROW_PADDING)"));
 }
 
 // conv2d's weights are shared by the lanes where that measured faster: Mesa 22.3 at 8 and 16

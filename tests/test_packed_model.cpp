@@ -229,6 +229,61 @@ TEST_F(PackedModelTest, WeightSetLoadsOnlyWhatIsRequired) {
   EXPECT_EQ(w.bytesLoaded(), 0u);
 }
 
+// requirePadded (a layout a layer chooses, engine/ops/row_padding.h): the stored values at the
+// start of each padded row, zeros after them and in the added rows; only the padded tensor is
+// uploaded; one tensor cannot be on the device both ways; fp16 matrices keep their rounding; a
+// matrix quantized at upload is not padded (undefined, nothing loaded).
+TEST_F(PackedModelTest, WeightSetPadsOnRequest) {
+  PackedModel m = PackedModel::open(kTiny);
+  const std::string mlp2 = "transformer_encoder.0.mlp.mlp.2.weight", norm = "transformer_encoder.0.norm1.weight";
+  WeightSet plain(eng(), m), padded(eng(), m);
+  const std::vector<float> stored = eng().download(plain.require(mlp2, {64, 256}));
+  const Tensor& t = padded.requirePadded(mlp2, {64, 256}, {66, 260});
+  ASSERT_TRUE(t.defined());
+  EXPECT_EQ(t.shape(), (Shape{66, 260}));
+  EXPECT_EQ(t.dtype(), DType::F32);
+  const std::vector<float> got = eng().download(t);
+  for (int64_t r = 0; r < 66; ++r)
+    for (int64_t c = 0; c < 260; ++c)
+      ASSERT_EQ(got[r * 260 + c], r < 64 && c < 256 ? stored[r * 256 + c] : 0.0f) << r << ", " << c;
+  EXPECT_EQ(padded.bytesLoaded(), 66u * 260 * 4);
+  ASSERT_EQ(padded.loaded().size(), 1u);
+  EXPECT_EQ(padded.loaded()[0].first, mlp2);
+  EXPECT_EQ(padded.requirePadded(mlp2, {64, 256}, {66, 260}).bufferPtr(), t.bufferPtr());  // cached
+  const Tensor v = padded.requirePadded(norm, {64}, {68});
+  const std::vector<float> normStored = eng().download(plain.require(norm, {64})), normGot = eng().download(v);
+  for (int64_t i = 0; i < 68; ++i) EXPECT_EQ(normGot[i], i < 64 ? normStored[i] : 0.0f) << i;
+
+  auto expectRefused = [](auto&& f, const std::string& phrase) {
+    try {
+      f();
+      ADD_FAILURE() << "no error for " << phrase;
+    } catch (const Error& e) {
+      EXPECT_NE(std::string(e.what()).find(phrase), std::string::npos) << e.what();
+    }
+  };
+  expectRefused([&] { padded.require(mlp2, {64, 256}); }, "is on the device padded to [66, 260]; asked for as stored too");
+  expectRefused([&] { padded.requirePadded(mlp2, {64, 256}, {64, 264}); }, "asked for padded to [64, 264] too");
+  expectRefused([&] { plain.requirePadded(mlp2, {64, 256}, {64, 260}); }, "is on the device as [64, 256]");
+  expectRefused([&] { padded.requirePadded(norm, {64}, {60}); }, "cannot be padded to [60]");
+  expectRefused([&] { padded.requirePadded(norm, {64}, {64, 4}); }, "cannot be padded to [64, 4]");
+  expectRefused([&] { padded.requirePadded(mlp2, {64, 255}, {64, 260}); }, "expected [64, 255]");
+  EXPECT_EQ(padded.count(), 2u);
+
+  if (eng().caps().supportsFp16Storage()) {
+    WeightSet half(eng(), m, DType::F16), halfPadded(eng(), m, DType::F16);
+    const std::vector<float> h = eng().download(half.require(mlp2, {64, 256}));
+    const Tensor& hp = halfPadded.requirePadded(mlp2, {64, 256}, {64, 260});
+    EXPECT_EQ(hp.dtype(), DType::F16);
+    const std::vector<float> hg = eng().download(hp);
+    for (int64_t r = 0; r < 64; ++r)
+      for (int64_t c = 0; c < 260; ++c) ASSERT_EQ(hg[r * 260 + c], c < 256 ? h[r * 256 + c] : 0.0f) << r << ", " << c;
+  }
+  WeightSet q8(eng(), m, DType::Q8);
+  EXPECT_FALSE(q8.requirePadded(mlp2, {64, 256}, {64, 260}).defined());
+  EXPECT_EQ(q8.count(), 0u);
+}
+
 TEST_F(PackedModelTest, TruncatedCopyIsRefused) {
   // Truncated anywhere past the header: the last tensors' data lie outside the file.
   const std::vector<uint8_t> file = readFile(kTiny);

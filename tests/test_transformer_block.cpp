@@ -7,6 +7,7 @@
 #include <map>
 #include <set>
 
+#include "engine/ops/row_padding.h"
 #include "formats/npy.h"
 #include "model/transformer_block.h"
 #include "tests/golden_support.h"
@@ -99,7 +100,8 @@ TEST_F(EngineTest, TransformerWorkspaceAllocatesOnce) {
   TransformerWorkspace ws;
   ws.reserve(eng(), 2 * 1280, 768, 3072);
   const size_t bytes = ws.bytes();
-  EXPECT_EQ(bytes, size_t(2 * 1280) * (768 + 768 + 3072) * 4);
+  // the hidden row as this device's blocks lay it out (engine/ops/row_padding.h)
+  EXPECT_EQ(bytes, size_t(2 * 1280) * (768 + 768 + ops::unaliasedRow(eng().plan(), 3072)) * 4);
   ws.reserve(eng(), 2 * 512, 768, 3072);
   ws.reserve(eng(), 1280, 512, 2048);
   EXPECT_EQ(ws.allocations(), 1);
@@ -108,6 +110,81 @@ TEST_F(EngineTest, TransformerWorkspaceAllocatesOnce) {
   EXPECT_THROW(ws.hidden(3, 1280, 3072), Error);
   ws.reserve(eng(), 3 * 1280, 768, 3072);
   EXPECT_EQ(ws.allocations(), 2);
+}
+
+// Where the plan pads aliased rows (engine/ops/row_padding.h) and the lookup can pad, the MLP's
+// hidden row is 4 wider: mlp.0 with zero rows (and bias entries), mlp.2 with zero columns. The
+// sums are the same ones plus exact zeros, so the output equals the unpadded block's bit for bit.
+// D 128 and a hidden of 512 (2048-byte rows), with biases (clip, dinov3: LayerScale too) and
+// without (spar); the plan forced both ways on whatever device runs the test.
+TEST_F(EngineTest, MlpHiddenRowsPaddedGiveTheSameBlock) {
+  constexpr int64_t D = 128, H = 512, N = 37;
+  for (const auto& options : {TransformerBlockOptions::spar(D, kHeadDim), TransformerBlockOptions::clipText(D, kHeadDim),
+                              TransformerBlockOptions::dinov3(D, kHeadDim)}) {
+    std::map<std::string, std::vector<float>> values;
+    std::map<std::string, Shape> shapes;
+    uint32_t seed = 70;
+    for (const auto& n : TransformerBlock::weightNames(options)) {
+      const bool norm = n.find("norm") != std::string::npos;
+      const Shape s = n == "attn.to_qkv.weight"   ? Shape{3 * D, D}
+                      : n == "attn.to_qkv.bias"   ? Shape{3 * D}
+                      : n == "attn.fc.weight"     ? Shape{D, D}
+                      : n == "attn.fc.bias"       ? Shape{D}
+                      : n == "mlp.mlp.0.weight"   ? Shape{H, D}
+                      : n == "mlp.mlp.0.bias"     ? Shape{H}
+                      : n == "mlp.mlp.2.weight"   ? Shape{D, H}
+                      : n.find("_norm") != std::string::npos ? Shape{kHeadDim}
+                                                             : Shape{D};
+      shapes[n] = s;
+      values[n] = norm ? randomUniform(shapeNumel(s), 0.5f, 1.5f, seed++) : randomUniform(shapeNumel(s), -0.1f, 0.1f, seed++);
+    }
+    int paddedAsks = 0;
+    WeightLookup lookup = [&](const std::string& k) -> Tensor {
+      return values.count(k) ? eng().fromFloats(shapes.at(k), values.at(k)) : Tensor();
+    };
+    // zeros appended to the last dimension, or rows of zeros (what WeightSet::requirePadded does)
+    lookup.padded = [&](const std::string& k, const Shape& padded) -> Tensor {
+      ++paddedAsks;
+      const Shape& s = shapes.at(k);
+      std::vector<float> v(size_t(shapeNumel(padded)), 0.0f);
+      const int64_t cols = s.back(), rows = shapeNumel(s) / cols;
+      for (int64_t r = 0; r < rows; ++r)
+        std::copy_n(values.at(k).begin() + r * cols, cols, v.begin() + r * padded.back());
+      return eng().fromFloats(padded, v);
+    };
+    const std::vector<float> input = randomNormal(N * D, 0, 1, 80);
+    auto run = [&](bool pad) {
+      KernelTuning t = eng().options().tuning;
+      t.kernels = "cpu";  // the CPU family also in a program's GPU-family run
+      t.padAliasedRows = pad;
+      eng().setTuning(t);
+      paddedAsks = 0;
+      const TransformerBlock block(eng(), options, lookup);
+      EXPECT_EQ(block.hiddenRow(), pad ? H + ops::kRowPadding : H);
+      EXPECT_EQ(paddedAsks, pad ? (options.mlpBias ? 3 : 2) : 0);
+      Tensor x = eng().fromFloats({1, N, D}, input);
+      TransformerWorkspace ws;
+      ws.reserve(eng(), N, options);
+      Recorder rec(eng());
+      block.forward(rec, x, ws);
+      rec.run();
+      return eng().download(x);
+    };
+    const KernelTuning saved = eng().options().tuning;
+    const std::vector<float> plain = run(false), padded = run(true);
+    eng().setTuning(saved);
+    ASSERT_EQ(plain.size(), padded.size());
+    EXPECT_EQ(plain, padded) << (options.layerScale ? "dinov3" : options.mlpBias ? "clip" : "spar");
+    for (float v : padded) ASSERT_TRUE(std::isfinite(v));
+    // A lookup that cannot pad (no `padded`) gets the block as stored, whatever the plan.
+    WeightLookup plainLookup = lookup.find;
+    KernelTuning t = saved;
+    t.kernels = "cpu";
+    t.padAliasedRows = true;
+    eng().setTuning(t);
+    EXPECT_EQ(TransformerBlock(eng(), options, plainLookup).hiddenRow(), H);
+    eng().setTuning(saved);
+  }
 }
 
 // The RoPE hook point: called once per block, after QK-norm, with the fused qkv [B, N, 3D].

@@ -101,7 +101,8 @@ GemmLaunch gemmLaunch(Engine& engine, DType xType, DType wType, DType yType, int
   std::vector<int32_t> constants = {tiles.localX, tiles.localY, 1, tiles.rowsPerInvocation, tiles.colsPerInvocation,
                                     texelK, static_cast<int>(act), hasBias, tiles.kUnroll,
                                     isQuantized(wType) ? (wType == DType::Q8 ? 8 : 4) : 8,  // W_BITS
-                                    tiles.localX};                                          // LANES
+                                    tiles.localX,                                           // LANES
+                                    engine.plan().gemmRowGroups};                           // GROUP_M
   const std::string name = std::string(tiles.sharedColumns ? "gemm_sc" : "gemm") + (isQuantized(wType) ? "_q" : "") +
                            (f16Out ? "_f16out" : "_f32");
   // Shared columns: the workgroup must be one full subgroup (its shuffles read every lane).

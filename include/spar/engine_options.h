@@ -49,6 +49,13 @@ struct SPAR_API KernelTuning {
   // dimension (attention_lanes.comp; SPAR_ATTENTION_LANES=1 / 0); unset: SwiftShader's plan.
   // Needs subgroup arithmetic and full subgroups.
   std::optional<bool> attentionLanesSplitDim;
+  // The hidden rows of transformer MLPs (and their weights) widened by 4 zeros where a row is a
+  // multiple of 2048 bytes (SPAR_ROW_PADDING=1 / 0); unset: where the CPU family runs gemm.comp's
+  // register blocks (engine/ops/row_padding.h).
+  std::optional<bool> padAliasedRows;
+  // The CPU family's gemm.comp: workgroups go through the columns in groups of this many blocks
+  // of rows (SPAR_GEMM_ROW_GROUPS=N, 0: in the order dispatched; at most 4096); unset: 8.
+  std::optional<int> gemmRowGroups;
 
   // Throws Error (one line, naming the field) for a value no kernel can take.
   void validate() const;
