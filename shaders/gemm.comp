@@ -74,13 +74,13 @@ layout(push_constant) uniform Push {
 // is remapped so that GROUP_M blocks of rows go through every block of columns together: their
 // rows of x stay in cache, and w is read once per group.
 ivec2 workgroupBlock() {
-  const ivec2 id = ivec2(gl_WorkGroupID.xy);
-  if (GROUP_M <= 0) return id;
-  const int across = int(gl_NumWorkGroups.x), down = int(gl_NumWorkGroups.y);
-  const int index = id.y * across + id.x, perGroup = GROUP_M * down;
-  const int group = index / perGroup, first = group * GROUP_M, size = min(GROUP_M, across - first);
-  const int i = index - group * perGroup;
-  return ivec2(first + i % size, i / size);
+  if (GROUP_M <= 0) return ivec2(gl_WorkGroupID.xy);
+  // unsigned: a grid of up to 65535 x 65535 workgroups (Vulkan's largest) numbers them in 32 bits
+  const uint across = gl_NumWorkGroups.x, groupM = uint(GROUP_M);
+  const uint index = gl_WorkGroupID.y * across + gl_WorkGroupID.x, perGroup = groupM * gl_NumWorkGroups.y;
+  const uint group = index / perGroup, first = group * groupM, size = min(groupM, across - first);
+  const uint i = index - group * perGroup;
+  return ivec2(int(first + i % size), int(i / size));
 }
 
 void main() {
