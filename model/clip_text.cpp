@@ -6,8 +6,8 @@
 #include "engine/ops/binary.h"
 #include "engine/ops/embedding.h"
 #include "engine/ops/linear.h"
-#include "model/stack.h"
 #include "engine/ops/norm.h"
+#include "model/stack.h"
 
 namespace spar {
 namespace {

@@ -9,10 +9,10 @@
 #include "engine/ops/binary.h"
 #include "engine/ops/copy2d.h"
 #include "engine/ops/linear.h"
-#include "model/stack.h"
 #include "engine/ops/norm.h"
 #include "engine/ops/patchify.h"
 #include "engine/ops/rope.h"
+#include "model/stack.h"
 
 namespace spar {
 namespace {

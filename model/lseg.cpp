@@ -11,10 +11,10 @@
 #include "engine/ops/conv_transpose2d.h"
 #include "engine/ops/copy2d.h"
 #include "engine/ops/linear.h"
-#include "model/stack.h"
 #include "engine/ops/patchify.h"
 #include "engine/ops/resize.h"
 #include "engine/ops/unary.h"
+#include "model/stack.h"
 
 namespace spar {
 namespace {

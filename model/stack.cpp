@@ -3,25 +3,21 @@
 namespace spar {
 
 WeightLookup weightLookup(WeightSet& weights) {
-  WeightLookup lookup = [&weights](const std::string& name) -> Tensor {
-    if (!weights.available(name)) return Tensor();
-    return weights.require(name, weights.model().info(name).shape);
-  };
-  lookup.padded = [&weights](const std::string& name, const Shape& paddedShape) -> Tensor {
-    if (!weights.available(name)) return Tensor();
-    return weights.requirePadded(name, weights.model().info(name).shape, paddedShape);
-  };
-  return lookup;
+  // the block's names are the file's; a name the file lacks finds nothing (the block says which)
+  return weightLookup(weights, [&weights](const std::string& name) -> std::pair<std::string, Shape> {
+    if (!weights.available(name)) return {};
+    return {name, weights.model().info(name).shape};
+  });
 }
 
 WeightLookup weightLookup(WeightSet& weights, WeightLocator locate) {
   WeightLookup lookup = [&weights, locate](const std::string& name) -> Tensor {
     const auto [key, shape] = locate(name);
-    return weights.require(key, shape);
+    return key.empty() ? Tensor() : weights.require(key, shape);
   };
   lookup.padded = [&weights, locate](const std::string& name, const Shape& paddedShape) -> Tensor {
     const auto [key, shape] = locate(name);
-    return weights.requirePadded(key, shape, paddedShape);
+    return key.empty() ? Tensor() : weights.requirePadded(key, shape, paddedShape);
   };
   return lookup;
 }

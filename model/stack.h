@@ -19,7 +19,8 @@ namespace spar {
 WeightLookup weightLookup(WeightSet& weights);
 
 // Where a block's weight lives in a model whose names differ from the block's (DINOv3's, timm's,
-// CLIP's): the file's key and the shape it must have; throws for a name the model lacks.
+// CLIP's): the file's key and the shape it must have; an empty key (or a throw) for a name the
+// model lacks.
 using WeightLocator = std::function<std::pair<std::string, Shape>(const std::string& blockName)>;
 // The WeightLookup of a WeightSet through a locator: require() of the located tensor, and
 // requirePadded() for the padded lookup.

@@ -106,9 +106,7 @@ const Tensor& WeightSet::require(const std::string& name, const Shape& shape, DT
   } else {
     t = rounded ? uploadRounded(name, want) : model_.upload(engine_, name, want);
   }
-  bytes_ += t.bytes();
-  order_.push_back(key);
-  return loaded_.emplace(std::move(key), std::move(t)).first->second;
+  return keep(std::move(key), std::move(t));
 }
 
 const std::vector<std::string>& WeightSet::precisions() {
@@ -162,10 +160,13 @@ Tensor WeightSet::requirePadded(const std::string& name, const Shape& shape, con
     }
     std::copy(v.begin() + r * cols, v.begin() + (r + 1) * cols, padded.begin() + row * paddedShape.back());
   }
-  Tensor t = engine_.fromFloats(paddedShape, padded, want);
+  padded_.insert(key);
+  return keep(std::move(key), engine_.fromFloats(paddedShape, padded, want));
+}
+
+const Tensor& WeightSet::keep(std::pair<std::string, DType> key, Tensor t) {
   bytes_ += t.bytes();
   order_.push_back(key);
-  padded_.insert(key);
   return loaded_.emplace(std::move(key), std::move(t)).first->second;
 }
 

@@ -75,6 +75,8 @@ class WeightSet {
   void checkShape(const std::string& name, const Shape& shape) const;
   // Throws unless `name` is a matrix the q8 / q4 rule quantizes (model/quantized_matrices.h).
   void checkQuantizable(const std::string& name, DType want) const;
+  // Records an uploaded tensor under `key` (counted in bytesLoaded(), listed in loaded()).
+  const Tensor& keep(std::pair<std::string, DType> key, Tensor t);
   // Rounds an F32 file's matrix values to fp16 ones (throws for one beyond fp16's range).
   void roundToHalf(const std::string& name, std::vector<float>& v) const;
   // An F32 file's matrix with fp16 values, in `want` (matrixType F16 only).
