@@ -202,6 +202,9 @@ Device::Device(const DeviceOptions& options) {
               << ", max binding " << (caps_.maxStorageBufferRange >> 20) << " MiB"
               << (validationEnabled() ? ", validation layer on" : "")
               << (caps_.limitsProfile.empty() ? "" : "\n  device-limit profile " + options.limits.describe()) << "\n";
+    if (caps_.shaderCacheIgnoresVectorWidth() && std::getenv("LP_NATIVE_VECTOR_WIDTH"))
+      std::cerr << "  note: LP_NATIVE_VECTOR_WIDTH is set, and this Mesa's shader cache does not tell vector widths apart:"
+                   " shaders built at another width run at its speed; give each width its own MESA_SHADER_CACHE_DIR\n";
   }
 }
 

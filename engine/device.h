@@ -74,6 +74,10 @@ struct DeviceCaps {
   bool hostVisibleDeviceLocal = false;  // a memory type both device-local and mappable
   bool isCpu() const { return type == VK_PHYSICAL_DEVICE_TYPE_CPU; }
   bool isLlvmpipe() const { return driverId == VK_DRIVER_ID_MESA_LLVMPIPE; }
+  // llvmpipe before Mesa 26 keys its on-disk shader cache without LP_NATIVE_VECTOR_WIDTH: a run at
+  // another width reuses the machine code built at the first (right results, the other width's
+  // speed). Measured: 22.3 and 25.0.7 reuse it, 26.1 builds anew (docs/first-run-and-kernels.md).
+  bool shaderCacheIgnoresVectorWidth() const { return isLlvmpipe() && mesaMajor > 0 && mesaMajor < 26; }
   bool supportsFp16Storage() const { return storageBuffer16BitAccess && fp16TexelBuffers; }
 };
 

@@ -174,6 +174,18 @@ TEST(KernelPlan, LlvmpipeSharesConvWeightsOnMesa22) {
   EXPECT_FALSE(planKernels(noShuffle, {}).convSharedWeights);
 }
 
+// Mesa 22.3 and 25.0.7 reuse shaders built at another LP_NATIVE_VECTOR_WIDTH (their cache keys
+// leave it out), 26.1 does not: the device banner warns whoever measures the former at a width.
+TEST(KernelPlan, ShaderCacheSharedAcrossVectorWidthsBeforeMesa26) {
+  DeviceCaps c = cpuCaps();
+  EXPECT_FALSE(c.shaderCacheIgnoresVectorWidth());  // not llvmpipe
+  c.driverId = VK_DRIVER_ID_MESA_LLVMPIPE;
+  for (const auto& [mesa, shared] : {std::pair{22u, true}, {25u, true}, {26u, false}, {0u, false}}) {
+    c.mesaMajor = mesa;
+    EXPECT_EQ(c.shaderCacheIgnoresVectorWidth(), shared) << "Mesa " << mesa;
+  }
+}
+
 TEST(KernelPlan, GpuGetsTilesSubgroupsAndMeasuredGemm) {
   const KernelPlan p = planKernels(gpuCaps(), {});
   EXPECT_EQ(p.gemm, KernelFamily::Tiled);
