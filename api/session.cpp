@@ -1,33 +1,30 @@
-// spar::Session (include/spar/session.h): the model's pipeline on the context's engine.
+// spar::Session (include/spar/session.h): the model's pipeline on the context's engine and the
+// memory preflight. Label maps: api/session_labels.cpp (apart, so that a program that makes none
+// links no tokenizer).
 #include "spar/session.h"
 
-#include "api/api_impl.h"
-#include "engine/error.h"
-#include "text/prompt_labels.h"
+#include "api/session_impl.h"
+#include "engine/memory.h"
+#include "model/memory_estimate.h"
 #include "model/spar_pipeline.h"
+#include "spar/error.h"
 
 namespace spar {
-
-struct Session::Impl {
-  Engine& engine;
-  const PackedModel& model;
-  SparPipelineOptions options;
-  SparPipeline pipeline;
-  bool features = false;  // the last request asked for semantic features
-  bool rendered = false;  // a render call since the last encode
-  std::vector<std::string> prompts;  // whose embeddings `text` holds
-  std::vector<std::string> promptWarnings;
-  PromptEmbeddings text;
-  Impl(Engine& e, const PackedModel& m, const SparPipelineOptions& o) : engine(e), model(m), options(o), pipeline(e, m, o) {}
-};
-
 namespace {
 
 SparPipelineOptions pipelineOptions(const SessionOptions& o) {
   SparPipelineOptions p;
   p.profile = o.profile;
-  if (o.fp16Weights) p.weightType = DType::F16;
+  p.keepIntermediates = o.keepIntermediates;
+  p.weightType = WeightSet::matrixType(o.precision);
   return p;
+}
+
+std::string mib(uint64_t b) { return std::to_string((b + (1 << 20) - 1) >> 20) + " MiB"; }
+
+std::string viewsText(const ViewPlan& p) {
+  return std::to_string(p.views) + " views (" + std::to_string(p.inputs.size()) + " inputs, " +
+         std::to_string(p.targets.size()) + " targets)";
 }
 
 }  // namespace
@@ -36,10 +33,50 @@ Session::Session(Context& context, const Model& model, const SessionOptions& opt
     : impl_(std::make_unique<Impl>(context.impl().engine, model.impl().file, pipelineOptions(options))) {}
 Session::~Session() = default;
 
+MemoryEstimate Session::estimateMemory(const Request& request, const RenderUse& use) {
+  Impl& s = *impl_;
+  const int64_t targets = int64_t(request.plan.targets.size());
+  const MemoryNeed need = s.pipeline.memoryNeed(request, use.viewsPerCall >= 0 ? use.viewsPerCall : targets,
+                                                use.labelPrompts);
+  // The most input views this device surely takes at this size: the upper bound grows by about
+  // the same amount with each one.
+  Request more = request;
+  ++more.plan.views;
+  more.plan.inputs.push_back(request.plan.views);
+  const uint64_t perInput =
+      s.pipeline.memoryNeed(more, use.viewsPerCall >= 0 ? use.viewsPerCall : targets, use.labelPrompts).upperBytes -
+      need.upperBytes;
+  MemoryEstimate e;
+  e.minBytes = need.total();
+  e.maxBytes = need.upperBytes;
+  e.weightBytes = need.weightBytes;
+  e.activationBytes = need.activationBytes;
+  e.budgetBytes = s.engine.memory().budget();
+  e.budgetSource = s.engine.memory().budgetSource();
+  const int64_t inputs = int64_t(request.plan.inputs.size());
+  e.maxInputViews = e.budgetBytes > e.maxBytes
+                        ? inputs + int64_t((e.budgetBytes - e.maxBytes) / std::max<uint64_t>(perInput, 1))
+                        : 0;
+  const int64_t h = request.height ? request.height : s.pipeline.config().imageHeight;
+  const int64_t w = request.width ? request.width : s.pipeline.config().imageWidth;
+  if (e.budgetBytes && e.minBytes > e.budgetBytes)
+    e.refusal = "this request needs at least " + mib(e.minBytes) + " of device memory (weights " + mib(e.weightBytes) +
+                ", activations " + mib(e.activationBytes) + " for " + viewsText(request.plan) + " at " +
+                std::to_string(h) + "x" + std::to_string(w) + "), more than the " + mib(e.budgetBytes) +
+                " available (" + e.budgetSource + ")";
+  else if (e.budgetBytes && e.maxBytes > e.budgetBytes)
+    e.warning = "this request may need up to " + mib(e.maxBytes) + " of device memory, more than the " +
+                mib(e.budgetBytes) + " available (" + e.budgetSource + "): it may run out midway";
+  return e;
+}
+
 const Encoded& Session::encode(const Request& request) {
-  impl_->features = request.semanticFeatures && impl_->pipeline.config().semanticDecoding();
-  impl_->rendered = false;
-  return impl_->pipeline.encode(request);
+  Impl& s = *impl_;
+  s.pipeline.validate(request);  // a request that cannot mean anything is refused as such first
+  if (const MemoryEstimate e = estimateMemory(request); !e.refusal.empty()) throw Error(e.refusal);
+  s.features = request.semanticFeatures && s.pipeline.config().semanticDecoding();
+  s.rendered = false;
+  return s.pipeline.encode(request);
 }
 
 std::vector<float> Session::renderTargets() {
@@ -54,25 +91,6 @@ std::vector<float> Session::render(const RenderCameras& cameras) {
   return rgb;
 }
 
-std::vector<std::vector<int32_t>> Session::labelMaps(const std::vector<std::string>& prompts,
-                                                     std::vector<std::string>* warnings) {
-  Impl& s = *impl_;
-  if (!s.pipeline.config().semanticDecoding())
-    throw Error("label maps need a model with the semantic branch; " + s.model.path() + " has none");
-  if (!s.features || !s.rendered)
-    throw Error("label maps need a render call after an encode whose request asked for semanticFeatures");
-  if (prompts.empty()) throw Error("label maps need at least one prompt");
-  if (prompts != s.prompts || !s.text.text.defined()) {
-    const TokenizedPrompts tokenized = tokenizePrompts(s.model, prompts);
-    s.text = encodePrompts(s.engine, s.model, s.pipeline.config(), s.options.weightType, tokenized.ids,
-                           int64_t(prompts.size()));
-    s.prompts = prompts;
-    s.promptWarnings = tokenized.warnings;
-  }
-  if (warnings) *warnings = s.promptWarnings;
-  return computeLabelMaps(s.engine, s.pipeline.renderedFeatures(), s.text).maps;
-}
-
 std::vector<float> Session::features() {
   if (!impl_->features) return {};
   const Tensor& f = impl_->pipeline.renderedFeatures();
@@ -80,5 +98,15 @@ std::vector<float> Session::features() {
 }
 
 const std::vector<StageTime>& Session::stageTimes() const { return impl_->pipeline.stageTimes(); }
+
+uint64_t Session::weightBytesLoaded() const { return impl_->pipeline.weightBytesLoaded(); }
+
+std::vector<std::string> Session::intermediateNames() const { return impl_->pipeline.intermediateNames(); }
+
+std::vector<float> Session::intermediate(const std::string& name, std::vector<int64_t>* shape) const {
+  const Tensor& t = impl_->pipeline.intermediate(name);
+  if (shape) *shape = t.shape();
+  return impl_->engine.download(t);
+}
 
 }  // namespace spar

@@ -9,7 +9,7 @@
 #include <iostream>
 
 #include "engine/coopmat_khr.h"
-#include "engine/error.h"
+#include "engine/vk_result.h"
 #include "engine/extra_drivers.h"
 
 namespace spar {

@@ -5,7 +5,7 @@
 #include <cstdio>
 #include <cstring>
 
-#include "engine/error.h"
+#include "engine/vk_result.h"
 #include "engine/half.h"
 #include "engine/kernel_tuner.h"
 

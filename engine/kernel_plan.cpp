@@ -2,7 +2,7 @@
 
 #include <cstdio>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/cpu_tiles.h"
 
 namespace spar {

@@ -4,7 +4,7 @@
 #include <cstdio>
 #include <string>
 
-#include "engine/error.h"
+#include "engine/vk_result.h"
 #include "engine/host_pages.h"
 
 namespace spar {

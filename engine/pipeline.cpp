@@ -12,7 +12,7 @@
 
 #include <unistd.h>
 
-#include "engine/error.h"
+#include "engine/vk_result.h"
 #include "engine/shader_registry.h"
 #include "engine/spirv_freeze.h"
 

@@ -5,7 +5,7 @@
 #include <cstring>
 
 #include "engine/engine.h"
-#include "engine/error.h"
+#include "engine/vk_result.h"
 
 namespace spar {
 namespace {

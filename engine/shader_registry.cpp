@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <mutex>
 
-#include "engine/error.h"
+#include "spar/error.h"
 
 namespace spar {
 namespace {

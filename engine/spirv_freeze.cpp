@@ -3,7 +3,7 @@
 #include <string>
 #include <unordered_map>
 
-#include "engine/error.h"
+#include "spar/error.h"
 
 namespace spar {
 namespace {

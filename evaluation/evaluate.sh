@@ -23,7 +23,7 @@ count=${3:-12}
 control=${4:-}
 out=${EVAL_OUT:-build/eval}
 scenes=build/eval/test-scenes-$count
-spar=${SPAR_BUILD:-build}/samples/spar
+spar=${SPAR_BUILD:-build}/bin/spar
 py=/usr/bin/python3
 mkdir -p "$out" build/eval
 steps() { grep -o -m1 '[0-9]* steps of' "$1/train_log.txt" | cut -d' ' -f1; }

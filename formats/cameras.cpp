@@ -16,7 +16,7 @@
 #include <optional>
 #include <sstream>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "imaging/image_prep.h"
 
 namespace spar {

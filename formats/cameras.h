@@ -18,7 +18,7 @@
 #include <string>
 #include <vector>
 
-#include "model/spar_pipeline.h"
+#include "spar/request.h"
 
 namespace spar {
 

@@ -11,7 +11,7 @@
 #include <set>
 #include <sstream>
 
-#include "engine/error.h"
+#include "spar/error.h"
 
 namespace spar {
 namespace {

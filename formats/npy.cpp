@@ -6,7 +6,7 @@
 #include <fstream>
 #include <limits>
 
-#include "engine/error.h"
+#include "spar/error.h"
 
 namespace spar {
 namespace {

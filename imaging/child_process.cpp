@@ -14,7 +14,7 @@
 #include <filesystem>
 #include <sstream>
 
-#include "engine/error.h"
+#include "spar/error.h"
 
 extern char** environ;
 

@@ -2,7 +2,7 @@
 
 #include <vector>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "imaging/image_files.h"
 #include "imaging/stderr_capture.h"
 

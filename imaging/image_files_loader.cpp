@@ -10,7 +10,7 @@
 #include <mutex>
 #include <vector>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "imaging/image_files.h"
 
 namespace spar {

@@ -7,7 +7,7 @@
 #include <filesystem>
 #include <system_error>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "imaging/image_files.h"
 #include "imaging/png_files.h"
 #include "imaging/stderr_capture.h"

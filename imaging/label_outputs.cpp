@@ -8,7 +8,7 @@
 #include <fstream>
 
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "imaging/image_files.h"
 #include "model/label_maps.h"
 
@@ -168,6 +168,8 @@ std::string labelJsonText(const nlohmann::ordered_json& doc) {
 void writeLabelJson(const std::string& path, const nlohmann::ordered_json& doc) {
   writeFileAtomically(path, labelJsonText(doc));
 }
+
+double lsegLogitScale() { return kLsegLogitScale; }
 
 void writeLabelFiles(const std::string& dir, const std::vector<int32_t>& maps, int views, int h, int w,
                      const std::vector<std::string>& names, int outH, int outW) {

@@ -38,6 +38,8 @@ RgbImage labelImage(const std::vector<int32_t>& map, int h, int w, const std::ve
 void writeLabelPng(const std::string& path, const std::vector<int32_t>& map, int h, int w,
                    const std::vector<std::string>& names, int outH, int outW);
 
+// The scale of SPAR's label scores (LSeg's 1 / 0.07, model/label_maps.h): labels_XX.json records it.
+double lsegLogitScale();
 // The labels_XX.json document of view `view` (ordered as the reference writes it).
 nlohmann::ordered_json labelJson(const std::vector<int32_t>& map, int h, int w, const std::vector<std::string>& names,
                                  int64_t view, double logitScale);

@@ -6,7 +6,7 @@
 #include <nlohmann/json.hpp>
 #include <regex>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "imaging/child_process.h"
 
 namespace spar {

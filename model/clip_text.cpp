@@ -2,7 +2,7 @@
 
 #include <algorithm>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/binary.h"
 #include "engine/ops/embedding.h"
 #include "engine/ops/linear.h"

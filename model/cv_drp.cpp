@@ -5,7 +5,7 @@
 #include <string>
 #include <utility>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/binary.h"
 #include "engine/ops/conv2d.h"
 #include "engine/ops/conv_transpose2d.h"

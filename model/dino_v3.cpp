@@ -5,7 +5,7 @@
 #include <numbers>
 #include <string>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/binary.h"
 #include "engine/ops/copy2d.h"
 #include "engine/ops/linear.h"

@@ -1,6 +1,6 @@
 #include "model/label_maps.h"
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/conv2d.h"
 #include "engine/ops/reduce_channels.h"
 #include "engine/ops/resize.h"

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <cstdint>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/count_nonfinite.h"
 
 namespace spar {

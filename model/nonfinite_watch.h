@@ -24,8 +24,10 @@ class NonFiniteWatch {
   // NaN or infinity (and how many), `what` saying what was being computed.
   void check(const std::string& what);
 
- private:
+  // Its device counters, one a watched tensor (the memory estimate counts them).
   static constexpr int64_t kSlots = 32;
+
+ private:
   Engine& engine_;
   Tensor counts_;
   std::vector<std::string> stages_;  // slot -> stage

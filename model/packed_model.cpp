@@ -14,7 +14,7 @@
 #include <utility>
 
 #include "engine/engine.h"
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/half.h"
 #include "model/quantized_matrices.h"
 
@@ -181,8 +181,16 @@ void PackedModel::parseHeader() {
     fail(path, std::string("header is not valid JSON: ") + e.what());
   }
   if (!header.is_object()) fail(path, "header is not a JSON object");
+  parseMetadata(header);
+  parseTensors(header, dataBytes);
+  checkNoOverlap();
+  parseQuantized();
+}
 
-  // Metadata: all strings; format, version, config.
+// Metadata: all strings; format, version, config, and the optional components and model card.
+void PackedModel::parseMetadata(const nlohmann::json& header) {
+  PackedModel& m = *this;
+  const std::string& path = path_;
   auto metaIt = header.find("__metadata__");
   if (metaIt == header.end()) fail(path, "no __metadata__ in the header (not a spar-vulkan packed model)");
   if (!metaIt->is_object()) fail(path, "__metadata__ is not a JSON object");
@@ -225,8 +233,13 @@ void PackedModel::parseHeader() {
       fail(path, e.what());
     }
   }
+}
 
-  // Tensors.
+// Every tensor entry: its dtype, shape and data offsets, inside the data area and as long as
+// its shape needs.
+void PackedModel::parseTensors(const nlohmann::json& header, uint64_t dataBytes) {
+  PackedModel& m = *this;
+  const std::string& path = path_;
   for (auto it = header.begin(); it != header.end(); ++it) {
     const std::string& name = it.key();
     if (name == "__metadata__") continue;
@@ -273,8 +286,12 @@ void PackedModel::parseHeader() {
     m.names_.push_back(name);
     m.tensors_.emplace(name, std::move(info));
   }
+}
 
-  // No two tensors share a byte.
+// No two tensors share a byte.
+void PackedModel::checkNoOverlap() {
+  PackedModel& m = *this;
+  const std::string& path = path_;
   std::sort(m.names_.begin(), m.names_.end(), [&](const std::string& a, const std::string& b) {
     const auto &x = m.tensors_.at(a), &y = m.tensors_.at(b);
     return x.begin != y.begin ? x.begin < y.begin : (x.end != y.end ? x.end < y.end : a < b);
@@ -292,7 +309,6 @@ void PackedModel::parseHeader() {
     }
     last = &name;
   }
-  parseQuantized();
 }
 
 void PackedModel::parseQuantized() {

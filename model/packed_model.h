@@ -108,6 +108,9 @@ class PackedModel {
   void unmap();
   // Checks and indexes the header of the bytes [map_, map_ + size_) (open() and fromBytes()).
   void parseHeader();
+  void parseMetadata(const nlohmann::json& header);
+  void parseTensors(const nlohmann::json& header, uint64_t dataBytes);
+  void checkNoOverlap();
   // Checks `__metadata__.quantized` against the tensors it names and marks them (parseHeader).
   void parseQuantized();
   // Throws naming the first scale of a quantized matrix that is negative, NaN or infinite.

@@ -5,7 +5,7 @@
 #include <cstring>
 #include <set>
 
-#include "engine/error.h"
+#include "spar/error.h"
 
 namespace spar {
 

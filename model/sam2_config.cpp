@@ -5,7 +5,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "engine/error.h"
+#include "spar/error.h"
 
 namespace spar {
 namespace {

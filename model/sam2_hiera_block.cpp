@@ -2,7 +2,7 @@
 // kernels (model/sam2_windows.h).
 #include "model/sam2_hiera_block.h"
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/attention.h"
 #include "engine/ops/binary.h"
 #include "engine/ops/copy2d.h"

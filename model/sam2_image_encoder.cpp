@@ -3,7 +3,7 @@
 
 #include <algorithm>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/binary.h"
 #include "engine/ops/conv2d.h"
 #include "engine/ops/linear.h"

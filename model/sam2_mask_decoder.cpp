@@ -4,7 +4,7 @@
 
 #include <cstring>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/attention.h"
 #include "engine/ops/binary.h"
 #include "engine/ops/conv2d.h"
@@ -118,17 +118,12 @@ Tensor Sam2MaskDecoder::attention(Recorder& rec, const std::string& p, const Ten
   return linearOf(rec, p + "out_proj.", a, d);
 }
 
-Sam2MaskResult Sam2MaskDecoder::decode(Recorder& rec, const Sam2ImageFeatures& f, const Tensor& probs, int64_t view,
-                                       bool allMasks) const {
-  const std::string op = "sam2 mask decoder";
-  const int64_t d = config_.dModel, side = config_.tokenSide() / 4, up = config_.tokenSide();
+// The prompt: +-10 of the view's binary mask, at maskInputSize() a side (256 at 1024; bilinear,
+// align_corners=False), and the dense prompt from it (r.prompt, r.dense).
+void Sam2MaskDecoder::prompt(Recorder& rec, const Tensor& probs, int64_t view, Sam2MaskResult& r) const {
+  const int64_t side = config_.tokenSide() / 4, d = config_.dModel;
   const int64_t kPromptSide = config_.maskInputSize();
-  if (!probs.defined() || probs.rank() != 3 || view < 0 || view >= probs.dim(0))
-    throw Error(op + ": probs must be [V, H, W] holding view " + std::to_string(view));
   const int64_t H = probs.dim(1), W = probs.dim(2);
-  Sam2MaskResult r;
-
-  // the prompt: +-10 of the view's binary mask, at maskInputSize() a side (256 at 1024; bilinear, align_corners=False)
   const Tensor binary = engine_.tensor({1, 1, H, W});
   const Tensor viewProbs = engine_.tensor({H, W});
   slice(rec, probs, 0, view, 1, viewProbs.reshape({1, H, W}));
@@ -164,7 +159,12 @@ Sam2MaskResult Sam2MaskDecoder::decode(Recorder& rec, const Sam2ImageFeatures& f
   const Tensor t2 = lnGelu(c2, ds + "4.");
   r.dense = linearOf(rec, ds + "6.", t2, d);
 
-  // the two-way transformer over image_embed + dense, with the dense PE
+}
+
+// The two-way transformer over image_embed + dense, with the dense PE: the queries (the decoder's
+// tokens out, r.tokensOut) and the keys it returns.
+Tensor Sam2MaskDecoder::twoWay(Recorder& rec, const Sam2ImageFeatures& f, Sam2MaskResult& r) const {
+  const int64_t side = config_.tokenSide() / 4, d = config_.dModel;
   const std::string tw = "sam_mask_decoder.transformer.";
   Tensor keys = engine_.tensor({side * side, d});
   add(rec, f.imageEmbed, r.dense, keys);
@@ -203,7 +203,12 @@ Sam2MaskResult Sam2MaskDecoder::decode(Recorder& rec, const Sam2ImageFeatures& f
   }
   r.tokensOut = queries;
 
-  // upscaling: ConvT + feat_s1, LayerNorm2d, GELU; ConvT + feat_s0, GELU (channel-last between)
+  return keys;
+}
+
+// Upscaling: ConvT + feat_s1, LayerNorm2d, GELU; ConvT + feat_s0, GELU (channel-last between) (r.upscaled).
+void Sam2MaskDecoder::upscale(Recorder& rec, const Sam2ImageFeatures& f, const Tensor& keys, Sam2MaskResult& r) const {
+  const int64_t side = config_.tokenSide() / 4, d = config_.dModel, up = config_.tokenSide();
   const std::string us = "sam_mask_decoder.output_upscaling.";
   const Tensor src = engine_.tensor({1, d, side, side});
   channelsFirst(rec, keys, src);
@@ -223,7 +228,13 @@ Sam2MaskResult Sam2MaskDecoder::decode(Recorder& rec, const Sam2ImageFeatures& f
   add(rec, r.upscaled, f.featS0, r.upscaled);
   activate(rec, Activation::Gelu, r.upscaled, r.upscaled);
 
-  // hypernetworks of mask tokens 1-3 (token rows 3-5) and the IoU head (row 1)
+}
+
+// Hypernetworks of mask tokens 1-3 (token rows 3-5) and the IoU head (row 1): the IoU
+// predictions, the chosen mask's logits, and with allMasks every mask's.
+void Sam2MaskDecoder::heads(Recorder& rec, Sam2MaskResult& r, bool allMasks) const {
+  const int64_t d = config_.dModel, up = config_.tokenSide();
+  const Tensor& queries = r.tokensOut;
   const std::string md = "sam_mask_decoder.";
   std::vector<Tensor> hyper;
   for (int m = 1; m < kMaskTokens; ++m) {
@@ -246,6 +257,18 @@ Sam2MaskResult Sam2MaskDecoder::decode(Recorder& rec, const Sam2ImageFeatures& f
     r.allLogits = engine_.tensor({up * up, kMaskTokens - 1});
     linear(rec, r.upscaled, hyperAll, Tensor(), r.allLogits);
   }
+}
+
+Sam2MaskResult Sam2MaskDecoder::decode(Recorder& rec, const Sam2ImageFeatures& f, const Tensor& probs, int64_t view,
+                                       bool allMasks) const {
+  const std::string op = "sam2 mask decoder";
+  if (!probs.defined() || probs.rank() != 3 || view < 0 || view >= probs.dim(0))
+    throw Error(op + ": probs must be [V, H, W] holding view " + std::to_string(view));
+  Sam2MaskResult r;
+  prompt(rec, probs, view, r);
+  const Tensor keys = twoWay(rec, f, r);
+  upscale(rec, f, keys, r);
+  heads(rec, r, allMasks);
   return r;
 }
 

@@ -51,6 +51,11 @@ class Sam2MaskDecoder {
                         bool allMasks = false) const;
 
  private:
+  // decode()'s parts, in order.
+  void prompt(Recorder& rec, const Tensor& probs, int64_t view, Sam2MaskResult& r) const;
+  Tensor twoWay(Recorder& rec, const Sam2ImageFeatures& f, Sam2MaskResult& r) const;
+  void upscale(Recorder& rec, const Sam2ImageFeatures& f, const Tensor& keys, Sam2MaskResult& r) const;
+  void heads(Recorder& rec, Sam2MaskResult& r, bool allMasks) const;
   Tensor weight(const std::string& name) const;
   Tensor attention(Recorder& rec, const std::string& p, const Tensor& q, const Tensor& k, const Tensor& v) const;
   Tensor linearOf(Recorder& rec, const std::string& p, const Tensor& x, int64_t out, Activation act = Activation::None) const;

@@ -1,7 +1,7 @@
 // SPAR's SAM2.1 refinement (model/sam2_refinement.h).
 #include "model/sam2_refinement.h"
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/copy2d.h"
 #include "engine/ops/resize.h"
 #include "model/weight_set.h"

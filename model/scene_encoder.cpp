@@ -1,7 +1,7 @@
 // Scene encoder (model/scene_encoder.h).
 #include "model/scene_encoder.h"
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/copy2d.h"
 #include "model/stack.h"
 

@@ -1,7 +1,7 @@
 // Semantic input tokens (model/semantic_tokens.h).
 #include "model/semantic_tokens.h"
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/binary.h"
 #include "engine/ops/copy2d.h"
 #include "engine/ops/linear.h"

@@ -2,7 +2,7 @@
 
 #include <cmath>
 
-#include "engine/error.h"
+#include "spar/error.h"
 
 namespace spar {
 namespace {

@@ -1,23 +1,20 @@
-// SPAR's photometric pipeline on the engine, stage by stage as the paper's Figure 2 draws it
-// (reference: reference/spar_reference/spar.py SPAR.forward and SPAR.render):
+// SPAR's pipeline on the engine, stage by stage as the paper's Figure 2 draws it (reference:
+// reference/spar_reference/spar.py SPAR.forward and SPAR.render). The stages are objects
+// (model/pipeline_stage.h) in a list that holds only what a request needs
+// (model/stages/stage_list.h): no CV-DRP or DINOv3 with assumeStatic, no SAM2.1 unless refining,
+// no semantic stages on a model without the branch, no text encoder without prompts.
 //
-//   images -> image tokens (+ spatial-temporal codes)        model/view_tokens.*
-//          -> pose encoder over [camera tokens, image tokens] model/pose_estimator.*
-//          -> rel_head / canonical_k_head -> cameras          model/pose_head.*
-//          -> Plücker rays -> ray tokens                      model/plucker_rays.*, model/view_tokens.*
-//          -> DINOv3 patch tokens                             model/dino_v3.*
-//          -> CV-DRP motion probability per view              model/cv_drp.*
-//          -> (asked for) SAM2.1 refinement of the masks        model/sam2_refinement.*
-//          -> mlp_fuse + soft_with_pe gating                  model/gating.*
-//          -> (semantic models) LSeg features -> semantic tokens, gated  model/lseg.*, model/semantic_tokens.*
-//          -> scene encoder -> scene tokens                   model/scene_encoder.*
-//   render: ray queries + scene tokens -> decoder -> RGB head model/renderer.*
+//   images -> image tokens, camera tokens -> pose estimator -> cameras -> rays, ray tokens
+//          -> DINOv3 -> CV-DRP motion probability -> (asked for) SAM2.1 refinement
+//          -> mlp_fuse + gating -> (semantic models) LSeg -> semantic tokens, gated
+//          -> scene encoder -> scene tokens
+//   render: ray queries + scene tokens -> decoder -> RGB head (and semantic head)
+//   labels: prompts -> CLIP text encoder; rendered features -> label maps
 //
-// Work happens in two phases so that rendering cameras may depend on the estimated ones (a path
-// through the input cameras): encode() runs everything up to the scene tokens and leaves the
-// cameras and motion maps on the host; render*() decodes any number of views from the scene
-// tokens kept on the device. Only what a request needs runs: no CV-DRP or DINOv3 with
-// assumeStatic, no CV-DRP over targets unless targetMotion, no target view nobody renders.
+// Work happens in phases so that rendering cameras may depend on the estimated ones (a path
+// through the input cameras): encode() runs the encode stages and leaves the cameras and motion
+// maps on the host; render*() decodes any number of views from the scene tokens kept on the
+// device; encodePrompts() and labelMaps() make label maps of the last render call.
 #pragma once
 #include <array>
 #include <cstdint>
@@ -27,32 +24,23 @@
 #include <vector>
 
 #include "engine/engine.h"
-#include "spar/request.h"
+#include "model/memory_estimate.h"
 #include "model/packed_model.h"
+#include "model/pipeline_stage.h"
+#include "model/prompt_label_maps.h"
+#include "model/request_checks.h"
 #include "model/spar_config.h"
 #include "model/weight_set.h"
+#include "spar/request.h"
 
 namespace spar {
 
 class NonFiniteWatch;  // model/nonfinite_watch.h
+class TransformerWorkspace;
 
 // The request types are public (include/spar/request.h); the pipeline's own names for them:
 using SparRequest = Request;
 using SparEncoded = Encoded;
-
-// "" when the engine runs this model at height x width pixels, else why not (one line, no
-// prefix). Any size works whose sides are positive multiples of the patch size: the sin-cos
-// codes and DINOv3's RoPE are computed for the grid in hand (non-square grids as the official
-// code builds them), LSeg's position embeddings are resized to it, and CV-DRP's decoder
-// upsamples any grid by 16. With the semantic branch the sides must be
-// multiples of 32 (LSeg's fusion). The configuration's image size is the training size, the
-// default; the model was not trained at other sizes, so its results there may be worse.
-std::string imageSizeProblem(const SparConfig& config, int64_t height, int64_t width);
-
-// "" when the model can refine motion masks (packed with spar-convert --sam2), else why not
-// (one line, no prefix): what a request with refine, and the CLI's --refine, are refused with.
-std::string refinementProblem(const PackedModel& model);
-
 
 struct SparPipelineOptions {
   bool profile = true;            // per-dispatch timestamps -> stageTimes()
@@ -75,7 +63,18 @@ class SparPipeline {
 
   const SparConfig& config() const { return config_; }
 
-  // Phase 1. Throws spar::Error (one line) for bad requests (sizes, plan).
+  // Throws spar::Error (one line) for a request this model cannot run (model/request_checks.h).
+  void validate(const SparRequest& request) const;
+  // What the stage list and the memory estimate take of `request`, when render calls render
+  // `renderChunk` views and label maps are asked for `prompts` prompts.
+  RequestShape shapeOf(const SparRequest& request, int64_t renderChunk, int64_t prompts) const;
+  // The names of the stages `request` runs, in order (with label maps for `prompts` prompts).
+  std::vector<std::string> stageNames(const SparRequest& request, int64_t prompts = 0) const;
+  // The device memory `request` needs (model/memory_estimate.h), before any work. On a GPU the
+  // first call measures the kernel choice (the estimate follows what will run).
+  MemoryNeed memoryNeed(const SparRequest& request, int64_t renderChunk, int64_t prompts);
+
+  // Phase 1. Throws spar::Error (one line) for bad requests (validate()).
   const SparEncoded& encode(const SparRequest& request);
   // Phase 2 (after encode): the plan's targets with their estimated cameras, or explicit
   // cameras. Returns RGB [R, 3, H, W] in [0, 1].
@@ -85,9 +84,20 @@ class SparPipeline {
   // unless the request asked for semanticFeatures); valid until the next render*() call.
   const Tensor& renderedFeatures() const { return features_; }
 
+  // The prompts' text embeddings (CLIP token ids [count, 77]), kept for labelMaps(); the text
+  // encoder's weights are uploaded now, once.
+  void encodePrompts(const std::vector<int32_t>& ids, int64_t count);
+  bool promptsEncoded() const { return text_.text.defined(); }
+  // Label maps of the last render call's features against the encoded prompts
+  // (model/prompt_label_maps.h computeLabelMaps).
+  std::vector<std::vector<int32_t>> labelMaps(std::vector<float>* scores = nullptr);
+
   // Stages that ran since construction (in order, accumulated by name).
   const std::vector<StageTime>& stageTimes() const { return stageTimes_; }
-  uint64_t weightBytesLoaded() const { return weights_.bytesLoaded(); }
+  // Adds a stage's times to stageTimes() (by name), with the device memory now.
+  void recordStageTime(const std::string& name, double gpuMs, double wallMs, double buildMs);
+  // Weights uploaded so far, the text encoder's included.
+  uint64_t weightBytesLoaded() const;
   const WeightSet& weights() const { return weights_; }
 
   // With keepIntermediates: the device tensor stored under a golden name (throws if absent).
@@ -95,24 +105,32 @@ class SparPipeline {
   std::vector<std::string> intermediateNames() const;
 
  private:
-  struct Stages;
+  // Runs the stages of `phase` in `list`, each one submission on `rec` with its times, or its
+  // own submissions.
+  void runStages(const StageList& list, StagePhase phase, Recorder* rec, PromptWork* work = nullptr);
+  StageList labelStages() const;
   void keep(const std::string& name, const Tensor& t);
-  void addStageTimes(const class Recorder& rec, double wallMs);
-  void addStageTime(const std::string& name, double gpuMs, double wallMs, double buildMs);  // accumulated by name
-  std::vector<float> renderRays(const Tensor& c2w, const Tensor& fxfycxcy, int64_t count);
-  Tensor refineMasks(const Tensor& images, const Tensor& probInput, const Tensor& probTarget);
+  void addStageTimes(const Recorder& rec, double wallMs);
+  std::vector<float> renderRays(const Tensor& c2w, const Tensor& fxfycxcy);
 
   Engine& engine_;
   const PackedModel& model_;
   SparPipelineOptions options_;
   SparConfig config_;
   WeightSet weights_;
-  std::unique_ptr<Stages> stages_;
+  std::unique_ptr<StageModels> models_;
+  std::unique_ptr<TransformerWorkspace> ws_;
   std::unique_ptr<NonFiniteWatch> watch_;  // where a NaN / infinity first appeared
-  SparEncoded encoded_;
+  StageList stages_;                        // the last encoded request's
+  // Between stages and calls: what render calls read (the cameras, the scene tokens) after an
+  // encode, and a render call's inputs and outputs.
+  std::map<std::string, Tensor> tensors_;
+  bool encoded_ = false;
+  SparEncoded encodedOut_;
   SparRequest request_;
   std::map<std::string, Tensor> kept_;
   Tensor features_;
+  PromptEmbeddings text_;
   std::vector<StageTime> stageTimes_;
 };
 

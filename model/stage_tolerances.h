@@ -1,7 +1,7 @@
 // How close the engine's fp32 pipeline must come to the PyTorch reference run in float64, per
 // stage output (the golden names of reference/spar_reference/goldens.py that SparPipeline keeps
 // with keepIntermediates). One table for the model tests (tests/pipeline_check.cpp) and for
-// `spar selftest`'s self-test model (samples/spar_cli/selftest_model.cpp), so a driver passes
+// `spar selftest`'s self-test model (selftest/selftest_model.cpp), so a driver passes
 // the self-test only as closely as the engine passes its own tests.
 #pragma once
 #include <string>

@@ -3,7 +3,7 @@
 #include <algorithm>
 #include <vector>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/attention.h"
 #include "engine/ops/binary.h"
 #include "engine/ops/linear.h"

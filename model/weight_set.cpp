@@ -3,7 +3,7 @@
 #include <cmath>
 
 #include "engine/engine.h"
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/half.h"
 #include "model/quantized_matrices.h"
 
@@ -109,17 +109,14 @@ const Tensor& WeightSet::require(const std::string& name, const Shape& shape, DT
   return keep(std::move(key), std::move(t));
 }
 
-const std::vector<std::string>& WeightSet::precisions() {
-  static const std::vector<std::string> names = {"fp32", "fp16", "q8", "q4"};
-  return names;
-}
-
-DType WeightSet::precisionType(const std::string& precision) {
-  if (precision == "fp32") return DType::F32;
-  if (precision == "fp16") return DType::F16;
-  if (precision == "q8") return DType::Q8;
-  if (precision == "q4") return DType::Q4;
-  throw Error("--precision must be fp32, fp16, q8 or q4, not '" + precision + "'");
+DType WeightSet::matrixType(Precision precision) {
+  switch (precision) {
+    case Precision::FP16: return DType::F16;
+    case Precision::Q8: return DType::Q8;
+    case Precision::Q4: return DType::Q4;
+    case Precision::FP32: break;
+  }
+  return DType::F32;
 }
 
 void WeightSet::checkQuantizable(const std::string& name, DType want) const {

@@ -18,6 +18,7 @@
 
 #include "engine/tensor.h"
 #include "model/packed_model.h"
+#include "spar/precision.h"
 
 namespace spar {
 
@@ -56,9 +57,8 @@ class WeightSet {
   void clear();
 
   DType matrixType() const { return matrixType_; }
-  // The matrix type of a --precision name: fp32, fp16, q8, q4 (throws spar::Error otherwise).
-  static DType precisionType(const std::string& precision);
-  static const std::vector<std::string>& precisions();
+  // The matrix type of a precision (spar/precision.h): F32, F16, Q8, Q4.
+  static DType matrixType(Precision precision);
   // The --fp16 rule (converter/spar_convert/convert.py is_matrix): a float tensor of 2 or more
   // dimensions named *.weight / *in_proj_weight / *text_projection, except the view-type table
   // and SAM2's decoder tokens (sam2.*_token(s).weight).

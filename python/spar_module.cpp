@@ -115,6 +115,54 @@ void warn(const std::string& message) { PyErr_WarnEx(PyExc_UserWarning, message.
 
 }  // namespace
 
+namespace {
+
+// The public report types as dicts (spar/context.h, spar/kernel_report.h, spar/memory.h).
+py::dict deviceDict(const spar::DeviceInfo& d) {
+  py::dict o;
+  o["name"] = d.name;
+  o["driver"] = d.driver;
+  o["vulkan"] = std::to_string(d.vulkanMajor) + "." + std::to_string(d.vulkanMinor);
+  o["limits_profile"] = d.limitsProfile;
+  o["max_texel_buffer_elements"] = d.maxTexelBufferElements;
+  o["max_storage_buffer_range"] = d.maxStorageBufferRange;
+  o["max_compute_shared_memory_size"] = d.maxComputeSharedMemorySize;
+  o["max_compute_workgroup_invocations"] = d.maxComputeWorkGroupInvocations;
+  o["shader_float16"] = d.shaderFloat16;
+  o["fp16_storage"] = d.fp16Storage;
+  o["subgroup_size"] = d.subgroupSize;
+  o["subgroup_arithmetic"] = d.subgroupArithmetic;
+  o["cooperative_matrix"] = d.cooperativeMatrix;
+  return o;
+}
+
+py::dict kernelDict(const spar::KernelReport& r) {
+  py::list kernels;
+  for (const spar::KernelStats& k : r.kernels)
+    kernels.append(py::dict(py::arg("name") = k.name, py::arg("create_ms") = k.createMs, py::arg("builds") = k.builds,
+                            py::arg("compiles") = k.compiles, py::arg("build_ms") = k.buildMs,
+                            py::arg("dispatches") = k.dispatches, py::arg("gpu_ms") = k.gpuMs));
+  return py::dict(py::arg("plan") = r.plan, py::arg("pipelines") = r.pipelines, py::arg("create_ms") = r.createMs,
+                  py::arg("builds") = r.builds, py::arg("compiles") = r.compiles, py::arg("build_ms") = r.buildMs,
+                  py::arg("dispatches") = r.dispatches, py::arg("compute_ms") = r.computeMs, py::arg("kernels") = kernels);
+}
+
+py::dict memoryDict(const spar::MemoryStats& m) {
+  return py::dict(py::arg("bytes_in_use") = m.bytesInUse, py::arg("peak_bytes") = m.peakBytes,
+                  py::arg("budget_bytes") = m.budgetBytes, py::arg("budget_source") = m.budgetSource,
+                  py::arg("allocations") = m.allocations, py::arg("submissions") = m.submissions);
+}
+
+py::dict estimateDict(const spar::MemoryEstimate& e) {
+  return py::dict(py::arg("min_bytes") = e.minBytes, py::arg("max_bytes") = e.maxBytes,
+                  py::arg("weight_bytes") = e.weightBytes, py::arg("activation_bytes") = e.activationBytes,
+                  py::arg("budget_bytes") = e.budgetBytes, py::arg("budget_source") = e.budgetSource,
+                  py::arg("max_input_views") = e.maxInputViews, py::arg("refusal") = e.refusal,
+                  py::arg("warning") = e.warning);
+}
+
+}  // namespace
+
 PYBIND11_MODULE(spar, m) {
   m.doc() =
       "SPAR on Vulkan compute: from 2-4 photos of a scene, the cameras, which pixels move, and new views "
@@ -146,6 +194,7 @@ PYBIND11_MODULE(spar, m) {
   });
 
   m.def("list_devices", &spar::Context::listDevices, "'index: name (type)' of every Vulkan device on this machine.");
+  m.def("precisions", &spar::precisionNames, "The weight precisions a Session takes: 'fp32', 'fp16', 'q8', 'q4'.");
 
   py::class_<ContextBox, std::shared_ptr<ContextBox>>(m, "Context",
                                                     "One Vulkan device with its memory and compiled kernels. Keep "
@@ -164,7 +213,27 @@ PYBIND11_MODULE(spar, m) {
            "profile ('vulkan-1.2-min', 'raspberry-pi-5', ... or a JSON file; '' = SPAR_DEVICE_LIMITS).")
       .def_property_readonly("device_name", [](ContextBox& c) { return c.context.deviceName(); })
       .def_property_readonly("validation_messages", [](ContextBox& c) { return c.context.validationMessages(); },
-                             "Messages the validation layer reported so far.");
+                             "Messages the validation layer reported so far.")
+      .def_property_readonly("device", [](ContextBox& c) { return deviceDict(c.context.device()); },
+                             "The device as the engine uses it (after any device-limit profile): name, driver, "
+                             "vulkan, limits and features.")
+      .def(
+          "kernel_plan",
+          [](ContextBox& c) {
+            std::lock_guard<std::mutex> hold(c.lock);
+            return c.context.kernelPlan();
+          },
+          "The kernel family per op on this device and why, one line each.")
+      .def(
+          "kernel_report",
+          [](ContextBox& c) {
+            std::lock_guard<std::mutex> hold(c.lock);
+            return kernelDict(c.context.kernelReport());
+          },
+          "Every kernel made so far (creation, driver builds, dispatches, compute time), with the plan and totals.")
+      .def(
+          "memory", [](ContextBox& c) { return memoryDict(c.context.memory()); },
+          "Device memory: bytes_in_use, peak_bytes, budget_bytes, budget_source, allocations, submissions.");
 
   py::class_<spar::Model, std::shared_ptr<spar::Model>>(m, "Model", "A packed SPAR model (.spar, made by spar-convert).")
       .def_static(
@@ -182,22 +251,35 @@ PYBIND11_MODULE(spar, m) {
       .def_property_readonly("has_tokenizer", &spar::Model::hasTokenizer, "Carries CLIP's tokenizer (text prompts).")
       .def_property_readonly("demonstration_note", &spar::Model::demonstrationNote,
                              "What the file says it is when it is a demonstration model (one sentence with its "
-                             "measured quality), else ''.");
+                             "measured quality), else ''.")
+      .def_property_readonly("feature_channels", &spar::Model::featureChannels,
+                             "Channels of its semantic features (0 without the semantic branch).")
+      .def_property_readonly("mask_threshold", &spar::Model::maskThreshold, "P(dynamic) above it is a moving pixel.")
+      .def_property_readonly("refinement_problem", &spar::Model::refinementProblem,
+                             "'' when the model can refine motion masks (SAM2.1 packed in), else why not.")
+      .def("size_problem", &spar::Model::sizeProblem, py::arg("height"), py::arg("width"),
+           "'' when the engine runs the model at height x width, else why not.")
+      .def("prompt_warnings", &spar::Model::promptWarnings, py::arg("prompts"),
+           "What tokenizing the prompts would warn about (prompts cut at CLIP's 77 tokens), without device work.");
 
   py::class_<SessionBox>(m, "Session",
                         "Requests of one model on one context, in two phases: encode() the photos (cameras, motion), "
                         "then render() any cameras. Not for two threads at once; two sessions may be.")
-      .def(py::init([](std::shared_ptr<ContextBox> ctx, std::shared_ptr<spar::Model> model, bool fp16Weights) {
+      .def(py::init([](std::shared_ptr<ContextBox> ctx, std::shared_ptr<spar::Model> model, const std::string& precision,
+                       bool keepIntermediates) {
              auto s = std::make_unique<SessionBox>();
              s->ctx = ctx;
              s->model = model;
              spar::SessionOptions o;
-             o.fp16Weights = fp16Weights;
+             o.precision = spar::parsePrecision(precision);
+             o.keepIntermediates = keepIntermediates;
              s->session = std::make_unique<spar::Session>(ctx->context, *model, o);
              return s;
            }),
-           py::arg("context"), py::arg("model"), py::arg("fp16_weights") = false,
-           "fp16_weights: weight matrices as fp16 on the device (half the memory; where the device reads fp16).")
+           py::arg("context"), py::arg("model"), py::arg("precision") = "fp32", py::arg("keep_intermediates") = false,
+           "precision: of the weight matrices on the device, 'fp32', 'fp16' (half the memory; where the device "
+           "reads fp16), 'q8' or 'q4' (8- / 4-bit codes, a scale per 32). keep_intermediates: every stage's output "
+           "kept for intermediate().")
       .def(
           "encode",
           [](SessionBox& s, const py::handle& images, py::object inputs, py::object targets, bool assumeStatic,
@@ -327,26 +409,99 @@ PYBIND11_MODULE(spar, m) {
           "Semantic features (R, C, H/2, W/2) of the last render call (a request with semantic_features on "
           "a semantic model), else None.")
       .def(
-          "label_maps",
+          "estimate_memory",
+          [](SessionBox& s, int64_t views, const std::vector<int64_t>& inputs, py::object targets, int64_t height,
+             int64_t width, bool assumeStatic, bool targetMotion, bool semanticFeatures, bool refine,
+             const std::string& maskSource, int64_t viewsPerRender, int64_t labelPrompts) {
+            spar::Request r;
+            r.plan.views = views;
+            r.plan.inputs = inputs;
+            if (targets.is_none()) {
+              for (int64_t i = 0; i < views; ++i)
+                if (std::find(inputs.begin(), inputs.end(), i) == inputs.end()) r.plan.targets.push_back(i);
+            } else {
+              r.plan.targets = targets.cast<std::vector<int64_t>>();
+            }
+            r.height = height;
+            r.width = width;
+            r.assumeStatic = assumeStatic;
+            r.targetMotion = targetMotion;
+            r.semanticFeatures = semanticFeatures;
+            r.refine = refine;
+            r.maskSource = maskSource == "refined" ? spar::MaskSource::Refined : spar::MaskSource::Raw;
+            spar::Session& session = s.open();
+            std::lock_guard<std::mutex> hold(s.ctx->lock);
+            return estimateDict(session.estimateMemory(r, {viewsPerRender, labelPrompts}));
+          },
+          py::arg("views"), py::arg("inputs"), py::arg("targets") = py::none(), py::arg("height") = 0,
+          py::arg("width") = 0, py::arg("assume_static") = false, py::arg("target_motion") = false,
+          py::arg("semantic_features") = false, py::arg("refine") = false, py::arg("mask_source") = "raw",
+          py::arg("views_per_render") = -1, py::arg("label_prompts") = 0,
+          "The device memory a request of this shape needs, before any work (the request's options as encode "
+          "takes them; views_per_render: views a render call renders, -1 the targets; label_prompts: prompts "
+          "label maps will be asked for). A dict: min_bytes (above the budget it cannot run: encode refuses "
+          "it), max_bytes, weight_bytes, activation_bytes, budget_bytes, budget_source, max_input_views, "
+          "refusal, warning.")
+      .def(
+          "prepare_prompts",
           [](SessionBox& s, const std::vector<std::string>& prompts) {
             spar::Session& session = s.open();
-            std::vector<std::vector<int32_t>> maps;
             std::vector<std::string> warnings;
             {
               py::gil_scoped_release free;
               std::lock_guard<std::mutex> hold(s.ctx->lock);
-              maps = session.labelMaps(prompts, &warnings);
+              session.preparePrompts(prompts, &warnings);
+            }
+            for (const std::string& w : warnings) warn(w);
+          },
+          py::arg("prompts"),
+          "The prompts through CLIP's text encoder now (label_maps does it at its first call otherwise).")
+      .def(
+          "label_maps",
+          [](SessionBox& s, const std::vector<std::string>& prompts, bool withScores) -> py::object {
+            spar::Session& session = s.open();
+            std::vector<std::vector<int32_t>> maps;
+            std::vector<std::string> warnings;
+            std::vector<float> scores;
+            {
+              py::gil_scoped_release free;
+              std::lock_guard<std::mutex> hold(s.ctx->lock);
+              maps = session.labelMaps(prompts, &warnings, withScores ? &scores : nullptr);
             }
             for (const std::string& w : warnings) warn(w);
             std::vector<int32_t> all;
             for (const auto& one : maps) all.insert(all.end(), one.begin(), one.end());
-            return toNumpy(std::move(all), {py::ssize_t(maps.size()), py::ssize_t(s.height), py::ssize_t(s.width)});
+            const auto r = py::ssize_t(maps.size());
+            py::object out = toNumpy(std::move(all), {r, py::ssize_t(s.height), py::ssize_t(s.width)});
+            if (!withScores) return out;
+            return py::make_tuple(out, toNumpy(std::move(scores), {r, py::ssize_t(prompts.size()), py::ssize_t(s.height / 2),
+                                                                    py::ssize_t(s.width / 2)}));
           },
-          py::arg("prompts"),
+          py::arg("prompts"), py::arg("scores") = false,
           "Open-vocabulary label maps of the last render call: int32 (R, H, W), each pixel the index of "
           "the prompt whose CLIP embedding matches its semantic feature best (the official order: the "
           "half-resolution scores enlarged x2, bilinear, before the argmax). Needs semantic_features in the "
-          "encode and a model with CLIP's tokenizer.")
+          "encode and a model with CLIP's tokenizer. scores=True: (maps, scores float32 (R, P, H/2, W/2)), the "
+          "official logits before the enlargement.")
+      .def_property_readonly(
+          "weight_bytes_loaded", [](SessionBox& s) { return s.open().weightBytesLoaded(); },
+          "Bytes of weights uploaded to the device so far (the text encoder's included).")
+      .def(
+          "intermediate_names", [](SessionBox& s) { return s.open().intermediateNames(); },
+          "With keep_intermediates: the stage outputs kept by the last encode and render calls.")
+      .def(
+          "intermediate",
+          [](SessionBox& s, const std::string& name) {
+            spar::Session& session = s.open();
+            std::vector<int64_t> shape;
+            std::vector<float> values;
+            {
+              std::lock_guard<std::mutex> hold(s.ctx->lock);
+              values = session.intermediate(name, &shape);
+            }
+            return toNumpy(std::move(values), std::vector<py::ssize_t>(shape.begin(), shape.end()));
+          },
+          py::arg("name"), "One kept stage output (float32, its shape), by its reference name ('c2w', 'rgb', ...).")
       .def(
           "stage_times",
           [](SessionBox& s) {

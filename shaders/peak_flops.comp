@@ -1,7 +1,7 @@
 #version 450
 // The device's arithmetic ceiling: independent multiply-add chains on registers, no memory
 // traffic in the loop, so spar-bench can say how far each kernel is from what the device (or
-// a CPU driver's generated code) can do at all. Host side: samples/bench_cases.cpp (peak_f32).
+// a CPU driver's generated code) can do at all. Host side: tools/spar_bench/bench_cases.cpp (peak_f32).
 //! variant peak_flops
 #extension GL_GOOGLE_include_directive : require
 #include "common.glsl"

@@ -5,7 +5,7 @@
 #include <fstream>
 #include <stdexcept>
 
-#include "engine/error.h"
+#include "spar/error.h"
 
 namespace spar::test {
 

@@ -18,7 +18,7 @@ files=$(ls "$scratch/out" | wc -l)
 big=$(find "$scratch/out" -type f -size +16M)
 [ -z "$big" ] || { echo "gpu_train_cpu: over 16 MiB: $big"; exit 1; }
 bash scripts/gpu/gpu-train.sh unpack "$scratch/out" "$scratch/run"
-"$build/samples/spar" eval --model "$scratch/run/model.spar" --scenes "$scratch/work/val" --views 3 \
+"$build/bin/spar" eval --model "$scratch/run/model.spar" --scenes "$scratch/work/val" --views 3 \
   --out "$scratch/engine.json" > "$scratch/eval.log" 2>&1 || { cat "$scratch/eval.log"; exit 1; }
 /usr/bin/python3 evaluation/spar-eval-reference --checkpoint "$scratch/run/checkpoint.pt" \
   --config "$scratch/run/config.json" --scenes "$scratch/work/val" --views 3 --quiet \

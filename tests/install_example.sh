@@ -34,7 +34,7 @@ cmake -S "$src/examples/render_one_view" -B "$work/build" -DCMAKE_BUILD_TYPE=Rel
 cmake --build "$work/build" > "$work/build.log"
 # `import spar` from the prefix with the README's one line (PYTHONPATH), from another directory.
 # A JPEG through the prefix's image-file module (lib/spar/, two folders above the Python module).
-/usr/bin/python3 -c "from PIL import Image; Image.open('$src/samples/data/scenes/scene_1000002/rgb_00.png').save('$work/rgb_00.jpg', quality=95)"
+/usr/bin/python3 -c "from PIL import Image; Image.open('$src/data/scenes/scene_1000002/rgb_00.png').save('$work/rgb_00.jpg', quality=95)"
 (cd "$work" && PYTHONPATH="$work/prefix/lib/python3/dist-packages" LD_DEBUG=files LD_DEBUG_OUTPUT="$work/ldpy" \
   /usr/bin/python3 -c "
 import spar
@@ -54,7 +54,7 @@ needed=$(readelf -d "$work/build/render_one_view" | grep NEEDED)
 echo "$needed"
 echo "$needed" | grep -q 'libspar\.so'
 if echo "$needed" | grep -qi 'vulkan\|OpenImageIO\|icu\|libz'; then echo "the example links a private dependency"; exit 1; fi
-scene="$src/samples/data/scenes/scene_1000002"
+scene="$src/data/scenes/scene_1000002"
 # One photo as JPEG (made above): formats other than PNG are read through the installed
 # image-file module (lib/spar/, loaded on first use by the libspar beside it:
 # imaging/image_files.h), not the build tree's.

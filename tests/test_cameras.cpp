@@ -10,7 +10,7 @@
 #include <fstream>
 #include <string>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "formats/cameras.h"
 #include "tests/golden_support.h"
 

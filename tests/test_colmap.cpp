@@ -15,7 +15,7 @@
 #include <string>
 #include <vector>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "formats/colmap.h"
 #include "tests/test_support.h"
 

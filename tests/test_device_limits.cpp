@@ -8,7 +8,7 @@
 #include <fstream>
 
 #include "engine/engine.h"
-#include "engine/error.h"
+#include "spar/error.h"
 #include "test_support.h"
 
 namespace spar::test {

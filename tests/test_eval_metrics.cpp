@@ -1,4 +1,4 @@
-// The metrics of `spar eval` (samples/spar_cli/eval_metrics.*, evaluation/PROTOCOL.md)
+// The metrics of `spar eval` (tools/spar/eval_metrics.*, evaluation/PROTOCOL.md)
 // against independent hand computations: PSNR of a known constant error, SSIM of constant
 // images in closed form, SSIM = 1 for identical images, a float64 brute-force SSIM (2-D window,
 // no separability) on a small random case, motion-mask counts and semantic confusion on tiny
@@ -13,10 +13,10 @@
 #include <random>
 #include <vector>
 
-#include "engine/error.h"
-#include "samples/spar_cli/eval_metrics.h"
-#include "samples/spar_cli/eval_scenes.h"
-#include "samples/spar_cli/eval_tally.h"
+#include "spar/error.h"
+#include "tools/spar/eval_metrics.h"
+#include "tools/spar/eval_scenes.h"
+#include "tools/spar/eval_tally.h"
 
 namespace spar::cli::eval {
 namespace {

@@ -11,7 +11,7 @@
 #include <fstream>
 #include <sstream>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "imaging/image_prep.h"
 #include "formats/npy.h"
 #include "tests/golden_support.h"

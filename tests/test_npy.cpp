@@ -6,7 +6,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "formats/npy.h"
 
 namespace spar {

@@ -1,5 +1,5 @@
-// The shipped trained model (samples/data/spar_rooms.spar, training/README.md) on
-// the shipped held-out scenes (samples/data/scenes: test seeds, never trained on), through the
+// The shipped trained model (data/spar_rooms.spar, training/README.md) on
+// the shipped held-out scenes (data/scenes: test seeds, never trained on), through the
 // built `spar` as a user runs it:
 //  - the README's demo (scripts/demo/demo.sh) on a short path: views, path.mp4, label maps that see
 //    the room's classes, input masks;
@@ -29,7 +29,7 @@ namespace {
 namespace fs = std::filesystem;
 using json = nlohmann::json;
 
-const fs::path kData = fs::path(SPAR_SOURCE_DIR) / "samples" / "data";
+const fs::path kData = fs::path(SPAR_SOURCE_DIR) / "data";
 const std::string kLabels = "wall,floor,ceiling,sofa,table,window,door,plant,person,pet";
 
 const fs::path& scratch() { return scratchDir("shipped_model"); }
@@ -181,7 +181,7 @@ TEST(shipped_model, QualityOnShippedScenes) {
 namespace spar::test {
 namespace {
 
-// The demo's index.html (samples/spar_cli/index_page.h) in a real browser: headless Chromium
+// The demo's index.html (tools/spar/index_page.h) in a real browser: headless Chromium
 // (Debian's chromium) loads it from file:// with no console message, every image loads (the
 // page's own count of images with a natural size, left in the DOM Chromium dumps), and the
 // camera plot holds one mark per camera (inputs, targets, the path). A run with a warning shows
@@ -205,8 +205,9 @@ TEST(shipped_model, DemoPageOpensInChromium) {
     const size_t at = r.out.find(name + "=\"");
     return at == std::string::npos ? -1 : std::stoi(r.out.substr(at + name.size() + 2));
   };
-  // inputs 3 + masks 3 + motion maps 3 + views 4 + label maps 4 (the path video is a <video>)
-  EXPECT_EQ(attribute("data-images-loaded"), 17) << r.out.substr(0, 2000);
+  // inputs 3 + masks 3 + motion maps 3 + targets 5 beside their frames 5 + views 4 + label maps 4
+  // (the path video is a <video>)
+  EXPECT_EQ(attribute("data-images-loaded"), 27) << r.out.substr(0, 2000);
   EXPECT_EQ(attribute("data-images-broken"), 0);
   size_t marks = 0;
   for (size_t at = r.out.find("class=\"cam "); at != std::string::npos; at = r.out.find("class=\"cam ", at + 1)) ++marks;
@@ -215,6 +216,36 @@ TEST(shipped_model, DemoPageOpensInChromium) {
   EXPECT_EQ(marks, 8u + 4u);
   EXPECT_NE(r.out.find("<video src=\"path.mp4\""), std::string::npos);
   EXPECT_NE(r.out.find("id=\"stage-times\""), std::string::npos);
+  // What the model was asked for: each of the five target frames rendered beside the frame, with
+  // its PSNR and that of copying the nearest input (report.json "targets", recomputed here from
+  // the PNGs the page shows, to within their 8-bit rounding).
+  size_t targetFigures = 0;
+  for (size_t at = r.out.find("class=\"target\""); at != std::string::npos; at = r.out.find("class=\"target\"", at + 1))
+    ++targetFigures;
+  EXPECT_EQ(targetFigures, 5u);
+  EXPECT_NE(r.out.find("id=\"target-summary\""), std::string::npos);
+  const json report = readJson(out / "report.json");
+  const std::vector<int> targetFrames = {1, 2, 3, 5, 6}, nearest = {0, 0, 4, 4, 7};
+  ASSERT_EQ(report["targets"].size(), targetFrames.size());
+  for (size_t j = 0; j < targetFrames.size(); ++j) {
+    const json& t = report["targets"][j];
+    EXPECT_EQ(t["view"], targetFrames[j]);
+    EXPECT_EQ(t["nearest_input"], nearest[j]);
+    char name[32];
+    std::snprintf(name, sizeof name, "target_%02zu.png", j);
+    const RgbImage render = loadImageRGB((out / name).string());
+    std::snprintf(name, sizeof name, "truth_%02zu.png", j);
+    const RgbImage truth = loadImageRGB((out / name).string());
+    ASSERT_EQ(render.pixels.size(), truth.pixels.size());
+    double sum = 0;
+    for (size_t i = 0; i < render.pixels.size(); ++i) {
+      const double d = (double(render.pixels[i]) - double(truth.pixels[i])) / 255.0;
+      sum += d * d;
+    }
+    const double psnr = 10.0 * std::log10(double(render.pixels.size()) / sum);
+    EXPECT_NEAR(t["psnr"].get<double>(), psnr, 0.05) << name;
+    EXPECT_GT(t["psnr_copy"].get<double>(), 10.0) << name;
+  }
 
   // The shipped model's file says it is a demonstration model (its model card): the CLI says so
   // once, and the page's first section is the same sentence with its measured numbers and a

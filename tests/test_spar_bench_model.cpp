@@ -1,11 +1,11 @@
-// spar-bench --model (samples/bench_model.h): the whole pipeline on synthetic inputs, through
+// spar-bench --model (tools/spar_bench/bench_model.h): the whole pipeline on synthetic inputs, through
 // the built spar-bench (SPAR_BENCH) on the tiny photometric fixture, validation and
 // synchronization validation on (runValidated):
 //  - every stage that runs is reported with its GPU time, and the timed total is their sum;
 //  - --assume-static leaves out DINOv3 and CV-DRP (no stage, fewer weights loaded);
 //  - the program needs no image library (what the GPU check carries links only libvulkan of
 //    the system's graphics stack: no OpenImageIO, libpng or ICU in its NEEDED entries);
-//  - --peer times the op cases' CPU peer in the same run (samples/bench_peer.h).
+//  - --peer times the op cases' CPU peer in the same run (tools/spar_bench/bench_peer.h).
 // The suite is named "spar_bench_model" (`ctest -R spar_bench_model`).
 #include <gtest/gtest.h>
 
@@ -16,12 +16,12 @@
 
 #include <nlohmann/json.hpp>
 
-#include "samples/bench_model.h"
+#include "tools/spar_bench/bench_model.h"
 #include "tests/golden_support.h"
 #include "tests/test_support.h"
 
 #ifndef SPAR_BENCH
-#error "SPAR_BENCH (path of the built spar-bench) is defined by samples/CMakeLists.txt"
+#error "SPAR_BENCH (path of the built spar-bench) is defined by tools/CMakeLists.txt"
 #endif
 
 namespace spar::test {

@@ -1,4 +1,4 @@
-// `spar eval` (samples/spar_cli/eval_command.*) as a user runs it: the built binary (SPAR_CLI)
+// `spar eval` (tools/spar/eval_command.*) as a user runs it: the built binary (SPAR_CLI)
 // on two test scenes made by `scenes/spar-scenes split --split test --count 2 --size 128`,
 // with the tiny semantic model of the spar_goldens_semantic fixture (128x128).
 //  - The three modes for --views 2,3: result.json has the protocol's fields (PROTOCOL.md,

@@ -25,7 +25,7 @@ namespace fs = std::filesystem;
 using json = nlohmann::json;
 
 const fs::path kOpencvData = "/usr/share/doc/opencv-doc/examples/data";
-const fs::path kModel = fs::path(SPAR_SOURCE_DIR) / "samples" / "data" / "spar_rooms.spar";
+const fs::path kModel = fs::path(SPAR_SOURCE_DIR) / "data" / "spar_rooms.spar";
 
 const fs::path& scratch() { return scratchDir("spar_footage"); }
 

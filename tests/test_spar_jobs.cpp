@@ -24,7 +24,7 @@ namespace {
 namespace fs = std::filesystem;
 using json = nlohmann::json;
 
-const fs::path kData = fs::path(SPAR_SOURCE_DIR) / "samples" / "data";
+const fs::path kData = fs::path(SPAR_SOURCE_DIR) / "data";
 const std::string kModel = (kData / "spar_rooms.spar").string();
 
 const fs::path& scratch() { return scratchDir("spar_jobs"); }

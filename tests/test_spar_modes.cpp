@@ -1,4 +1,4 @@
-// spar-modes (samples/spar_modes.cpp) as a user runs it, on its default inputs: the tiny model
+// spar-modes (tools/spar_modes/main.cpp) as a user runs it, on its default inputs: the tiny model
 // of the spar_goldens fixture. Checks the report's structure, not its timings: every mode
 // present, every number finite, the static modes without DINOv3 / CV-DRP and with fewer weight
 // bytes, fp16 weights with fewer bytes than fp32 and q8 / q4 fewer still, errors of the expected size, the markdown on
@@ -23,7 +23,7 @@
 #include "tests/test_support.h"
 
 #ifndef SPAR_MODES
-#error "SPAR_MODES (path of the built spar-modes) is defined by samples/CMakeLists.txt"
+#error "SPAR_MODES (path of the built spar-modes) is defined by tools/CMakeLists.txt"
 #endif
 
 namespace spar::test {

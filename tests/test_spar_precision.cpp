@@ -12,6 +12,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -22,6 +23,7 @@
 #include "model/memory_estimate.h"
 #include "model/packed_model.h"
 #include "model/quantized_matrices.h"
+#include "model/stages/stage_list.h"
 #include "pipeline_check.h"
 #include "test_support.h"
 
@@ -109,7 +111,7 @@ uint64_t estimatedWeightBytes(const std::string& modelPath, DType weightType) {
   const PackedModel model = PackedModel::open(modelPath);
   const SparConfig c = SparConfig::fromJson(model.config(), modelPath);
   const GoldenCase g("interleaved");
-  MemoryQuery q;
+  RequestShape q;
   q.views = int64_t(g.files().size());
   q.inputs = int64_t(g.inputs().size());
   q.targets = q.renderChunk = int64_t(g.targets().size());
@@ -125,6 +127,66 @@ uint64_t estimatedWeightBytes(const std::string& modelPath, DType weightType) {
 TEST_F(SparPrecisionTest, EstimatedWeightsAreTheLoadedOnesOnTheSemanticModel) {
   const std::string model = semanticGoldenPath("tiny_semantic.spar");
   EXPECT_EQ(runInterleaved(eng(), model, DType::F16, false).bytes, estimatedWeightBytes(model, DType::F16));
+}
+
+// ---- The stage list (model/stages/stage_list.h) the pipeline runs and the estimate adds up
+
+// A request's shape at a model's own size, 3 inputs and 2 targets.
+RequestShape shapeAt(const SparConfig& c) {
+  RequestShape q;
+  q.views = 5;
+  q.inputs = 3;
+  q.targets = q.renderChunk = 2;
+  q.height = c.imageHeight;
+  q.width = c.imageWidth;
+  return q;
+}
+
+// Every tensor of a model belongs to a module some stage loads: the estimate counts the weights
+// of the stages a request runs, so a module no stage claims would go uncounted (and a new stage
+// that forgets to declare its weights fails here on the first model that has them).
+TEST(SparStageList, EveryTensorBelongsToAStage) {
+  for (const std::string& path : {goldenPath("tiny_sam2.spar"), semanticGoldenPath("tiny_semantic.spar"),
+                                   std::string(SPAR_SOURCE_DIR) + "/data/spar_rooms.spar"}) {
+    const PackedModel model = PackedModel::open(path);
+    const SparConfig c = SparConfig::fromJson(model.config(), path);
+    const RequestShape q = shapeAt(c);
+    const std::vector<std::string> modules = stageModules({model, c, q});
+    for (const std::string& name : model.names())
+      EXPECT_TRUE(std::count(modules.begin(), modules.end(), name.substr(0, name.find('.')))) << path << ": " << name;
+  }
+}
+
+// What a request does not need is not in its list: no motion stages for a static scene, no
+// SAM2.1 unless refining, LSeg only without its features given, the label phases only with
+// prompts; and a semantic model's request runs its semantic stages.
+TEST(SparStageList, ARequestRunsOnlyWhatItNeeds) {
+  const std::string path = semanticGoldenPath("tiny_semantic.spar");
+  const PackedModel model = PackedModel::open(path);
+  const SparConfig c = SparConfig::fromJson(model.config(), path);
+  auto names = [&](const RequestShape& q) {
+    std::string out;
+    for (const auto& stage : pipelineStages({model, c, q})) out += std::string(out.empty() ? "" : " ") + stage->name();
+    return out;
+  };
+  RequestShape q = shapeAt(c);
+  EXPECT_EQ(names(q), "image_tokens pose_estimator rays dino_v3 cv_drp gating lseg semantic_tokens scene_encoder renderer");
+  q.assumeStatic = true;
+  EXPECT_EQ(names(q), "image_tokens pose_estimator rays gating lseg semantic_tokens scene_encoder renderer");
+  q.lsegGiven = true;
+  q.labels = true;
+  q.prompts = 2;
+  EXPECT_EQ(names(q), "image_tokens pose_estimator rays gating semantic_tokens scene_encoder renderer text_encoder labels");
+  q = shapeAt(c);
+  q.refine = true;  // this model has no SAM2.1 weights: its list cannot refine
+  EXPECT_EQ(names(q).find("sam2_refine"), std::string::npos);
+  const PackedModel sam2 = PackedModel::open(goldenPath("tiny_sam2.spar"));
+  const SparConfig c2 = SparConfig::fromJson(sam2.config(), sam2.path());
+  RequestShape r = shapeAt(c2);
+  r.refine = true;
+  std::string refined;
+  for (const auto& stage : pipelineStages({sam2, c2, r})) refined += std::string(refined.empty() ? "" : " ") + stage->name();
+  EXPECT_EQ(refined, "image_tokens pose_estimator rays dino_v3 cv_drp sam2_refine gating scene_encoder renderer");
 }
 
 // ---- Quantized matrices (converter/FORMAT.md, "Quantized matrices")

@@ -1,5 +1,5 @@
-// `spar render` (samples/spar.cpp) as a user runs it: the built binary (SPAR_CLI, wired in
-// samples/CMakeLists.txt) on the tiny photometric model of the spar_goldens fixture.
+// `spar render` (tools/spar/main.cpp) as a user runs it: the built binary (SPAR_CLI, wired in
+// tools/CMakeLists.txt) on the tiny photometric model of the spar_goldens fixture.
 //  - Wrong input: exit code != 0, exactly one line "spar: error: ..." on stderr, no output
 //    directory and no DIR.tmp-* left behind.
 //  - End to end against the PyTorch reference's `spar-reference render` on the same files:
@@ -147,23 +147,30 @@ std::set<std::string> entries(const fs::path& dir) {
   return names;
 }
 
-// The input views of a run (its cameras.json).
-size_t inputCount(const fs::path& out) {
+// The input views of a run (its cameras.json), and its target frames.
+size_t viewCount(const fs::path& out, const char* role) {
   std::ifstream in(out / "cameras.json");
   const auto doc = nlohmann::json::parse(in);
-  const auto& inputs = doc.at("inputs");
-  return inputs.is_array() ? inputs.size() : inputs.get<size_t>();
+  const auto& views = doc.at(role);
+  return views.is_array() ? views.size() : views.get<size_t>();
 }
+size_t inputCount(const fs::path& out) { return viewCount(out, "inputs"); }
 
-// What ours writes beyond the reference's files: index.html, the page, and input_XX.png, the
-// prepared input views it shows (one per input). Removed from `names`; false if any is missing.
-bool erasePage(std::set<std::string>& names, size_t inputs) {
+// What ours writes beyond the reference's files: index.html, the page, input_XX.png, the
+// prepared input views it shows (one per input), and target_XX.png / truth_XX.png, each target
+// rendered beside its frame (one pair per target). Removed from `names`; false if any is missing.
+bool erasePage(std::set<std::string>& names, size_t inputs, size_t targets) {
   bool all = names.erase("index.html") == 1;
-  for (size_t k = 0; k < inputs; ++k) {
-    char f[32];
-    std::snprintf(f, sizeof f, "input_%02zu.png", k);
-    all = names.erase(f) == 1 && all;
-  }
+  auto erase = [&](const char* pattern, size_t count) {
+    for (size_t k = 0; k < count; ++k) {
+      char f[32];
+      std::snprintf(f, sizeof f, pattern, k);
+      all = names.erase(f) == 1 && all;
+    }
+  };
+  erase("input_%02zu.png", inputs);
+  erase("target_%02zu.png", targets);
+  erase("truth_%02zu.png", targets);
   return all;
 }
 
@@ -386,7 +393,7 @@ void compareOutputs(const std::string& name, const Outputs& o, bool assumeStatic
   // has the COLMAP models the reference does not write
   auto names = entries(o.ours);
   EXPECT_EQ(names.erase("colmap"), 1u) << name;
-  EXPECT_TRUE(erasePage(names, inputCount(o.ours))) << name;
+  EXPECT_TRUE(erasePage(names, inputCount(o.ours), viewCount(o.ours, "targets"))) << name;
   // a model whose file says nothing of what it is (no model card) gets no note on its page
   EXPECT_EQ(readText(o.ours / "index.html").find("model-note"), std::string::npos) << name;
   EXPECT_EQ(names.erase("colmap_render"), mode == "targets" ? 0u : 1u) << name;
@@ -628,7 +635,7 @@ TEST(spar_render, LabelsAndFeaturesMatchReference) {
   ASSERT_TRUE(o);
   auto names = entries(o->ours);
   EXPECT_EQ(names.erase("colmap"), 1u);  // ours also writes the cameras as a COLMAP model
-  EXPECT_TRUE(erasePage(names, inputCount(o->ours)));
+  EXPECT_TRUE(erasePage(names, inputCount(o->ours), viewCount(o->ours, "targets")));
   EXPECT_EQ(names, entries(o->ref));
   for (int j = 0; j < 2; ++j) {
     char f[32];

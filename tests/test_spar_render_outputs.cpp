@@ -1,4 +1,4 @@
-// The --path animation and long paths of `spar render` (samples/spar_cli/render_outputs.h,
+// The --path animation and long paths of `spar render` (tools/spar/render_outputs.h,
 // animation.h), through the built `spar` (SPAR_CLI) on the tiny photometric fixture, with the
 // validation layer and synchronization validation on (runValidated):
 //  - with ffmpeg installed (scripts/setup/install-deps.sh) the default --animation auto writes path.mp4:
@@ -22,10 +22,10 @@
 
 #include <nlohmann/json.hpp>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "formats/npy.h"
 #include "imaging/image_prep.h"
-#include "samples/spar_cli/ffmpeg_video.h"
+#include "tools/spar/ffmpeg_video.h"
 #include "tests/golden_support.h"
 #include "tests/cli_test_support.h"
 #include "tests/test_support.h"

@@ -1,4 +1,4 @@
-// spar selftest (samples/spar_cli/selftest_command.h): on this device it passes (exit 0, every
+// spar selftest (tools/common/selftest_command.h): on this device it passes (exit 0, every
 // op check and every stage of the self-test model within its threshold, no validation message)
 // as it is and under a device-limit profile, prints the device, limits, plan and a verdict,
 // gives the same as JSON and as a JUnit report (--junit), runs on every device at once

@@ -1,4 +1,4 @@
-// Image size from the converter to `spar render` / `spar eval` (samples/spar.cpp), as a user
+// Image size from the converter to `spar render` / `spar eval` (tools/spar/main.cpp), as a user
 // meets it: a tiny SPAR "trained" at 128x128 with a DINOv3 that is not ViT-B, packed with the
 // official-format YAML that says 128x128 (tests/python/make_size_model.py), then the built
 // `spar` (SPAR_CLI):

@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "engine/engine.h"
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/activation.h"
 #include "engine/recorder.h"
 

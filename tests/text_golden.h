@@ -9,7 +9,7 @@
 
 #include <nlohmann/json.hpp>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "tests/golden_support.h"
 
 namespace spar::test {

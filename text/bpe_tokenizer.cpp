@@ -14,7 +14,7 @@
 #include <memory>
 #include <string_view>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "model/packed_model.h"
 
 namespace spar {

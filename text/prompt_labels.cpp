@@ -1,6 +1,6 @@
 #include "text/prompt_labels.h"
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "text/bpe_tokenizer.h"
 
 namespace spar {

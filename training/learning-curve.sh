@@ -12,7 +12,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 run=$1
 count=${2:-12}
-spar=${SPAR_BUILD:-build}/samples/spar
+spar=${SPAR_BUILD:-build}/bin/spar
 py=/usr/bin/python3
 scenes=build/eval/test-scenes-$count
 [[ -d $scenes ]] || $py scenes/spar-scenes split --split test --count "$count" --out "$scenes" >/dev/null

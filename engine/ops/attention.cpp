@@ -6,7 +6,7 @@
 #include <cstdlib>
 
 #include "engine/engine.h"
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/cpu_tiles.h"
 
 namespace spar {

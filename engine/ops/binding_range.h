@@ -7,7 +7,7 @@
 #include <string>
 
 #include "engine/engine.h"
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/ops/copy2d.h"
 #include "engine/recorder.h"
 #include "engine/ops/op_support.h"

@@ -10,7 +10,7 @@
 namespace spar::ops {
 
 // The most bytes of patches a convolution stages at once: the size of the recorder's scratch
-// it uses (Recorder::scratch; the memory estimate counts it, MemoryQuery::im2colScratchBytes).
+// it uses (Recorder::scratch; the memory estimate counts it, RequestShape::im2colScratchBytes).
 constexpr int64_t kIm2colScratchBytes = int64_t(4) << 20;
 
 // The bytes of scratch the device's convolutions stage their patches in: kIm2colScratchBytes

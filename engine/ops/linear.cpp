@@ -6,7 +6,7 @@
 #include <cstdio>
 
 #include "engine/engine.h"
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/kernel_plan.h"
 #include "engine/ops/binding_range.h"
 #include "engine/ops/cpu_tiles.h"

@@ -3,7 +3,7 @@
 #include <cstdint>
 #include <string>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "engine/tensor.h"
 
 namespace spar::ops {

@@ -13,7 +13,7 @@ import numpy as np
 import spar
 
 here = os.path.dirname(os.path.abspath(__file__))
-data = os.path.join(here, "..", "..", "samples", "data")
+data = os.path.join(here, "..", "..", "data")
 out = sys.argv[1] if len(sys.argv) > 1 else "out/python"
 photos = sys.argv[2:] or [os.path.join(data, "scenes", "scene_1000002", "rgb_0%d.png" % i) for i in (0, 4, 7)]
 os.makedirs(out, exist_ok=True)

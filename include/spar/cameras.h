@@ -23,4 +23,8 @@ SPAR_API RenderCameras pathCameras(const Encoded& encoded, const std::vector<int
 // Throws spar::Error (one line naming the file and frame).
 SPAR_API RenderCameras readCameras(const std::string& path, int width, int height, std::string* warning = nullptr);
 
+// "" when Session::render takes every camera, else the first one it refuses and why ("camera 3:
+// the rotation is not orthonormal ..."): a camera file checked before any device work.
+SPAR_API std::string renderCamerasProblem(const RenderCameras& cameras);
+
 }  // namespace spar

@@ -14,9 +14,9 @@ import pytest
 import spar
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-SHIPPED = os.path.join(ROOT, "samples", "data", "spar_rooms.spar")
-SCENE = os.path.join(ROOT, "samples", "data", "scenes", "scene_1000002")
-SELFTEST = os.path.join(ROOT, "samples", "data", "selftest")  # a small model with the semantic branch
+SHIPPED = os.path.join(ROOT, "data", "spar_rooms.spar")
+SCENE = os.path.join(ROOT, "data", "scenes", "scene_1000002")
+SELFTEST = os.path.join(ROOT, "data", "selftest")  # a small model with the semantic branch
 FRAMES = [os.path.join(SCENE, "rgb_0%d.png" % i) for i in (0, 2, 4, 7)]
 LABELS = ["wall", "floor", "sofa", "window"]
 
@@ -75,6 +75,62 @@ def test_same_bytes_and_labels_as_spar_render(ctx, shipped, tmp_path):
         assert s.render(c2w, k).shape == (3, 3, h, w)
         names = [t["name"] for t in s.stage_times()]
         assert "renderer" in names and "cv_drp" in names
+
+
+def test_the_options_spar_render_uses(ctx, small, tmp_path):
+    """What the CLI takes from the library, from Python too: precisions, the memory estimate and its
+    refusal before any work, label scores, the kernel report, the device and kept intermediates."""
+    model, images = small
+    assert spar.precisions() == ["fp32", "fp16", "q8", "q4"]
+    assert model.size_problem(*model.image_size) == ""
+    assert "not a multiple" in model.size_problem(17, 17)
+    views = images.shape[0]
+    with spar.Session(ctx, model, precision="q8", keep_intermediates=True) as s:
+        need = s.estimate_memory(views, [0, 2], semantic_features=True, label_prompts=2)
+        assert 0 < need["weight_bytes"] < need["min_bytes"] <= need["max_bytes"] and need["refusal"] == ""
+        s.encode(images, inputs=[0, 2], semantic_features=True)
+        s.render_targets()
+        maps, scores = s.label_maps(LABELS[:2], scores=True)
+        h, w = model.image_size
+        assert maps.shape == (views - 2, h, w) and scores.shape == (views - 2, 2, h // 2, w // 2)
+        # the label maps are the argmax of the scores enlarged x2 (bilinear, align_corners):
+        # recomputed here, they agree wherever the two prompts are not within rounding of a tie
+        def enlarge(x):
+            n = x.shape[-1]
+            at = np.arange(2 * n) * (n - 1) / (2 * n - 1)
+            lo = np.minimum(np.floor(at).astype(int), n - 2)
+            f = at - lo
+            x = x[..., lo, :] * (1 - f)[:, None] + x[..., lo + 1, :] * f[:, None]
+            return x[..., lo] * (1 - f) + x[..., lo + 1] * f
+        lead = enlarge(scores[:, 0] - scores[:, 1])
+        clear = np.abs(lead) > 1e-3
+        assert clear.mean() > 0.9 and np.all((maps[clear] == 0) == (lead[clear] > 0))
+        assert "c2w" in s.intermediate_names() and s.intermediate("c2w").shape == (views, 4, 4)
+        assert s.weight_bytes_loaded > 0
+        names = [t["name"] for t in s.stage_times()]
+        assert "renderer" in names and names[-2:] == ["text_encoder", "labels"], names
+    report = ctx.kernel_report()
+    assert report["pipelines"] > 0 and report["plan"] and report["kernels"][0]["name"]
+    assert ctx.device["name"] == ctx.device_name and ctx.memory()["peak_bytes"] > 0
+
+
+def test_memory_refusal_before_any_work(small):
+    """A request above the device's memory budget is refused by encode itself, before any work
+    (no device buffer allocated), with the estimate's one line."""
+    model, images = small
+    os.environ["SPAR_MEMORY_LIMIT_MB"] = "1"
+    try:
+        c = spar.Context(validation=True)
+    finally:
+        del os.environ["SPAR_MEMORY_LIMIT_MB"]
+    with spar.Session(c, model) as s:
+        need = s.estimate_memory(images.shape[0], [0, 2])
+        assert need["budget_bytes"] == 1 << 20 and need["refusal"].startswith("this request needs at least")
+        before = c.memory()["allocations"]
+        with pytest.raises(spar.Error, match="needs at least .* MiB of device memory"):
+            s.encode(images, inputs=[0, 2])
+        assert c.memory()["allocations"] == before
+    assert c.validation_messages == 0
 
 
 def test_bad_arguments_are_spar_errors(ctx, small):

@@ -65,7 +65,7 @@ def test_same_seed_same_bytes():
     assert json.dumps(a["info"]) == json.dumps(b["info"])
 
 
-SHIPPED = os.path.join(HERE, "..", "..", "samples", "data", "scenes")
+SHIPPED = os.path.join(HERE, "..", "..", "data", "scenes")
 
 
 def test_shipped_scenes_are_take_0_of_their_seeds():

@@ -7,14 +7,14 @@
 # merged evaluation equals the single process's (every metric and per-scene tally; times
 # apart), the requeued task skipped the jobs and scenes it had finished (its log says which),
 # and `spar eval --merge` refused a shard given twice. Environment: SPAR (default
-# build/samples/spar), MODEL (default samples/data/spar_rooms.spar), SCENES (default
-# samples/data/scenes), WORK (default: a temporary folder, removed at the end), REQUEUES=0
+# build/bin/spar), MODEL (default data/spar_rooms.spar), SCENES (default
+# data/scenes), WORK (default: a temporary folder, removed at the end), REQUEUES=0
 # (no requeue, no skip checks: the array's time against one process's).
 set -euo pipefail
 root=$(cd "$(dirname "$0")/../.." && pwd)
-spar=$(realpath "${SPAR:-$root/build/samples/spar}")
-model=$(realpath "${MODEL:-$root/samples/data/spar_rooms.spar}")
-scenes=$(realpath "${SCENES:-$root/samples/data/scenes}")
+spar=$(realpath "${SPAR:-$root/build/bin/spar}")
+model=$(realpath "${MODEL:-$root/data/spar_rooms.spar}")
+scenes=$(realpath "${SCENES:-$root/data/scenes}")
 : "${SLURM_CONF:?SLURM_CONF must name the slurm.conf of a running cluster (scripts/batch/slurm-local.sh)}"
 [ -x "$spar" ] || { echo "shards-check: no spar program at $spar (build first, or set SPAR)" >&2; exit 1; }
 if [ -n "${WORK:-}" ]; then work=$WORK; mkdir -p "$work"; else work=$(mktemp -d); trap 'rm -rf "$work"' EXIT; fi

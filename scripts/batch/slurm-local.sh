@@ -9,7 +9,7 @@
 #   bash scripts/batch/slurm-local.sh stop DIR    stop the cluster started in DIR: exactly the
 #                                                 processes its pid files name
 #
-# Environment: SPAR (the spar program, default build/samples/spar), MODEL, SCENES (see
+# Environment: SPAR (the spar program, default build/bin/spar), MODEL, SCENES (see
 # shards-check.sh). Needs root for the packages (apt-get) and runs the daemons as this user.
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)

@@ -9,7 +9,7 @@ docs/benchmarks.md).
     bench_peer.py IN.json OUT.json
 
 IN: {"repeat": R, "cases": [spec or null, ...]}; a spec is spar-bench's description of a case
-(samples/bench_cases.cpp, BenchCase::peer). OUT: {"peer": "what ran", "ms": [median or null,
+(tools/spar_bench/bench_cases.cpp, BenchCase::peer). OUT: {"peer": "what ran", "ms": [median or null,
 ...]}, the median of R timed runs after warm-up runs, in milliseconds.
 """
 import json

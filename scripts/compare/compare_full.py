@@ -5,7 +5,7 @@ Full-size wall time and peak memory: the engine (`spar render`) next to the PyTo
 (`spar-reference render`, float32, 2 threads) on the same inputs, stage by stage, plus the error
 of the engine's renders against the reference's (with and without --assume-static).
 
-    scripts/compare/compare_full.py [--out build/compare-full] [--spar build/samples/spar] [--cases 2x1,4x4]
+    scripts/compare/compare_full.py [--out build/compare-full] [--spar build/bin/spar] [--cases 2x1,4x4]
 
 Makes (once) the official configuration without the semantic branch with random perturbed
 weights (seed 11; about 1.4 GB as .pt and again as .spar under --out), eight procedural frames,
@@ -65,7 +65,7 @@ def masks(d):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=os.path.join(ROOT, "build", "compare-full"))
-    ap.add_argument("--spar", default=os.path.join(ROOT, "build", "samples", "spar"))
+    ap.add_argument("--spar", default=os.path.join(ROOT, "build", "bin", "spar"))
     ap.add_argument("--cases", default="2x1,4x4")
     args = ap.parse_args()
     out = os.path.abspath(args.out)

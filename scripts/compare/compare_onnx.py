@@ -3,7 +3,7 @@
 
 CPU run time of the same SPAR model three ways: ONNX Runtime (npm's onnxruntime-node, CPU,
 2 intra-op threads), PyTorch eager (the reference model, float32, 2 threads) and this engine on
-lavapipe (`build/samples/spar-bench --model ... --json`). Prints a markdown table and writes it
+lavapipe (`build/bin/spar-bench --model ... --json`). Prints a markdown table and writes it
 to OUT/table.md, with the figures in OUT/result.json.
 
     /usr/bin/python3 scripts/compare/compare_onnx.py [--out build/compare-onnx] [--repeat 3]
@@ -21,7 +21,7 @@ on this graph). PyTorch is timed in a subprocess without OPENBLAS_CORETYPE / OPE
 (set on this machine; they hold OpenBLAS to AVX2); the other runtimes keep the environment.
 
 Needs: /usr/bin/python3 with torch (1.13) and numpy, node + npm, network once (npm installs
-onnxruntime-node into OUT/node), a built build/samples/spar-bench. Takes minutes; run it on an
+onnxruntime-node into OUT/node), a built build/bin/spar-bench. Takes minutes; run it on an
 otherwise idle machine. Not part of the test suite.
 """
 import argparse
@@ -171,7 +171,7 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=os.path.join(ROOT, "build", "compare-onnx"))
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--bench", default=os.path.join(ROOT, "build", "samples", "spar-bench"))
+    ap.add_argument("--bench", default=os.path.join(ROOT, "build", "bin", "spar-bench"))
     ap.add_argument("--torch-worker", nargs=3, metavar=("CK", "CFG", "RESULT"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.torch_worker:

@@ -6,7 +6,7 @@ opencv-doc's vtest.avi (people walking past a fixed camera), three frames 0.4 s 
 first two inputs: each input frame, its P(dynamic) and its motion mask laid over it, and the
 rendered third frame beside the real one.
 
-    /usr/bin/python3 scripts/demo/footage_figure.py [SPAR]     (default build/samples/spar)
+    /usr/bin/python3 scripts/demo/footage_figure.py [SPAR]     (default build/bin/spar)
 """
 import os
 import subprocess
@@ -31,10 +31,10 @@ def panel(im, title):
 
 
 def main():
-    spar = sys.argv[1] if len(sys.argv) > 1 else os.path.join(ROOT, "build", "samples", "spar")
+    spar = sys.argv[1] if len(sys.argv) > 1 else os.path.join(ROOT, "build", "bin", "spar")
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "out")
-        subprocess.run([spar, "render", "--model", os.path.join(ROOT, "samples", "data", "spar_rooms.spar"),
+        subprocess.run([spar, "render", "--model", os.path.join(ROOT, "data", "spar_rooms.spar"),
                         "--video", VIDEO, "--video-at", TIMES, "--inputs", "0,1", "--out", out], check=True)
         frames = []
         for t in TIMES.split(","):

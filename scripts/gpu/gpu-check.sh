@@ -58,7 +58,7 @@ if [ "$mode" = pack ]; then
   stage=$(mktemp -d)
   mkdir -p "$stage/bin" "$stage/runtime" "$stage/layers"
   for b in "${bins[@]}"; do
-    f=$(find "$build/samples" "$build/tests" -maxdepth 1 -type f -name "$b" | head -n 1)
+    f=$(find "$build/bin" "$build/tests" -maxdepth 1 -type f -name "$b" | head -n 1)
     [ -n "$f" ] || { echo "gpu-check: $b not built (cmake --build $build)" >&2; exit 1; }
     if ldd "$f" | grep -q -E "OpenImageIO|libpng|libicu"; then
       echo "gpu-check: $b links an image library; it cannot travel" >&2; exit 1
@@ -181,7 +181,7 @@ cp "$out/kernels.log" "$out/kernels.json" 2>/dev/null
 # spar selftest on the device's own driver and plan (spar-bench --selftest: the same checks as
 # `spar selftest`, in a program of the bundle; the self-test model from the tree carried there):
 # its table is selftest.log, exit 0 = passed.
-step selftest 120 "${plan[@]}" $bin spar-bench --selftest --selftest-model-dir "$root/samples/data/selftest"
+step selftest 120 "${plan[@]}" $bin spar-bench --selftest --selftest-model-dir "$root/data/selftest"
 
 mkdir -p "$out/tests"
 # The op tests' goldens that need no model (transformer blocks, Plucker rays: CTest's fixture

@@ -71,7 +71,7 @@ PY
   cp "$run/$best/config.json" "$run/config.json" && cp "$run/$best/train_log.txt" "$run/train_log.txt" || exit 1
   /usr/bin/python3 converter/spar-convert -q "$run/checkpoint.pt" --config "$run/config.json" --fp16 \
     --bpe text/data/clip/bpe_simple_vocab_16e6.txt.gz -o "$run/model.spar" || exit 1
-  echo "gpu-train: $run/model.spar; evaluate: build/samples/spar eval --model $run/model.spar --scenes DIR"
+  echo "gpu-train: $run/model.spar; evaluate: build/bin/spar eval --model $run/model.spar --scenes DIR"
   exit 0
 fi
 

@@ -12,7 +12,7 @@ scaled_dot_product_attention with 12 heads of 64 over 1280 and 2816 tokens in fp
 engine's spar-bench cases), each the median of CUDA-event timings after warm-up. --small
 shrinks the shapes (a check of this script on a CPU).
 --checkpoint: SPAR's PyTorch reference (reference/spar_reference) on spar-bench --model's
-synthetic frames (samples/bench_model.h: the same hash, so the same inputs), V inputs then T
+synthetic frames (tools/spar_bench/bench_model.h: the same hash, so the same inputs), V inputs then T
 targets, the targets rendered with their estimated cameras, in fp32 eager and with the model and
 frames in bfloat16: per stage (module hooks with CUDA events, the stage names of spar-reference's
 report) and in total, median of --repeat runs after one warm-up run.
@@ -32,7 +32,7 @@ sys.path[:0] = [os.path.join(ROOT, d) for d in ("reference", "converter")]
 
 
 def synthetic_images(views, h, w):
-    """samples/bench_model.cpp syntheticImages: murmur3's finalizer of the element index."""
+    """tools/spar_bench/bench_model.cpp syntheticImages: murmur3's finalizer of the element index."""
     i = np.arange(views * 3 * h * w, dtype=np.uint64)
     x = ((i + np.uint64((0x9E3779B9 * 12345) & 0xFFFFFFFF)) & np.uint64(0xFFFFFFFF)).astype(np.uint32)
     x ^= x >> np.uint32(16)

@@ -92,7 +92,7 @@ if [ "$mode" = build ]; then
   cmake -S "$root" -B "$build" -DCMAKE_BUILD_TYPE=Release -DCMAKE_TOOLCHAIN_FILE="$root/cmake/aarch64-linux-gnu.cmake" \
         -DSPAR_ARM64_SYSROOT="$sysroot" -DSPAR_PYTHON=OFF > "$dir/configure.log"
   cmake --build "$build" -j"$(nproc)" --target spar spar-bench "${op_tests[@]}"
-  file "$build/samples/spar" | cut -d, -f1-2
+  file "$build/bin/spar" | cut -d, -f1-2
   exit 0
 fi
 
@@ -122,7 +122,7 @@ if [ "$mode" = test ]; then
     printf "arm64: %-28s %s  %5d s\n" "$1" "$([ "$2" = 0 ] && echo pass || echo "FAIL (exit $2)")" "$3"
   }
   t=$(date +%s) code=0
-  run "$build/samples/spar" selftest > "$dir/selftest.log" 2>&1 || code=$?
+  run "$build/bin/spar" selftest > "$dir/selftest.log" 2>&1 || code=$?
   report "spar selftest" $code $(( $(date +%s) - t ))
   grep -E "^device|^validation|^verdict" "$dir/selftest.log" | sed 's/^/         /'
   for p in "${op_tests[@]}"; do

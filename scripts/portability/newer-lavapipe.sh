@@ -8,7 +8,7 @@
 #   bash scripts/portability/newer-lavapipe.sh                 # fetch and unpack once, print the variables
 #   bash scripts/portability/newer-lavapipe.sh run CMD ARGS... # run one command on the newer driver, e.g.
 #   bash scripts/portability/newer-lavapipe.sh run bash scripts/demo/demo.sh
-#   bash scripts/portability/newer-lavapipe.sh run build/samples/spar-bench --only gemm
+#   bash scripts/portability/newer-lavapipe.sh run build/bin/spar-bench --only gemm
 #
 # Needs network access to deb.debian.org (apt-get download, no root). DIR (default
 # build/mesa-backports) holds the apt state, the .debs and the unpacked driver.

@@ -10,15 +10,15 @@
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 out=${1:-out/profiles}
-scene=samples/data/scenes/scene_1000002
+scene=data/scenes/scene_1000002
 labels="wall,floor,ceiling,sofa,table,window,door,plant,person,pet"
-spar=${SPAR_BUILD:-build}/samples/spar
+spar=${SPAR_BUILD:-build}/bin/spar
 rm -rf "$out"
 mkdir -p "$out"
 render() {  # NAME [profile [kernel family]]
   local start end
   start=$(date +%s.%N)
-  SPAR_DEVICE_LIMITS=${2:-} SPAR_KERNELS=${3:-} "$spar" render --model samples/data/spar_rooms.spar --frames "$scene"/rgb_0{0..7}.png \
+  SPAR_DEVICE_LIMITS=${2:-} SPAR_KERNELS=${3:-} "$spar" render --model data/spar_rooms.spar --frames "$scene"/rgb_0{0..7}.png \
     --inputs 0,4,7 --path 24 --labels "$labels" --out "$out/$1" > "$out/$1.log" 2>&1
   end=$(date +%s.%N)
   printf '%.1f' "$(echo "$end - $start" | bc)"

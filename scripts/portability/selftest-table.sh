@@ -7,11 +7,11 @@
 # swiftshader`), under each device-limit profile: one markdown table row each (verdict, checks
 # passed: the op checks and the self-test model's stages, validation messages, wall time).
 #
-#   bash scripts/portability/selftest-table.sh [SPAR]     (default build/samples/spar; network for the drivers)
+#   bash scripts/portability/selftest-table.sh [SPAR]     (default build/bin/spar; network for the drivers)
 #   DRIVERS="swiftshader" bash scripts/portability/selftest-table.sh   (some of: system newer coopmat swiftshader)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-spar=$(realpath "${1:-build/samples/spar}")
+spar=$(realpath "${1:-build/bin/spar}")
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 echo "| driver | profile | verdict | checks | validation messages | wall |"

@@ -14,7 +14,7 @@
 #include <optional>
 #include <vector>
 
-#include "engine/error.h"
+#include "spar/error.h"
 #include "model/packed_model.h"
 #include "model/sam2_config.h"
 #include "model/spar_config.h"

@@ -1,7 +1,7 @@
 #!/usr/bin/python3
-"""Makes the self-test model of `spar selftest` (samples/data/selftest).
+"""Makes the self-test model of `spar selftest` (data/selftest).
 
-Makes the self-test model that `spar selftest` runs stage by stage (samples/data/selftest/,
+Makes the self-test model that `spar selftest` runs stage by stage (data/selftest/,
 installed as share/spar/selftest/): a tiny SPAR with every stage of the full model (view
 tokens, pose estimator and heads, Plücker rays, DINOv3, CV-DRP, gating, LSeg, semantic tokens,
 scene encoder, renderer with its semantic head, CLIP's text tower with the full vocabulary at
@@ -12,7 +12,7 @@ the official 1024x1024's work), with every weight rounded to a value fp16 holds 
 Packed with --fp16 (2.6 MB instead of 5.2), the file then holds the very model the float64 reference ran: a device with fp16 storage reads the weights as
 fp16, one without widens them to fp32, and both are compared with the same float64 outputs.
 
-    /usr/bin/python3 tests/python/make_selftest_model.py [OUT_DIR]     (default samples/data/selftest)
+    /usr/bin/python3 tests/python/make_selftest_model.py [OUT_DIR]     (default data/selftest)
 
 writes OUT_DIR/
     model.spar        the packed model (with CLIP's merges table, as any semantic pack)
@@ -117,7 +117,7 @@ def refine(sd, cfg, images, goldens, out):
 
 
 def main(argv):
-    out = os.path.abspath(argv[0] if argv else os.path.join(ROOT, "samples", "data", "selftest"))
+    out = os.path.abspath(argv[0] if argv else os.path.join(ROOT, "data", "selftest"))
     import torch
     from make_spar_goldens import frames
     from spar_convert.convert import main as convert

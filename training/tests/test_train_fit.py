@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""A model fitted to the shipped rooms (``spar-train --fit-scenes samples/data/scenes``) trains
+"""A model fitted to the shipped rooms (``spar-train --fit-scenes data/scenes``) trains
 on other takes of those rooms, never on their own frames: its scene pool (training/spar_train/
 data.py, ScenePool with fit_seeds) is compared frame by frame with the shipped scenes.
 Also: ``--init-from`` of the shipped model unpacks and packs back to the same tensors.
@@ -14,7 +14,7 @@ import pytest
 from PIL import Image
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-SHIPPED = os.path.join(HERE, "..", "..", "samples", "data", "scenes")
+SHIPPED = os.path.join(HERE, "..", "..", "data", "scenes")
 
 from spar_train.data import ScenePool  # noqa: E402
 from spar_train.fit import fit_jobs, fit_seeds  # noqa: E402
@@ -30,7 +30,7 @@ from spar_reference.spar import SPAR  # noqa: E402
 from spar_train import init_from  # noqa: E402
 from spar_train.config import small_config  # noqa: E402
 
-SHIPPED_MODEL = os.path.join(HERE, "..", "..", "samples", "data", "spar_rooms.spar")
+SHIPPED_MODEL = os.path.join(HERE, "..", "..", "data", "spar_rooms.spar")
 BPE = os.path.join(HERE, "..", "..", "text", "data", "clip", "bpe_simple_vocab_16e6.txt.gz")
 
 

@@ -267,7 +267,7 @@ def test_scene_tokens_size_the_latent(base, capsys):
     (["--scene-tokens", "0"], "--scene-tokens"),
     (["--eval-scenes", "/nonexistent/scenes"], "not a directory"),
     (["--init-from", "/nonexistent/m.spar"], "--init-from /nonexistent/m.spar: no such file"),
-    (["--init-from", os.path.join(HERE, "..", "..", "samples", "data", "spar_rooms.spar"), "--scene-tokens", "24"],
+    (["--init-from", os.path.join(HERE, "..", "..", "data", "spar_rooms.spar"), "--scene-tokens", "24"],
      "another configuration"),
 ])
 def test_bad_options_are_one_line_errors(tmp_path, extra, message, capsys):

@@ -483,7 +483,7 @@ def test_check_cpu_runs_every_step(tmp_path, mode):
     model = f"spar-bench --model {repo.check_work}/model.spar --views 4 --targets 4 --precision"
     assert [c for c, s in runs["spar-bench"]] == [
         "spar-bench --list-devices", "spar-bench --list-kernels --json",
-        f"spar-bench --selftest --selftest-model-dir {repo.root}/samples/data/selftest",
+        f"spar-bench --selftest --selftest-model-dir {repo.root}/data/selftest",
         "spar-bench --json --repeat 2 --only _f32",
         f"{model} fp32 --repeat 2 --json", f"{model} fp16 --repeat 2 --json", f"{model} fp32 --repeat 2 --json"]
     assert [s["inputs"] for c, s in runs["spar-bench"]] == [""] * 6 + ["texel"]  # the last: texel inputs
@@ -527,12 +527,12 @@ def pack_inputs(repo, base):
     it), DIR with Debian 13's files as scripts/portability/coopmat-lavapipe.sh leaves them, a git repository."""
     build, mesa = os.path.join(base, "build"), os.path.join(base, "mesa")
     for b in BINS:
-        d = os.path.join(build, "samples" if b == "spar-bench" else "tests")
+        d = os.path.join(build, "bin" if b == "spar-bench" else "tests")
         os.makedirs(d, exist_ok=True)
         shutil.copy("/bin/true", os.path.join(d, b))
     debug = os.path.join(base, "debug-info")
     write(debug, "x" * 100000)
-    subprocess.run(["objcopy", "--add-section", f".debug_stub={debug}", os.path.join(build, "samples", "spar-bench")],
+    subprocess.run(["objcopy", "--add-section", f".debug_stub={debug}", os.path.join(build, "bin", "spar-bench")],
                    check=True)  # something for strip to take away
     lib = os.path.join(mesa, "root", "usr", "lib", "x86_64-linux-gnu")
     for name in [x for x in RUNTIME if x != "libvulkan.so.1"] + ["libVkLayer_khronos_validation.so"]:
@@ -555,7 +555,7 @@ def test_check_pack_bundles_what_runs_there(tmp_path):
     bundle kept out of git. A program not built is a one-line error and no bundle."""
     repo = Repo(tmp_path, bundle=False)
     env, head = pack_inputs(repo, str(tmp_path))
-    bench = os.path.join(tmp_path, "build", "samples", "spar-bench")
+    bench = os.path.join(tmp_path, "build", "bin", "spar-bench")
     os.rename(bench, bench + ".away")
     r = repo.run("gpu-check.sh", "pack", **env)
     assert r.returncode == 1 and r.stderr.strip() == f"gpu-check: spar-bench not built (cmake --build {tmp_path}/build)"
