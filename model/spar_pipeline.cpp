@@ -107,13 +107,6 @@ RequestShape SparPipeline::shapeOf(const SparRequest& request, int64_t renderChu
   return q;
 }
 
-std::vector<std::string> SparPipeline::stageNames(const SparRequest& request, int64_t prompts) const {
-  std::vector<std::string> names;
-  const RequestShape shape = shapeOf(request, 0, prompts);
-  for (const auto& stage : pipelineStages({model_, config_, shape})) names.push_back(stage->name());
-  return names;
-}
-
 MemoryNeed SparPipeline::memoryNeed(const SparRequest& request, int64_t renderChunk, int64_t prompts) {
   RequestShape q = shapeOf(request, renderChunk, prompts);
   q.staging = !engine_.caps().hostVisibleDeviceLocal;

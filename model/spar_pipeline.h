@@ -68,8 +68,6 @@ class SparPipeline {
   // What the stage list and the memory estimate take of `request`, when render calls render
   // `renderChunk` views and label maps are asked for `prompts` prompts.
   RequestShape shapeOf(const SparRequest& request, int64_t renderChunk, int64_t prompts) const;
-  // The names of the stages `request` runs, in order (with label maps for `prompts` prompts).
-  std::vector<std::string> stageNames(const SparRequest& request, int64_t prompts = 0) const;
   // The device memory `request` needs (model/memory_estimate.h), before any work. On a GPU the
   // first call measures the kernel choice (the estimate follows what will run).
   MemoryNeed memoryNeed(const SparRequest& request, int64_t renderChunk, int64_t prompts);
