@@ -278,9 +278,24 @@ void Recorder::emit(const Pending& d, const Pipeline& pipeline) {
   if (profile_) writeTimestamp();
 }
 
+StageCounts Recorder::lastRunTotal() const {
+  StageCounts total;
+  for (const auto& [stage, counts] : lastCounts_) total += counts;
+  return total;
+}
+
 void Recorder::run() {
   timings_.clear();
+  lastCounts_.clear();
+  for (const Pending& d : pending_) {
+    StageCounts& c = lastCounts_[d.stage];
+    ++c.dispatches;
+    c.barriers += d.barrierBefore;
+  }
+  for (const auto& [stage, n] : blocks_) lastCounts_[stage].transformerBlocks += n;
+  blocks_.clear();
   if (pending_.empty()) return;
+  lastCounts_[pending_.back().stage].submits = 1;
   try {
     submitPending();
   } catch (...) {

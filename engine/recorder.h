@@ -7,6 +7,7 @@
 #include <vulkan/vulkan.h>
 
 #include <cstdint>
+#include <map>
 #include <set>
 #include <string>
 #include <vector>
@@ -39,6 +40,18 @@ struct DispatchTiming {
   double buildMs = 0;    // time the driver spent building code for it just before (0: none)
 };
 
+// What a batch of dispatches cost in commands and host waits (per stage: spar::StageTime).
+struct StageCounts {
+  uint64_t dispatches = 0;
+  uint64_t barriers = 0;           // pipeline barriers recorded before dispatches
+  uint64_t submits = 0;            // submissions the host waited for
+  uint64_t transformerBlocks = 0;  // transformer blocks recorded (noteTransformerBlock)
+  StageCounts& operator+=(const StageCounts& o) {
+    dispatches += o.dispatches, barriers += o.barriers, submits += o.submits, transformerBlocks += o.transformerBlocks;
+    return *this;
+  }
+};
+
 class Recorder {
  public:
   explicit Recorder(Engine& engine, bool profile = false);
@@ -63,6 +76,13 @@ class Recorder {
   void run();
 
   size_t pending() const { return pending_.size(); }
+  // A transformer block was recorded in the current stage (model/transformer_block.cpp): the
+  // blocks a stage runs, beside its dispatches, say how many dispatches a block takes.
+  void noteTransformerBlock() { ++blocks_[stage_]; }
+  // Per stage, what the last run() submitted: dispatches, barriers, transformer blocks, and the
+  // one submission it waited for (counted for the last stage of the batch).
+  const std::map<std::string, StageCounts>& lastRunCounts() const { return lastCounts_; }
+  StageCounts lastRunTotal() const;
   // Barriers recorded since the last run() (dependency tracking is per buffer).
   size_t barriers() const { return barrierCount_; }
   // Per-dispatch GPU times of the last run() (empty unless profiling on a device with timestamps).
@@ -118,6 +138,8 @@ class Recorder {
   uint32_t queriesUsed_ = 0;
   std::string stage_;
   std::vector<DispatchTiming> timings_;
+  std::map<std::string, uint64_t> blocks_;  // noteTransformerBlock() since the last run()
+  std::map<std::string, StageCounts> lastCounts_;
 };
 
 }  // namespace spar

@@ -111,7 +111,7 @@ struct StageRun {
   // wall time it took (its GPU and build times come from the recorder, under its stage name),
   // and times of work without a recorder of its own through recordTime (name, GPU, wall, build).
   std::function<void(const Recorder&, double wallMs)> submitted;
-  std::function<void(const std::string&, double, double, double)> recordTime;
+  std::function<void(const std::string&, double, double, double, const StageCounts&)> recordTime;
   // The label phases' work (label_stages.cpp): the prompts' token ids in, embeddings and maps out.
   PromptWork* prompts = nullptr;
 

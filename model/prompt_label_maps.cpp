@@ -24,6 +24,7 @@ PromptEmbeddings encodePrompts(Engine& engine, const PackedModel& model, const S
   rec.run();
   p.gpuMs = rec.totalMs();
   p.buildMs = rec.totalBuildMs();
+  p.counts = rec.lastRunTotal();
   p.wallMs = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
   return p;
 }
@@ -39,6 +40,7 @@ LabelMapsOut computeLabelMaps(Engine& engine, const Tensor& features, const Prom
   LabelMapsOut out;
   out.gpuMs = rec.totalMs();
   out.buildMs = rec.totalBuildMs();
+  out.counts = rec.lastRunTotal();
   if (scores) {
     const std::vector<float> sc = engine.download(logits);
     scores->insert(scores->end(), sc.begin(), sc.end());

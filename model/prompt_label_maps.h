@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "engine/engine.h"
+#include "engine/recorder.h"
 #include "model/packed_model.h"
 #include "model/spar_config.h"
 #include "model/weight_set.h"
@@ -23,6 +24,7 @@ struct PromptEmbeddings {
   Tensor text;
   int64_t prompts = 0;
   double gpuMs = 0, wallMs = 0, buildMs = 0;
+  StageCounts counts;  // its dispatches, barriers, submission, transformer blocks
 };
 PromptEmbeddings encodePrompts(Engine& engine, const PackedModel& model, const SparConfig& config, DType weightType,
                                const std::vector<int32_t>& ids, int64_t prompts);
@@ -34,6 +36,7 @@ PromptEmbeddings encodePrompts(Engine& engine, const PackedModel& model, const S
 struct LabelMapsOut {
   std::vector<std::vector<int32_t>> maps;
   double gpuMs = 0, buildMs = 0;
+  StageCounts counts;
 };
 LabelMapsOut computeLabelMaps(Engine& engine, const Tensor& features, const PromptEmbeddings& prompts,
                               std::vector<float>* scores = nullptr);

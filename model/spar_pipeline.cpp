@@ -54,18 +54,23 @@ std::vector<std::string> SparPipeline::intermediateNames() const {
   return out;
 }
 
-void SparPipeline::recordStageTime(const std::string& name, double gpuMs, double wallMs, double buildMs) {
+void SparPipeline::recordStageTime(const std::string& name, double gpuMs, double wallMs, double buildMs,
+                                   const StageCounts& counts) {
   const uint64_t inUse = engine_.memory().bytesInUse(), peak = engine_.memory().peakBytes();
   auto it = std::find_if(stageTimes_.begin(), stageTimes_.end(), [&](const StageTime& s) { return s.name == name; });
   if (it == stageTimes_.end()) {
-    stageTimes_.push_back({name, gpuMs, wallMs, buildMs, inUse, peak});
-  } else {
-    it->gpuMs += gpuMs;
-    it->wallMs += wallMs;
-    it->buildMs += buildMs;
-    it->deviceBytesAfter = std::max(it->deviceBytesAfter, inUse);
-    it->devicePeakBytes = std::max(it->devicePeakBytes, peak);
+    stageTimes_.push_back({name, 0, 0, 0, inUse, peak});
+    it = stageTimes_.end() - 1;
   }
+  it->gpuMs += gpuMs;
+  it->wallMs += wallMs;
+  it->buildMs += buildMs;
+  it->deviceBytesAfter = std::max(it->deviceBytesAfter, inUse);
+  it->devicePeakBytes = std::max(it->devicePeakBytes, peak);
+  it->dispatches += counts.dispatches;
+  it->barriers += counts.barriers;
+  it->submits += counts.submits;
+  it->transformerBlocks += counts.transformerBlocks;
 }
 
 void SparPipeline::addStageTimes(const Recorder& rec, double wallMs) {
@@ -83,7 +88,7 @@ void SparPipeline::addStageTimes(const Recorder& rec, double wallMs) {
     else if (profile)
       std::fprintf(stderr, "profile %-16s %-28s %10.3f ms\n", name.c_str(), t.label.c_str(), t.ms);
   }
-  recordStageTime(name, gpu, wallMs, build);
+  recordStageTime(name, gpu, wallMs, build, rec.lastRunTotal());
 }
 
 void SparPipeline::validate(const SparRequest& request) const { validateRequest(config_, model_, request); }
@@ -132,8 +137,8 @@ void SparPipeline::runStages(const StageList& list, StagePhase phase, Recorder* 
                  .encoded = encodedOut_,
                  .keep = [this](const std::string& name, const Tensor& t) { keep(name, t); },
                  .submitted = [this](const Recorder& r, double wallMs) { addStageTimes(r, wallMs); },
-                 .recordTime = [this](const std::string& name, double gpu, double wall,
-                                      double build) { recordStageTime(name, gpu, wall, build); },
+                 .recordTime = [this](const std::string& name, double gpu, double wall, double build,
+                                      const StageCounts& counts) { recordStageTime(name, gpu, wall, build, counts); },
                  .prompts = work};
     if (stage->ownsSubmissions()) {
       stage->record(run);

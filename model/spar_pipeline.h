@@ -92,8 +92,9 @@ class SparPipeline {
 
   // Stages that ran since construction (in order, accumulated by name).
   const std::vector<StageTime>& stageTimes() const { return stageTimes_; }
-  // Adds a stage's times to stageTimes() (by name), with the device memory now.
-  void recordStageTime(const std::string& name, double gpuMs, double wallMs, double buildMs);
+  // Adds a stage's times and command counts to stageTimes() (by name), with the device memory now.
+  void recordStageTime(const std::string& name, double gpuMs, double wallMs, double buildMs,
+                       const StageCounts& counts = {});
   // Weights uploaded so far, the text encoder's included.
   uint64_t weightBytesLoaded() const;
   const WeightSet& weights() const { return weights_; }

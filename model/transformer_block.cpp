@@ -215,6 +215,7 @@ void TransformerBlock::forward(Recorder& rec, const Tensor& x, const Transformer
     throw Error(std::string(kWhat) + ": x must be f32 [B, N, " + std::to_string(D) + "], got " + x.describe());
   const int64_t B = x.dim(0), N = x.dim(1);
   if (B * N == 0) return;
+  rec.noteTransformerBlock();
   const Tensor norm = ws.norm(B, N, D), attn = ws.attn(B, N, D), qkv = ws.qkv(B, N, D), hidden = ws.hidden(B, N, H);
 
   // Attention branch: qkv = to_qkv(norm1(x)); q, k RMS-normed per head in place; heads read

@@ -509,12 +509,14 @@ PYBIND11_MODULE(spar, m) {
             for (const spar::StageTime& t : s.open().stageTimes())
               out.append(py::dict(py::arg("name") = t.name, py::arg("gpu_ms") = t.gpuMs, py::arg("wall_ms") = t.wallMs,
                                   py::arg("build_ms") = t.buildMs, py::arg("device_bytes_after") = t.deviceBytesAfter,
-                                  py::arg("device_peak_bytes") = t.devicePeakBytes));
+                                  py::arg("device_peak_bytes") = t.devicePeakBytes, py::arg("dispatches") = t.dispatches,
+                                  py::arg("barriers") = t.barriers, py::arg("submits") = t.submits,
+                                  py::arg("transformer_blocks") = t.transformerBlocks));
             return out;
           },
           "The stages that ran since the session was made: name, gpu_ms (compute), build_ms (the driver's "
           "kernel builds), wall_ms, device_bytes_after (device memory in use when it ended), device_peak_bytes "
-          "(the peak so far).")
+          "(the peak so far), dispatches, barriers, submits (host waits), transformer_blocks.")
       .def(
           "close",
           [](SessionBox& s) {

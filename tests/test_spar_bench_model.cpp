@@ -9,6 +9,7 @@
 // The suite is named "spar_bench_model" (`ctest -R spar_bench_model`).
 #include <gtest/gtest.h>
 
+#include <map>
 #include <set>
 #include <sstream>
 #include <string>
@@ -64,6 +65,29 @@ TEST(spar_bench_model, EveryStageTimedAndSummed) {
   EXPECT_NEAR(doc["total"]["gpu_ms"].get<double>(), sum, 0.5 * sum);
   EXPECT_GT(doc["first_run"]["wall_ms"].get<double>(), 0.0);
   EXPECT_GT(doc["weights_bytes_loaded"].get<double>(), 0.0);
+  EXPECT_GT(doc["total"]["wall_ms_unprofiled"].get<double>(), 0.0);
+}
+
+// What a run takes in commands, per stage: every stage dispatches and waits on the host at
+// least once, barriers order its dispatches, and the stages made of transformer blocks count
+// them (the tiny model: 2 pose-encoder, 2 scene-encoder and 2 decoder blocks, DINOv3's 2, and the
+// renderer's blocks once per batch of views).
+TEST(spar_bench_model, EveryStageCountsItsCommands) {
+  const json doc = bench({});
+  ASSERT_TRUE(doc.is_object());
+  std::map<std::string, json> stage;
+  for (const auto& s : doc["stages"]) stage[s["name"].get<std::string>()] = s;
+  for (const auto& [name, s] : stage) {
+    EXPECT_GE(s["dispatches"].get<int64_t>(), 1) << s.dump();
+    EXPECT_GE(s["submits"].get<int64_t>(), 1) << s.dump();
+    EXPECT_LE(s["barriers"].get<int64_t>(), s["dispatches"].get<int64_t>()) << s.dump();
+  }
+  for (const char* name : {"pose_estimator", "dino_v3", "scene_encoder", "renderer"}) {
+    const int64_t blocks = stage[name]["transformer_blocks"].get<int64_t>();
+    EXPECT_GE(blocks, 1) << name;
+    EXPECT_GT(stage[name]["dispatches"].get<int64_t>(), blocks) << name;
+  }
+  EXPECT_EQ(stage["image_tokens"]["transformer_blocks"].get<int64_t>(), 0);
 }
 
 TEST(spar_bench_model, AssumeStaticLeavesOutDinoAndCvDrp) {

@@ -97,10 +97,13 @@ struct Encoded {
 // it uploaded and buffers kept for later stages included) and the peak of the run so far; a
 // stage whose peak is above both its own and the previous stage's in-use figure allocated that
 // much transiently (for a stage that ran more than once, the largest of its runs).
+// What it took in commands: dispatches, the pipeline barriers before them, the submissions the
+// host waited for, and the transformer blocks among them (dispatches / blocks: what a block costs).
 struct StageTime {
   std::string name;
   double gpuMs = 0, wallMs = 0, buildMs = 0;
   uint64_t deviceBytesAfter = 0, devicePeakBytes = 0;
+  uint64_t dispatches = 0, barriers = 0, submits = 0, transformerBlocks = 0;
 };
 
 }  // namespace spar

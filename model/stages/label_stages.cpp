@@ -35,7 +35,7 @@ class TextEncoder : public PipelineStage {
   void record(StageRun& r) override {
     PromptWork& p = *r.prompts;
     *p.text = encodePrompts(r.engine, r.models.model, r.config, r.models.weights.matrixType(), *p.ids, p.count);
-    r.recordTime(name(), p.text->gpuMs, p.text->wallMs, p.text->buildMs);
+    r.recordTime(name(), p.text->gpuMs, p.text->wallMs, p.text->buildMs, p.text->counts);
   }
 };
 
@@ -60,7 +60,7 @@ class LabelMaps : public PipelineStage {
     const auto t0 = std::chrono::steady_clock::now();
     *p.maps = computeLabelMaps(r.engine, r.at("semantic_features"), *p.text, p.scores);
     const double wall = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
-    r.recordTime(name(), p.maps->gpuMs, wall, p.maps->buildMs);
+    r.recordTime(name(), p.maps->gpuMs, wall, p.maps->buildMs, p.maps->counts);
   }
 };
 

@@ -133,7 +133,8 @@ class Sam2Refine : public PipelineStage {
     refineViews(q.plan.inputs, r.optional("cv_drp_input.prob"), r.encoded.refinedInput);
     if (q.targetMotion && !q.plan.targets.empty())
       refineViews(q.plan.targets, r.optional("cv_drp_target.prob"), r.encoded.refinedTarget);
-    r.recordTime(name(), 0.0, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(), 0.0);
+    r.recordTime(name(), 0.0, std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count(), 0.0,
+                 {});
     const Tensor refined = r.engine.fromFloats({int64_t(q.plan.inputs.size()), 1, h, w}, r.encoded.refinedInput);
     r.tensors["refined_input"] = refined;
     r.keep("refined_input", refined);

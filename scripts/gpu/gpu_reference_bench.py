@@ -110,6 +110,17 @@ def bench_ops(args, torch):
     return out
 
 
+# What the PyTorch peer computes in each mode (spar-bench's model rows are compared with these).
+MATH = {
+    "fp32": "fp32; TF32 off for matmul and cuDNN",
+    "bf16": "bf16 weights and activations (model.to(torch.bfloat16)); autocast fails on the reference's mixed-type "
+            "Pluecker ops",
+}
+# The reference's attention: the official modules' own softmax(q k^T / sqrt(d)) v in torch.matmul,
+# not scaled_dot_product_attention (as the official code writes it).
+ATTENTION = "explicit softmax(q k^T / sqrt(d)) v (torch.matmul), as the official modules compute it"
+
+
 def bench_model(args, torch):
     from spar_reference.cli import MODEL_STAGES, build_model, get_config, load_checkpoint, split_state_dict
     dev = args.device
@@ -125,6 +136,9 @@ def bench_model(args, torch):
     inputs, targets = list(range(args.views)), list(range(args.views, v))
     cuda = dev.startswith("cuda")
     timer = Timer(torch, dev)
+    # fp32 is fp32: no TF32 in matmuls or convolutions (PyTorch allows it in cuDNN by default)
+    torch.backends.cuda.matmul.allow_tf32 = False
+    torch.backends.cudnn.allow_tf32 = False
 
     # Per stage: CUDA events around every hooked module call, summed after the run.
     events = {}
@@ -194,12 +208,12 @@ def bench_model(args, torch):
             totals.append(timer.once(once))
             for s, ms in stage_ms().items():
                 stages.setdefault(s, []).append(ms)
-        results[mode] = {"first_run_ms": first, "total_ms": float(np.median(totals)),
+        results[mode] = {"math": MATH[mode], "first_run_ms": first, "total_ms": float(np.median(totals)),
                          "stages": {s: float(np.median(v)) for s, v in stages.items()}}
     for hd in handles:
         hd.remove()
     return {"checkpoint": args.checkpoint, "inputs": args.views, "targets": args.targets, "height": h, "width": w,
-            "semantic": bool(args.semantic), "repeat": args.repeat, "modes": results}
+            "semantic": bool(args.semantic), "repeat": args.repeat, "attention": ATTENTION, "modes": results}
 
 
 def main(argv=None):

@@ -45,18 +45,9 @@ std::vector<float> syntheticImages(int64_t views, int64_t height, int64_t width)
   return images;
 }
 
-nlohmann::ordered_json benchModel(const EngineOptions& options, const ModelBenchArgs& a) {
-  if (a.views < 1 || a.targets < 0) throw Error("--views must be at least 1 and --targets at least 0");
-  const Model model = Model::open(a.model);
-  const int64_t h = a.height ? a.height : model.imageHeight(), w = a.width ? a.width : model.imageWidth();
-  if (const std::string problem = model.sizeProblem(h, w); !problem.empty()) throw Error(problem);
-  if (a.semantic && !model.semantic()) throw Error("this model has no semantic branch: no --semantic");
+namespace {
 
-  Context context(options);
-  SessionOptions so;
-  so.profile = true;
-  so.precision = parsePrecision(a.precision);
-  Session pipeline(context, model, so);
+Request syntheticRequest(const ModelBenchArgs& a, int64_t h, int64_t w) {
   Request req;
   const int64_t v = a.views + a.targets;
   req.images = syntheticImages(v, h, w);
@@ -68,41 +59,96 @@ nlohmann::ordered_json benchModel(const EngineOptions& options, const ModelBench
   for (int64_t i = a.views; i < v; ++i) req.plan.targets.push_back(i);
   req.assumeStatic = a.assumeStatic;
   req.semanticFeatures = a.semantic;
+  return req;
+}
 
-  auto runOnce = [&]() {
-    pipeline.encode(req);
-    if (a.targets > 0) pipeline.renderTargets();
-  };
-  // First run: weights uploaded, kernels created and built by the driver.
-  auto t = Clock::now();
-  runOnce();
-  const double firstMs = msSince(t);
-  double firstBuildMs = 0;
-  for (const StageTime& s : pipeline.stageTimes()) firstBuildMs += s.buildMs;
-
-  const nlohmann::json config = nlohmann::json::parse(model.configJson());
+// A session's runs of the request: the first (weights uploaded, kernels created and built by
+// the driver) apart, then `repeats` timed ones; per stage the medians of its GPU and wall time,
+// and what one run took in commands (every run records the same).
+struct TimedRuns {
+  double firstMs = 0, firstBuildMs = 0;
   std::vector<std::string> order;
-  for (const StageTime& s : pipeline.stageTimes()) order.push_back(s.name);
   std::map<std::string, std::vector<double>> gpu, wall;
+  std::map<std::string, StageTime> perRun;  // the last run's share of each stage's counts
   std::vector<double> totalGpu, totalWall;
-  for (int r = 0; r < a.repeats; ++r) {
-    const auto before = snapshot(pipeline);
-    t = Clock::now();
-    runOnce();
-    totalWall.push_back(msSince(t));
-    double sum = 0;
-    for (const auto& [name, s] : snapshot(pipeline)) {
-      const auto it = before.find(name);
-      const double g = s.gpuMs - (it == before.end() ? 0 : it->second.gpuMs);
-      gpu[name].push_back(g);
-      wall[name].push_back(s.wallMs - (it == before.end() ? 0 : it->second.wallMs));
-      sum += g;
-    }
-    totalGpu.push_back(sum);
+};
+
+TimedRuns timeRuns(Session& session, const Request& req, int repeats) {
+  auto runOnce = [&]() {
+    session.encode(req);
+    if (!req.plan.targets.empty()) session.renderTargets();
+  };
+  TimedRuns t;
+  auto start = Clock::now();
+  runOnce();
+  t.firstMs = msSince(start);
+  for (const StageTime& s : session.stageTimes()) {
+    t.firstBuildMs += s.buildMs;
+    t.order.push_back(s.name);
   }
+  for (int r = 0; r < repeats; ++r) {
+    const auto before = snapshot(session);
+    start = Clock::now();
+    runOnce();
+    t.totalWall.push_back(msSince(start));
+    double sum = 0;
+    for (const auto& [name, s] : snapshot(session)) {
+      const auto it = before.find(name);
+      const StageTime b = it == before.end() ? StageTime{} : it->second;
+      t.gpu[name].push_back(s.gpuMs - b.gpuMs);
+      t.wall[name].push_back(s.wallMs - b.wallMs);
+      StageTime& one = t.perRun[name];
+      one.dispatches = s.dispatches - b.dispatches;
+      one.barriers = s.barriers - b.barriers;
+      one.submits = s.submits - b.submits;
+      one.transformerBlocks = s.transformerBlocks - b.transformerBlocks;
+      sum += s.gpuMs - b.gpuMs;
+    }
+    t.totalGpu.push_back(sum);
+  }
+  return t;
+}
+
+nlohmann::ordered_json stagesJson(const TimedRuns& t) {
   nlohmann::ordered_json stages = nlohmann::ordered_json::array();
-  for (const std::string& name : order)
-    stages.push_back({{"name", name}, {"gpu_ms", median(gpu[name])}, {"wall_ms", median(wall[name])}});
+  for (const std::string& name : t.order) {
+    const auto it = t.perRun.find(name);
+    const StageTime one = it == t.perRun.end() ? StageTime{} : it->second;
+    stages.push_back({{"name", name}, {"gpu_ms", median(t.gpu.count(name) ? t.gpu.at(name) : std::vector<double>{})},
+                      {"wall_ms", median(t.wall.count(name) ? t.wall.at(name) : std::vector<double>{})},
+                      {"dispatches", one.dispatches}, {"barriers", one.barriers}, {"submits", one.submits},
+                      {"transformer_blocks", one.transformerBlocks}});
+  }
+  return stages;
+}
+
+}  // namespace
+
+nlohmann::ordered_json benchModel(const EngineOptions& options, const ModelBenchArgs& a) {
+  if (a.views < 1 || a.targets < 0) throw Error("--views must be at least 1 and --targets at least 0");
+  const Model model = Model::open(a.model);
+  const int64_t h = a.height ? a.height : model.imageHeight(), w = a.width ? a.width : model.imageWidth();
+  if (const std::string problem = model.sizeProblem(h, w); !problem.empty()) throw Error(problem);
+  if (a.semantic && !model.semantic()) throw Error("this model has no semantic branch: no --semantic");
+  Context context(options);
+  SessionOptions so;
+  so.precision = parsePrecision(a.precision);
+  const Request req = syntheticRequest(a, h, w);
+  TimedRuns profiled, unprofiled;
+  uint64_t weightBytes = 0;
+  {
+    so.profile = true;  // per-dispatch timestamps: each stage's GPU time
+    Session session(context, model, so);
+    profiled = timeRuns(session, req, a.repeats);
+    weightBytes = session.weightBytesLoaded();
+  }
+  {
+    // What a user waits for: the same runs with no timestamp between dispatches.
+    so.profile = false;
+    Session session(context, model, so);
+    unprofiled = timeRuns(session, req, a.repeats);
+  }
+  const nlohmann::json config = nlohmann::json::parse(model.configJson());
   return {{"tool", "spar-bench"},
           {"mode", "model"},
           {"device", context.deviceName()},
@@ -112,11 +158,14 @@ nlohmann::ordered_json benchModel(const EngineOptions& options, const ModelBench
           {"request",
            {{"inputs", a.views}, {"targets", a.targets}, {"height", h}, {"width", w}, {"precision", a.precision},
             {"assume_static", a.assumeStatic}, {"semantic", a.semantic}}},
-          {"first_run", {{"wall_ms", firstMs}, {"build_ms", firstBuildMs}}},
+          {"first_run", {{"wall_ms", profiled.firstMs}, {"build_ms", profiled.firstBuildMs}}},
           {"repeats", a.repeats},
-          {"stages", stages},
-          {"total", {{"gpu_ms", median(totalGpu)}, {"wall_ms", median(totalWall)}}},
-          {"weights_bytes_loaded", pipeline.weightBytesLoaded()},
+          {"stages", stagesJson(profiled)},
+          {"total",
+           {{"gpu_ms", median(profiled.totalGpu)},
+            {"wall_ms", median(profiled.totalWall)},
+            {"wall_ms_unprofiled", median(unprofiled.totalWall)}}},
+          {"weights_bytes_loaded", weightBytes},
           {"device_peak_bytes", context.memory().peakBytes}};
 }
 
@@ -130,11 +179,15 @@ void printModelBench(const nlohmann::ordered_json& d) {
               d["device"].get<std::string>().c_str());
   std::printf("first run (weights, kernel creation and builds): %.1f ms wall, %.1f ms driver builds\n",
               d["first_run"]["wall_ms"].get<double>(), d["first_run"]["build_ms"].get<double>());
-  std::printf("%-20s %12s %12s   (median of %d runs)\n", "stage", "GPU ms", "wall ms", d["repeats"].get<int>());
+  std::printf("%-20s %12s %12s %10s %9s %8s %7s   (median of %d runs)\n", "stage", "GPU ms", "wall ms", "dispatches",
+              "barriers", "submits", "blocks", d["repeats"].get<int>());
   for (const auto& s : d["stages"])
-    std::printf("%-20s %12.3f %12.3f\n", s["name"].get<std::string>().c_str(), s["gpu_ms"].get<double>(),
-                s["wall_ms"].get<double>());
-  std::printf("%-20s %12.3f %12.3f\n", "total", d["total"]["gpu_ms"].get<double>(), d["total"]["wall_ms"].get<double>());
+    std::printf("%-20s %12.3f %12.3f %10llu %9llu %8llu %7llu\n", s["name"].get<std::string>().c_str(),
+                s["gpu_ms"].get<double>(), s["wall_ms"].get<double>(), (unsigned long long)s["dispatches"].get<uint64_t>(),
+                (unsigned long long)s["barriers"].get<uint64_t>(), (unsigned long long)s["submits"].get<uint64_t>(),
+                (unsigned long long)s["transformer_blocks"].get<uint64_t>());
+  std::printf("%-20s %12.3f %12.3f   (without timestamps: %.3f ms wall)\n", "total", d["total"]["gpu_ms"].get<double>(),
+              d["total"]["wall_ms"].get<double>(), d["total"]["wall_ms_unprofiled"].get<double>());
 }
 
 }  // namespace spar::bench

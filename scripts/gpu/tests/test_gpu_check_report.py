@@ -1,7 +1,8 @@
 #!/usr/bin/python3
 """scripts/gpu/gpu_check_report.py, the GPU check's report, on step outputs written here: the op
-table pairs each engine case with PyTorch's of the same name and shape, and every bar of issue
-15 is judged from them (met, not met, or not met for lack of a number).
+table pairs each engine case with PyTorch's of the same name and shape, every bar is judged from
+them (met, not met, or not met for lack of a number), and the headline figures are the model's
+wall time and the GEMM's and attention's shares of PyTorch's speed.
 Run: cd /work/main && /usr/bin/python3 -m pytest -q scripts/gpu/tests/test_gpu_check_report.py
 """
 import json
@@ -21,7 +22,7 @@ def write(path, doc, prefix=""):
 
 def stages(total, **named):
     return {"stages": [{"name": k, "gpu_ms": v, "wall_ms": v} for k, v in named.items()],
-            "total": {"gpu_ms": total}, "first_run": {"wall_ms": 900.0}}
+            "total": {"gpu_ms": total, "wall_ms_unprofiled": total * 0.9}, "first_run": {"wall_ms": 900.0}}
 
 
 def run_report(tmp_path, engine_ms, torch_ms, model, ref_modes, failures=0):
@@ -74,3 +75,25 @@ def test_missing_numbers_are_not_met(tmp_path):
     doc, md = run_report(tmp_path, {}, {}, ({}, {}), {"fp32": {"error": "failed"}}, failures=1)
     assert not any(bars(doc).values())
     assert "| **total** | - | - | - | - | - |" in md
+
+
+def test_headline_figures_and_their_bars(tmp_path):
+    """report.json's headline: the model's wall time without timestamps at fp32 and fp16 beside
+    PyTorch's fp32 (its math stated) and bf16, GEMM and attention as shares of cuBLAS and SDPA,
+    and the GPU-speed bars on them."""
+    engine = {("gemm_f32", GEMM): 2.4, ("attention_f32", ATT): 10.0}
+    torch = {("gemm_f32", GEMM): 2.0, ("attention_f32", ATT): 6.0}
+    model = (stages(100.0, renderer=60.0), stages(50.0, renderer=30.0))
+    modes = {"fp32": {"total_ms": 120.0, "math": "fp32; TF32 off for matmul and cuDNN", "stages": {}},
+             "bf16": {"total_ms": 40.0, "math": "bf16", "stages": {}}}
+    doc, md = run_report(tmp_path, engine, torch, model, modes)
+    assert doc["model_fp32_wall_ms"] == 90.0 and doc["model_fp16_wall_ms"] == 45.0
+    assert doc["torch_fp32_ms"] == 120.0 and doc["torch_bf16_ms"] == 40.0
+    assert doc["torch_fp32_math"] == "fp32; TF32 off for matmul and cuDNN"
+    assert abs(doc["gemm_fp32_vs_cublas"] - 2.0 / 2.4) < 1e-12 and abs(doc["attention_fp32_vs_sdpa"] - 0.6) < 1e-12
+    b = bars(doc)
+    assert b["full model fp32 wall <= 0.8x PyTorch fp32 (TF32 off)"]   # 90 / 120 = 0.75
+    assert not b["full model fp16 wall <= PyTorch bf16"]                 # 45 > 40
+    assert b["GEMM fp32 4096^3 >= 0.8 of cuBLAS"]                          # 0.83
+    assert b["attention fp32 >= 0.5 of scaled_dot_product_attention"]     # 0.6
+    assert "| model_fp32_wall_ms | 90.00 |" in md
