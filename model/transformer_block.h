@@ -128,7 +128,7 @@ class TransformerBlock {
  private:
   TransformerBlockOptions o_;
   int64_t hiddenRow_ = 0;
-  Tensor norm1W_, norm1B_, qkvW_, qkvB_, qNormW_, kNormW_, fcW_, fcB_, norm2W_, norm2B_;
+  Tensor norm1W_, norm1B_, qkvW_, qkvB_, qkNormW_, fcW_, fcB_, norm2W_, norm2B_;
   Tensor mlp0W_, mlp0B_, mlp2W_, mlp2B_, ls1_, ls2_;
 };
 

@@ -20,6 +20,10 @@
 #define OUT_T float
 #define TO_OUT(v) (v)
 #endif
+// A GEMM's output element: written, or with ACCUMULATE (a residual add fused into the GEMM,
+// y = y + act(x W^T + b)) added to what y holds. Each element has one writer, so reading it back
+// is race-free.
+#define STORE_OUT(i, v) y[i] = TO_OUT(ACCUMULATE ? float(y[i]) + (v) : (v))
 
 // Inputs read as texels: fetch_NAME(i) is the vec4 texelFetch gives of texel i, COMPONENTS
 // (1 or 4) floats of an R or RGBA texel (fp32 or fp16: the texel format converts). The *_sx

@@ -49,6 +49,7 @@ layout(constant_id = 8) const int KU = 2;          // k texels per loop iteratio
 layout(constant_id = 9) const int W_BITS = 8;      // W_QUANT: 8 (q8) or 4 (q4)
 layout(constant_id = 10) const int LANES = 8;      // SHARED_COLUMNS: the workgroup's x size, one full subgroup
 layout(constant_id = 11) const int GROUP_M = 0;    // workgroups walk the columns in groups of this many blocks of rows (0: as dispatched)
+layout(constant_id = 15) const bool ACCUMULATE = false;  // y += the result (a fused residual add)
 
 TEXEL_INPUT(0, X, TEXEL_K)
 #if W_QUANT
@@ -59,7 +60,7 @@ TEXEL_INPUT(1, W, TEXEL_K)
 #define W_AT(row, kk) fetch_W((row) + (kk))
 #endif
 TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
-layout(binding = 3) writeonly buffer Y { OUT_T y[]; };
+layout(binding = 3) buffer Y { OUT_T y[]; };  // read back only with ACCUMULATE
 
 layout(push_constant) uniform Push {
   int M, N, K;       // K in texels
@@ -144,7 +145,7 @@ void main() {
       if (n >= p.N) break;
       float v = acc[r * RN + c];
       if (HAS_BIAS) v += fetch_BIAS(n).x;
-      y[b * p.yBatch + m * p.ldy + n] = TO_OUT(activate(v, ACT));
+      STORE_OUT(b * p.yBatch + m * p.ldy + n, activate(v, ACT));
     }
   }
 }

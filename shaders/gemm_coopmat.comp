@@ -41,6 +41,7 @@ layout(constant_id = 8) const int TEXEL_K = 4;   // k values per texel of x and 
 layout(constant_id = 9) const int ACT = ACT_NONE;
 layout(constant_id = 10) const bool HAS_BIAS = false;
 layout(constant_id = 11) const int W_BITS = 8;   // W_QUANT: 8 (q8) or 4 (q4)
+layout(constant_id = 15) const bool ACCUMULATE = false;  // y += the result (a fused residual add)
 // The device's multiply-add shape (ids fixed: the SPIR-V rewrite recognises them).
 layout(constant_id = 20) const uint CM_M = 16;
 layout(constant_id = 21) const uint CM_N = 16;
@@ -53,7 +54,7 @@ QUANT_INPUT(1, W)
 TEXEL_INPUT(1, W, TEXEL_K)
 #endif
 TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
-layout(binding = 3) writeonly buffer Y { OUT_T y[]; };
+layout(binding = 3) buffer Y { OUT_T y[]; };  // read back only with ACCUMULATE
 
 layout(push_constant) uniform Push {
   int M, N, K;       // K in texels
@@ -134,7 +135,7 @@ void main() {
         if (m >= p.M || n >= p.N) continue;
         float v = staging[stage + e];
         if (HAS_BIAS) v += fetch_BIAS(n).x;
-        y[img * p.yBatch + m * p.ldy + n] = TO_OUT(activate(v, ACT));
+        STORE_OUT(img * p.yBatch + m * p.ldy + n, activate(v, ACT));
       }
       barrier();
     }

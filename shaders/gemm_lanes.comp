@@ -35,11 +35,12 @@ layout(constant_id = 9) const bool BIAS_PER_ROW = false;  // bias[m] instead of 
 // column n = (i, j) of an input plane scatterW wide go to y[co * ldy + (i k + a) * scatterW k +
 // j k + b], with bias[co].
 layout(constant_id = 10) const int SCATTER_K = 0;
+layout(constant_id = 15) const bool ACCUMULATE = false;  // y += the result (a fused residual add)
 
 TEXEL_INPUT(0, X, TEXEL_K)
 TEXEL_INPUT(1, W, TEXEL_K)
 TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
-layout(binding = 3) writeonly buffer Y { OUT_T y[]; };
+layout(binding = 3) buffer Y { OUT_T y[]; };  // read back only with ACCUMULATE
 
 // Word i of x and w (fp32: the host binds no fp16 here).
 #if defined(STORAGE_INPUTS) && STORAGE_INPUTS
@@ -112,7 +113,7 @@ void main() {
       }
       float v = acc[r * RN + c];
       if (HAS_BIAS) v += fetch_BIAS(bi).x;
-      y[p.yBase + b * p.yBatch + at] = TO_OUT(activate(v, ACT));
+      STORE_OUT(p.yBase + b * p.yBatch + at, activate(v, ACT));
     }
   }
 }

@@ -59,6 +59,7 @@ layout(constant_id = 11) const int KH = 1;        // CONV: kernel height, width,
 layout(constant_id = 12) const int KW = 1;
 layout(constant_id = 13) const int STRIDE = 1;
 layout(constant_id = 14) const int W_BITS = 8;    // W_QUANT: 8 (q8) or 4 (q4)
+layout(constant_id = 15) const bool ACCUMULATE = false;  // y += the result (a fused residual add)
 
 TEXEL_INPUT(0, X, (CONV == 1 ? 1 : TEXEL_K))     // A (CONV: the image, R texels)
 #if W_QUANT
@@ -67,7 +68,7 @@ QUANT_INPUT(1, W)
 TEXEL_INPUT(1, W, TEXEL_K)
 #endif
 TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
-layout(binding = 3) writeonly buffer Y { OUT_T y[]; };
+layout(binding = 3) buffer Y { OUT_T y[]; };  // read back only with ACCUMULATE
 
 #if CONV
 layout(push_constant) uniform Push {
@@ -234,7 +235,7 @@ void main() {
       y[p.outBase + (img * p.Cout + n) * rowsM() + m] = TO_OUT(activate(v, ACT));
 #else
       if (HAS_BIAS) v += fetch_BIAS(n).x;
-      y[img * p.yBatch + m * p.ldy + n] = TO_OUT(activate(v, ACT));
+      STORE_OUT(img * p.yBatch + m * p.ldy + n, activate(v, ACT));
 #endif
     }
   }

@@ -2,7 +2,8 @@
 // LayerNorm and RMSNorm over lines of a 2-D tensor. Host side: engine/ops/norm.cpp.
 // Line (r, h) is the DH values at columns col0 + h * DH of row r (row stride given), so a
 // plain [rows, D] norm is one head of D at column 0, and per-head RMSNorm of the q or k part
-// of a fused qkv tensor [T, 3D] runs in place on heads at column 0 or D.
+// of a fused qkv tensor [T, 3D] runs in place on heads at column 0 or D, or on both at once: 2H
+// heads at column 0, each weight row shared by H of them (weightHeads).
 //   layernorm: y = (x - mean) / sqrt(var + eps) * weight + bias
 //   rmsnorm:   y = x / sqrt(mean(x^2) + eps) * weight
 // LayerNorm numerics: values are shifted by the line's first value before anything is
@@ -50,6 +51,7 @@ layout(push_constant) uniform Push {
   uint xStride, xCol0;  // row stride and column of head 0 in x (values)
   uint yStride, yCol0;  // the same in y (equal to x's in place)
   float eps;
+  uint weightHeads;     // heads sharing a row of the weight, [heads / weightHeads, DH] (0: one row for all)
 } p;
 
 // The unit (vec4 or one value in .x) starting at value e.
@@ -70,6 +72,7 @@ void main() {
   const uint xb = r * p.xStride + p.xCol0 + h * p.dh;
   const uint yb = r * p.yStride + p.yCol0 + h * p.dh;
   const uint units = live ? p.dh / w : 0u;  // lines past the end only join the reductions
+  const uint wb = p.weightHeads > 0u ? (h / p.weightHeads) * p.dh : 0u;  // the head's weight row
 
 #if NORM == NORM_LAYER
   const float shift = live ? loadX(xb).x : 0.0;
@@ -84,7 +87,7 @@ void main() {
   const float rstd = 1.0 / sqrt(lineSum(q) / float(p.dh) + p.eps);
   for (uint u = lane; u < units; u += lanes) {
     vec4 v = ((loadX(xb + u * w) - shift) - mean) * rstd;
-    if (HAS_WEIGHT) v *= loadWeight(u * w);
+    if (HAS_WEIGHT) v *= loadWeight(wb + u * w);
     if (HAS_BIAS) v += loadBias(u * w);
     storeY(yb + u * w, v);
   }
@@ -98,7 +101,7 @@ void main() {
   const float rstd = ms > 0.0 ? 1.0 / sqrt(ms) : 0.0;  // eps = 0 and an all-zero line: 0, not NaN
   for (uint u = lane; u < units; u += lanes) {
     vec4 v = loadX(xb + u * w) * rstd;
-    if (HAS_WEIGHT) v *= loadWeight(u * w);
+    if (HAS_WEIGHT) v *= loadWeight(wb + u * w);
     storeY(yb + u * w, v);
   }
 #endif

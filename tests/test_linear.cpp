@@ -66,6 +66,43 @@ TEST_F(EngineTest, LinearLanesSplitKMatchesFloat64) {
   });
 }
 
+// The residual add fused into the GEMM (linear's accumulate, every GEMM kernel's ACCUMULATE):
+// y = y0 + act(x W^T + b) against float64, y0 of its own size. Odd shapes past a block's edge,
+// bias and an activation, a quantized weight, an output the device cannot bind where it starts
+// (the add then runs apart), through this device's plan and SwiftShader's lanes GEMM; the GPU
+// family and the device profiles run this program too (gpu_family.test_linear, ...).
+void expectAccumulates(Engine& engine, const LinearCase& c, int bits, int64_t offset, const std::string& what) {
+  const auto x = randomUniform(c.M * c.K, -1, 1, 41), w = randomUniform(c.N * c.K, -1, 1, 42);
+  const auto b = c.bias ? randomUniform(c.N, -1, 1, 43) : std::vector<float>{};
+  const auto y0 = randomUniform(c.M * c.N, -2, 2, 44);
+  const QuantizedMatrix q = bits ? quantizeReference(w, c.N, c.K, bits) : QuantizedMatrix{};
+  const Tensor tx = engine.fromFloats({c.M, c.K}, x);
+  const Tensor tw = bits ? quantizedTensor(engine, q, c.N, c.K, bits) : engine.fromFloats({c.N, c.K}, w);
+  const Tensor tb = c.bias ? engine.fromFloats({c.N}, b) : Tensor();
+  const Tensor whole = engine.tensor({offset + c.M * c.N});
+  const Tensor y = whole.view(offset, {c.M, c.N});
+  engine.upload(y, y0);
+  Recorder rec(engine);
+  linear(rec, tx, tw, tb, y, c.act, /*accumulate=*/true);
+  rec.run();
+  const bool viaFp16 = bits && engine.plan().quantizedGemm() == KernelFamily::CoopMat;
+  std::vector<double> ref = viaFp16 ? linearRef(roundToHalf(x), roundToHalf(q.values), b, 1, c.M, c.N, c.K, false, c.act)
+                            : linearRef(x, bits ? q.values : w, b, 1, c.M, c.N, c.K, false, c.act);
+  for (size_t i = 0; i < ref.size(); ++i) ref[i] += y0[i];
+  expectClose(engine.download(y), ref, 1e-10 * std::max<int64_t>(1, c.K / 16), 1e-4, what);
+}
+
+TEST_F(EngineTest, LinearAccumulateAddsToTheOutput) {
+  const LinearCase plain{61, 7, 61, true, Activation::None}, gelu{33, 65, 130, true, Activation::Gelu};
+  expectAccumulates(eng(), plain, 0, 0, "accumulate 61x7x61");
+  expectAccumulates(eng(), gelu, 0, 0, "accumulate 33x65x130 gelu");
+  expectAccumulates(eng(), {7, 61, 96, false, Activation::None}, 8, 0, "accumulate q8 7x61x96");
+  expectAccumulates(eng(), plain, 0, 1, "accumulate into an output one float past an aligned start");
+  withLanesKernelsForced(eng(), [&](const std::string& inputs) {
+    expectAccumulates(eng(), gelu, 0, 0, "lanes, " + inputs + " inputs, accumulate 33x65x130 gelu");
+  });
+}
+
 // llvmpipe's plan shares a workgroup's columns among its subgroup's lanes (gemm.comp's
 // SHARED_COLUMNS, engine/ops/linear.cpp chooseGemmTiles; the other tests here: 16 columns), from
 // 2^28 multiply-adds 32 columns, 16 where N is narrower: odd M and N past the last block's edge, fp32 and q8 weights (the thresholds of the

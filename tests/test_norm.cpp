@@ -207,6 +207,33 @@ TEST_F(EngineTest, RmsNormHeadsInPlaceOnFusedQkv) {
   }
 }
 
+// The q and the k heads in one dispatch (the transformer block's qk-norm): 2H heads at column
+// 0 with a [2, dh] weight, q_norm for the first H and k_norm for the next; the same values as
+// the two calls with a weight each, v untouched, and a weight whose rows do not divide the heads
+// refused.
+TEST_F(EngineTest, RmsNormHeadsWithAWeightRowPerGroup) {
+  for (int64_t dh : {12, 64}) {
+    const int64_t T = 61, H = 3, D = H * dh;
+    auto qkv = randomNormal(T * 3 * D, 1.0f, 2.0f, 47);
+    auto wq = randomUniform(dh, 0.5f, 1.5f, 48), wk = randomUniform(dh, 0.5f, 1.5f, 49);
+    std::vector<float> wqk(wq);
+    wqk.insert(wqk.end(), wk.begin(), wk.end());
+    Tensor t = eng().fromFloats({T, 3 * D}, qkv), tw = eng().fromFloats({2, dh}, wqk);
+    Recorder rec(eng());
+    rmsNormHeads(rec, t, 0, t, 0, 2 * H, tw);
+    rec.run();
+    EXPECT_EQ(rec.lastRunTotal().dispatches, 1u);
+    auto ref = rmsNormRef(qkv, T, 3 * D, 0, qkv, 3 * D, 0, H, wq, 1e-6);
+    std::vector<float> afterQ(ref.begin(), ref.end());
+    ref = rmsNormRef(qkv, T, 3 * D, D, afterQ, 3 * D, D, H, wk, 1e-6);
+    auto out = eng().download(t);
+    expectClose(out, ref, 1e-9, 1e-5, "q and k heads at once dh=" + std::to_string(dh));
+    for (int64_t r = 0; r < T; ++r)
+      for (int64_t j = 2 * D; j < 3 * D; ++j) ASSERT_EQ(out[r * 3 * D + j], qkv[r * 3 * D + j]) << "v changed";
+    EXPECT_THROW(rmsNormHeads(rec, t, 0, t, 0, 2 * H + 1, tw), Error);
+  }
+}
+
 // Out of place from the k part of qkv [T, 3D] into a tensor [T, D].
 TEST_F(EngineTest, RmsNormHeadsFromColumnsIntoTensor) {
   const int64_t T = 257, H = 5, dh = 32, D = H * dh;

@@ -27,18 +27,30 @@ struct GemmLaunch {
   int64_t rowsPerGroup, colsPerGroup;
 };
 
+// Every GEMM kernel's ACCUMULATE is specialization constant 15 (y += the result): set only where
+// asked, so that the kernels without it keep their constants as they were.
+constexpr size_t kAccumulateId = 15;
+void withAccumulate(std::vector<int32_t>& constants, bool accumulate) {
+  if (!accumulate) return;
+  if (constants.size() <= kAccumulateId) constants.resize(kAccumulateId + 1, 0);
+  constants[kAccumulateId] = 1;
+}
+// x, w and bias as texels; y written, or read and written (ACCUMULATE).
+std::vector<Bind> outputBinds(bool accumulate) {
+  return {Bind::Texel, Bind::Texel, Bind::Texel, accumulate ? Bind::ReadWrite : Bind::Write};
+}
+
 // gemm_lanes.comp (KernelPlan::gemmLanesSplitK): 4 rows x 8 columns a subgroup, 2 subgroups a
 // workgroup: on SwiftShader (1024^3) 4.7 GFLOPS, against 3.7-3.9 for 4 x 4 and 8 x 8 and 4.1
 // for 8 x 4 with 4 subgroups. biasPerRow: bias[m] (conv2d's im2col products) instead of bias[n];
 // scatterK: conv_transpose2d's output blocks (gemm_lanes.comp, SCATTER_K).
-GemmLaunch lanesLaunch(Engine& engine, int texelK, Activation act, bool hasBias, bool biasPerRow, int scatterK = 0) {
+GemmLaunch lanesLaunch(Engine& engine, int texelK, Activation act, bool hasBias, bool biasPerRow, int scatterK = 0,
+                       bool accumulate = false) {
   const int lanes = int(engine.caps().subgroupSize), rows = 4, cols = 8, subgroups = 2;
-  const Kernel& k = engine.kernel({"gemm_lanes_f32",
-                                   {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                                   sizeof(GemmPush),
-                                   {lanes, subgroups, 1, rows, cols, texelK, static_cast<int>(act), hasBias, lanes, biasPerRow,
-                                    scatterK},
-                                   uint32_t(lanes),
+  std::vector<int32_t> constants = {lanes, subgroups, 1, rows, cols, texelK, static_cast<int>(act), hasBias, lanes,
+                                    biasPerRow, scatterK};
+  withAccumulate(constants, accumulate);
+  const Kernel& k = engine.kernel({"gemm_lanes_f32", outputBinds(accumulate), sizeof(GemmPush), constants, uint32_t(lanes),
                                    engine.plan().freezeConstants});
   return {&k, rows, int64_t(cols) * subgroups};
 }
@@ -48,7 +60,7 @@ GemmLaunch lanesLaunch(Engine& engine, int texelK, Activation act, bool hasBias,
 // shared-memory tiles on GPUs (fp16 arithmetic for fp16 weights where the plan says so),
 // gemm_coopmat.comp for fp16 and quantized weights where the device has cooperative matrices.
 GemmLaunch gemmLaunch(Engine& engine, DType xType, DType wType, DType yType, int64_t M, int64_t N, int64_t B, int64_t K,
-                      int texelK, Activation act, bool hasBias) {
+                      int texelK, Activation act, bool hasBias, bool accumulate) {
   const DeviceCaps& caps = engine.caps();
   const KernelPlan& plan = engine.plan();
   const bool f16Out = yType == DType::F16;
@@ -66,13 +78,12 @@ GemmLaunch gemmLaunch(Engine& engine, DType xType, DType wType, DType yType, int
     std::vector<int32_t> constants = {local, 1, 1, c.sgM, c.sgN, c.wm, c.wn, c.kSteps, texelK, static_cast<int>(act),
                                       hasBias};
     if (isQuantized(wType)) constants.push_back(wType == DType::Q8 ? 8 : 4);  // W_BITS
-    constants.resize(20, 0);  // ids 12-19 unused; 20-22 the multiply-add shape
+    constants.resize(20, 0);  // ids 12-19 unused but ACCUMULATE (15); 20-22 the multiply-add shape
+    withAccumulate(constants, accumulate);
     constants.insert(constants.end(), {c.m, c.n, c.k});
     const std::string name = std::string(isQuantized(wType) ? "gemm_coopmat_q" : "gemm_coopmat") +
                              (f16Out ? "_f16out" : "_f32");
-    const Kernel& k = engine.kernel({name,
-                                     {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write}, sizeof(GemmPush), constants,
-                                     subgroup});
+    const Kernel& k = engine.kernel({name, outputBinds(accumulate), sizeof(GemmPush), constants, subgroup});
     return {&k, c.rows(), c.cols()};
   }
   if (family == KernelFamily::Tiled) {
@@ -83,11 +94,12 @@ GemmLaunch gemmLaunch(Engine& engine, DType xType, DType wType, DType yType, int
     std::vector<int32_t> constants = {t.invocations(), 1, 1, t.bm, t.bn, t.bk, t.tm, t.tn, texelK, static_cast<int>(act),
                                       hasBias, 1, 1, 1};
     if (quantized) constants.push_back(wType == DType::Q8 ? 8 : 4);  // W_BITS
-    const Kernel& k = engine.kernel({name, {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write}, sizeof(GemmPush), constants});
+    withAccumulate(constants, accumulate);
+    const Kernel& k = engine.kernel({name, outputBinds(accumulate), sizeof(GemmPush), constants});
     return {&k, t.bm, t.bn};
   }
   if (family == KernelFamily::CpuBlocks && plan.gemmLanesSplitK && xType == DType::F32 && wType == DType::F32 && !f16Out)
-    return lanesLaunch(engine, texelK, act, hasBias, false);
+    return lanesLaunch(engine, texelK, act, hasBias, false, 0, accumulate);
   GemmTiles tiles = chooseGemmTiles(caps, engine.options().tuning, double(B) * double(M) * double(N) * double(K), N);
   // Small outputs (heads with N = 1 or 9, a handful of rows) would mostly compute clamped
   // duplicates with big blocks: on GPUs the blocks are halved down to the problem. CPU blocks
@@ -105,8 +117,9 @@ GemmLaunch gemmLaunch(Engine& engine, DType xType, DType wType, DType yType, int
                                     engine.plan().gemmRowGroups};                           // GROUP_M
   const std::string name = std::string(tiles.sharedColumns ? "gemm_sc" : "gemm") + (isQuantized(wType) ? "_q" : "") +
                            (f16Out ? "_f16out" : "_f32");
+  withAccumulate(constants, accumulate);
   // Shared columns: the workgroup must be one full subgroup (its shuffles read every lane).
-  const Kernel& k = engine.kernel({name, {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write}, sizeof(GemmPush), constants,
+  const Kernel& k = engine.kernel({name, outputBinds(accumulate), sizeof(GemmPush), constants,
                                    tiles.sharedColumns ? uint32_t(tiles.localX) : 0u});
   return {&k, int64_t(tiles.rowsPerInvocation) * tiles.localX, int64_t(tiles.colsPerInvocation) * tiles.localY};
 }
@@ -157,23 +170,28 @@ GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, do
 }
 
 namespace {
-void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y, Activation act);
+void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y, Activation act,
+                 bool accumulate);
 }  // namespace
 
 // Inputs and output that start where the device cannot bind them go through tensors of their own.
-void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y, Activation act) {
+void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y, Activation act,
+            bool accumulate) {
   const uint64_t storageAlign = std::max<uint64_t>(1, rec.engine().caps().minStorageBufferOffsetAlignment);
   if (y.defined() && y.dtype() == DType::F32 && y.byteOffset() % storageAlign) {
     const Tensor out = rec.engine().tensor(y.shape(), y.dtype());
-    linearBound(rec, ops::alignedInput(rec, x, true), w, ops::alignedInput(rec, bias, true), out, act);
-    copy2d(rec, out.reshape({out.numel()}), out.numel(), 0, y.reshape({y.numel()}), y.numel(), 0, 1, y.numel());
+    const Tensor flatOut = out.reshape({out.numel()}), flatY = y.reshape({y.numel()});
+    if (accumulate) copy2d(rec, flatY, y.numel(), 0, flatOut, out.numel(), 0, 1, y.numel());
+    linearBound(rec, ops::alignedInput(rec, x, true), w, ops::alignedInput(rec, bias, true), out, act, accumulate);
+    copy2d(rec, flatOut, out.numel(), 0, flatY, y.numel(), 0, 1, y.numel());
     return;
   }
-  linearBound(rec, ops::alignedInput(rec, x, true), w, ops::alignedInput(rec, bias, true), y, act);
+  linearBound(rec, ops::alignedInput(rec, x, true), w, ops::alignedInput(rec, bias, true), y, act, accumulate);
 }
 
 namespace {
-void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y, Activation act) {
+void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y, Activation act,
+                 bool accumulate) {
   Engine& engine = rec.engine();
   const DeviceCaps& caps = engine.caps();
   if (w.rank() != 2 && w.rank() != 3) throw Error("linear: weight must be [N, K] or [B, N, K], got " + w.describe());
@@ -199,14 +217,16 @@ void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& 
   const int wComponents = quantized ? 1 : texelK;
   const int64_t wRowTexels = quantized ? int64_t(rowBytes(w.dtype(), K) / 4) : K / texelK;
   const int64_t kTexels = K / texelK;
-  const GemmLaunch launch = gemmLaunch(engine, x.dtype(), w.dtype(), y.dtype(), M, N, B, K, texelK, act, bias.defined());
+  const GemmLaunch launch =
+      gemmLaunch(engine, x.dtype(), w.dtype(), y.dtype(), M, N, B, K, texelK, act, bias.defined(), accumulate);
+  const auto output = [accumulate](const Tensor& t) { return accumulate ? Arg::inout(t) : Arg::out(t); };
   const Kernel& kernel = *launch.kernel;
   const Tensor biasArg = bias.defined() ? bias : w;
 
   if (batched) {
     GemmPush push{int32_t(M), int32_t(N), int32_t(kTexels), int32_t(kTexels), int32_t(kTexels), int32_t(N),
                   int32_t(M * kTexels), int32_t(N * kTexels), int32_t(M * N)};
-    rec.dispatch(kernel, {Arg::texel(x, texelK), Arg::texel(w, texelK), Arg::texel(biasArg, 1), Arg::out(y)}, push,
+    rec.dispatch(kernel, {Arg::texel(x, texelK), Arg::texel(w, texelK), Arg::texel(biasArg, 1), output(y)}, push,
                  ops::ceilDiv(M, launch.rowsPerGroup), ops::ceilDiv(N, launch.colsPerGroup), static_cast<uint32_t>(B));
     return;
   }
@@ -252,7 +272,7 @@ void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& 
                                                                                     : wPart.reshape({wPart.numel()}).view(0, {1});
       rec.dispatch(kernel,
                    {Arg::texel(xPart, texelK), Arg::texel(wPart, wComponents), Arg::texel(bPart, 1),
-                    Arg::out(y2.view(m0 * N + n0, {(rows - 1) * N + cols}))},
+                    output(y2.view(m0 * N + n0, {(rows - 1) * N + cols}))},
                    push, ops::ceilDiv(rows, launch.rowsPerGroup), ops::ceilDiv(cols, launch.colsPerGroup), 1);
     }
   }

@@ -24,9 +24,11 @@ GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, do
 
 // x: [rows..., K] with w: [N, K], or x: [B, M, K] with w: [B, N, K] (batched);
 // bias: [N] or undefined; y: [rows..., N] (f32 or f16). x, w, bias may be f32 or f16.
-// Tensors above the device's binding limits are processed in row chunks.
+// Tensors above the device's binding limits are processed in row chunks. With accumulate the
+// result is added to what y holds, y = y + act(x W^T + b): a residual add fused into the GEMM's
+// epilogue (every GEMM kernel's ACCUMULATE), one dispatch instead of two.
 void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
-            Activation act = Activation::None);
+            Activation act = Activation::None, bool accumulate = false);
 
 // The convolutions' im2col products (engine/ops/conv2d.cpp, conv_transpose2d.cpp) on the lanes
 // GEMM (shaders/gemm_lanes.comp; only where KernelPlan::gemmLanesSplitK): y[m * ldy + n] =

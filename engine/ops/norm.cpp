@@ -10,14 +10,17 @@ struct NormPush {
   uint32_t rows, heads, dh;
   uint32_t xStride, xCol0, yStride, yCol0;
   float eps;
+  uint32_t weightHeads;  // heads that share a row of the weight (0: all of them)
 };
 
 enum class Norm { Layer, Rms };
 
 // Normalizes `heads` lines of dh values starting at column xCol0 of every row of x2 [rows, Cx]
-// into y2 [rows, Cy] at yCol0. weight and bias are [dh] or undefined.
+// into y2 [rows, Cy] at yCol0. weight and bias are [dh] or undefined; with weightHeads > 0 the
+// weight is [heads / weightHeads, dh], a row for each weightHeads consecutive heads.
 void normLines(Recorder& rec, Norm norm, const Tensor& x2, int64_t xCol0, const Tensor& y2, int64_t yCol0,
-               int64_t heads, int64_t dh, const Tensor& weight, const Tensor& bias, float eps, const std::string& op) {
+               int64_t heads, int64_t dh, const Tensor& weight, const Tensor& bias, float eps, const std::string& op,
+               int64_t weightHeads = 0) {
   Engine& engine = rec.engine();
   const int64_t rows = x2.dim(0), cx = x2.dim(1), cy = y2.dim(1);
   if (!(eps >= 0.0f)) throw Error(op + ": eps must be >= 0");
@@ -45,8 +48,8 @@ void normLines(Recorder& rec, Norm norm, const Tensor& x2, int64_t xCol0, const 
     std::vector<Arg> args = inPlace ? std::vector<Arg>{Arg::inout(xc)} : std::vector<Arg>{Arg::in(xc), Arg::out(yc)};
     args.push_back(Arg::in(weight.defined() ? weight : xc));  // placeholders are never read
     if (!rms) args.push_back(Arg::in(bias.defined() ? bias : xc));
-    const NormPush push{uint32_t(n),     uint32_t(heads), uint32_t(dh),    uint32_t(cx),
-                        uint32_t(xCol0), uint32_t(cy),    uint32_t(yCol0), eps};
+    const NormPush push{uint32_t(n),     uint32_t(heads), uint32_t(dh), uint32_t(cx), uint32_t(xCol0),
+                        uint32_t(cy),    uint32_t(yCol0), eps,          uint32_t(weightHeads)};
     const ops::Grid grid = ops::linearGrid(engine.caps(), ops::ceilDiv(uint64_t(n) * heads, g.linesPerGroup()), op);
     rec.dispatch(kernel, args, push, grid.x, grid.y, 1, op);
   }
@@ -96,9 +99,13 @@ void rmsNormHeads(Recorder& rec, const Tensor& x, int64_t xCol0, const Tensor& y
   ops::requireF32(y, op, "y");
   ops::requireF32(weight, op, "weight");
   if (x.rank() < 1 || y.rank() < 1) throw Error(op + ": x and y need a column dimension");
-  const int64_t cx = x.dim(-1), cy = y.dim(-1), dh = weight.numel();
+  const int64_t cx = x.dim(-1), cy = y.dim(-1), dh = weight.rank() ? weight.dim(-1) : 0;
+  const int64_t groups = dh ? weight.numel() / dh : 0;
   const int64_t rows = cx ? x.numel() / cx : 0;
   if (dh == 0 || heads < 0) throw Error(op + ": empty heads");
+  if (weight.rank() > 2 || heads % groups)
+    throw Error(op + ": weight " + weight.describe() + " is not [dh] or [G, dh] with G dividing the " +
+                std::to_string(heads) + " heads");
   if (rows != (cy ? y.numel() / cy : 0))
     throw Error(op + ": x " + x.describe() + " and y " + y.describe() + " have different rows");
   if (xCol0 < 0 || xCol0 + heads * dh > cx || yCol0 < 0 || yCol0 + heads * dh > cy)
@@ -106,7 +113,7 @@ void rmsNormHeads(Recorder& rec, const Tensor& x, int64_t xCol0, const Tensor& y
                 std::to_string(xCol0) + " of " + x.describe() + " and " + std::to_string(yCol0) + " of " +
                 y.describe());
   normLines(rec, Norm::Rms, x.reshape({rows, cx}), xCol0, y.reshape({rows, cy}), yCol0, heads, dh, weight, Tensor(),
-            eps, op);
+            eps, op, groups > 1 ? heads / groups : 0);
 }
 
 }  // namespace spar

@@ -15,11 +15,12 @@ void layerNorm(Recorder& rec, const Tensor& x, const Tensor& weight, const Tenso
 // x, y: [..., D] f32 of the same shape; y may be x itself (in place).
 void rmsNorm(Recorder& rec, const Tensor& x, const Tensor& weight, const Tensor& y, float eps = 1e-6f);
 
-// The general form: for every row r and head h < heads, normalizes the dh = weight.numel()
-// values x[r, xCol0 + h * dh + j] into y[r, yCol0 + h * dh + j]. x: [rows..., Cx] and
-// y: [rows..., Cy] with the same number of rows. With y the same tensor as x and
-// yCol0 == xCol0 it runs in place, e.g. on the q part (xCol0 0) or k part (xCol0 D) of a
-// fused qkv tensor [T, 3D].
+// The general form: for every row r and head h < heads, normalizes the dh values
+// x[r, xCol0 + h * dh + j] into y[r, yCol0 + h * dh + j]. x: [rows..., Cx] and y: [rows..., Cy]
+// with the same number of rows. weight: [dh] for every head, or [G, dh] for G groups of
+// heads / G consecutive heads, each with its row (the q and the k part of a fused qkv tensor
+// [T, 3D] in one dispatch: 2H heads at column 0, weight [q_norm; k_norm]). With y the same
+// tensor as x and yCol0 == xCol0 it runs in place.
 void rmsNormHeads(Recorder& rec, const Tensor& x, int64_t xCol0, const Tensor& y, int64_t yCol0, int64_t heads,
                   const Tensor& weight, float eps = 1e-6f);
 
