@@ -287,7 +287,9 @@ StageCounts Recorder::lastRunTotal() const {
 void Recorder::run() {
   timings_.clear();
   lastCounts_.clear();
+  lastStages_.clear();
   for (const Pending& d : pending_) {
+    if (!lastCounts_.count(d.stage)) lastStages_.push_back(d.stage);
     StageCounts& c = lastCounts_[d.stage];
     ++c.dispatches;
     c.barriers += d.barrierBefore;

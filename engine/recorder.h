@@ -82,6 +82,8 @@ class Recorder {
   // Per stage, what the last run() submitted: dispatches, barriers, transformer blocks, and the
   // one submission it waited for (counted for the last stage of the batch).
   const std::map<std::string, StageCounts>& lastRunCounts() const { return lastCounts_; }
+  // The stages of the last run()'s dispatches, in the order they were recorded.
+  const std::vector<std::string>& lastRunStages() const { return lastStages_; }
   StageCounts lastRunTotal() const;
   // Barriers recorded since the last run() (dependency tracking is per buffer).
   size_t barriers() const { return barrierCount_; }
@@ -140,6 +142,7 @@ class Recorder {
   std::vector<DispatchTiming> timings_;
   std::map<std::string, uint64_t> blocks_;  // noteTransformerBlock() since the last run()
   std::map<std::string, StageCounts> lastCounts_;
+  std::vector<std::string> lastStages_;
 };
 
 }  // namespace spar

@@ -96,13 +96,16 @@ ActivationTotals activationTotals(const StageSizing& s, const StageList& list) {
     a.lower += m.kept;
     a.kept += m.own;
     around.encode += m.atEncodeEnd;
-    transient = std::max(transient, m.transient);
+    // The encode's stages share one submission, which keeps every tensor it recorded until it
+    // has run: their transients are all alive at its end (a stage that submits its own work
+    // splits it, so the sum is an upper bound there).
+    transient += m.transient;
     around.between += m.forRenders;
     around.renderOutput += m.renderOutput;
     for (const auto& [tokens, dim, hidden] : m.workspace) ws.reserve(tokens, dim, hidden);
   }
   a.kept += ws.floats();
-  around.encode += transient;  // the encode's largest stage, its transients pending until it runs
+  around.encode += transient;
   a.moment = around.encode;
   for (const auto& stage : list) a.moment = std::max(a.moment, stage->moment(s, around));
   a.renderOutput = around.renderOutput;

@@ -11,8 +11,8 @@
 // - The upper bound: the weights again, what the stages keep for the request (derived weights,
 //   tables, buffers, the transformer workspace at its largest reservation), plus the largest of
 //   the moments when the most is alive at once: the end of the encode (every stage's tensors
-//   and the largest stage's transients, as one submission keeps what it recorded until it
-//   finishes), and each later stage's own moment (a SAM2.1 view, CLIP's text encoder, a render
+//   and transients, as the encode's one submission keeps what it recorded until it finishes),
+//   and each later stage's own moment (a SAM2.1 view, CLIP's text encoder, a render
 //   call, its label maps); plus allocation rounding, staging copies and im2col scratch. A
 //   request whose upper bound fits the device's memory runs without running out.
 #pragma once

@@ -55,7 +55,7 @@ struct RequestShape {
 struct StageMemory {
   int64_t kept = 0;         // lower bound: its tensors alive through an encode and one render call
   int64_t atEncodeEnd = 0;  // upper bound: its tensors alive when the encode ends
-  int64_t transient = 0;    // upper bound: what it holds only while it runs (the encode adds the largest)
+  int64_t transient = 0;    // upper bound: what it holds only until the encode's submission has run
   int64_t own = 0;          // upper bound: buffers, tables and derived weights kept for the request
   int64_t forRenders = 0;   // kept from the encode for the render calls (scene tokens, cameras)
   int64_t renderOutput = 0;  // a render call's output kept until the next (the semantic features)

@@ -73,23 +73,35 @@ void SparPipeline::recordStageTime(const std::string& name, double gpuMs, double
   it->transformerBlocks += counts.transformerBlocks;
 }
 
-void SparPipeline::addStageTimes(const Recorder& rec, double wallMs) {
-  const std::string& name = rec.stage();
-  double gpu = 0, build = 0;
+// A submission's times per stage. GPU and build times come from the timestamps of each stage's
+// dispatches; the submission's wall time (what the host waited) is shared out by them, added to
+// the time each stage took to record. Counts: the recorder's per stage.
+void SparPipeline::addBatchTimes(const Recorder& rec, const std::map<std::string, double>& recordMs, double runMs) {
+  std::map<std::string, double> gpu, build;
   // EngineOptions::profileDispatches (SPAR_PROFILE=1): every dispatch's GPU time on stderr
   // (what a stage spends its time on), and the driver's build before it where there was one.
   const bool profile = engine_.options().profileDispatches;
   for (const DispatchTiming& t : rec.timings()) {
-    gpu += t.ms;
-    build += t.buildMs;
+    gpu[t.stage] += t.ms;
+    build[t.stage] += t.buildMs;
     if (profile && t.buildMs > 0)
-      std::fprintf(stderr, "profile %-16s %-28s %10.3f ms (driver build before it: %.1f ms)\n", name.c_str(),
+      std::fprintf(stderr, "profile %-16s %-28s %10.3f ms (driver build before it: %.1f ms)\n", t.stage.c_str(),
                    t.label.c_str(), t.ms, t.buildMs);
     else if (profile)
-      std::fprintf(stderr, "profile %-16s %-28s %10.3f ms\n", name.c_str(), t.label.c_str(), t.ms);
+      std::fprintf(stderr, "profile %-16s %-28s %10.3f ms\n", t.stage.c_str(), t.label.c_str(), t.ms);
   }
-  recordStageTime(name, gpu, wallMs, build, rec.lastRunTotal());
+  const std::vector<std::string>& stages = rec.lastRunStages();
+  double busy = 0;
+  for (const std::string& s : stages) busy += gpu[s] + build[s];
+  for (const std::string& s : stages) {
+    const double share = busy > 0 ? (gpu[s] + build[s]) / busy : 1.0 / double(stages.size());
+    const auto recorded = recordMs.find(s);
+    recordStageTime(s, gpu[s], (recorded == recordMs.end() ? 0.0 : recorded->second) + share * runMs, build[s],
+                    rec.lastRunCounts().at(s));
+  }
 }
+
+void SparPipeline::addStageTimes(const Recorder& rec, double wallMs) { addBatchTimes(rec, {{rec.stage(), 0.0}}, wallMs); }
 
 void SparPipeline::validate(const SparRequest& request) const { validateRequest(config_, model_, request); }
 
@@ -121,7 +133,18 @@ MemoryNeed SparPipeline::memoryNeed(const SparRequest& request, int64_t renderCh
   return estimateMemory(model_, config_, q);
 }
 
+// Every stage of the phase that records on `rec` goes into one submission: run when a stage that
+// submits its own work comes (it reads what the others computed) and at the phase's end, so
+// that a phase waits on the host once.
 void SparPipeline::runStages(const StageList& list, StagePhase phase, Recorder* rec, PromptWork* work) {
+  std::map<std::string, double> recordMs;  // per stage of the pending submission
+  const auto submit = [&]() {
+    if (!rec || recordMs.empty()) return;
+    const auto t0 = Clock::now();
+    rec->run();
+    addBatchTimes(*rec, recordMs, msSince(t0));
+    recordMs.clear();
+  };
   for (const auto& stage : list) {
     if (stage->phase() != phase) continue;
     StageRun run{.engine = engine_,
@@ -141,15 +164,16 @@ void SparPipeline::runStages(const StageList& list, StagePhase phase, Recorder* 
                                       const StageCounts& counts) { recordStageTime(name, gpu, wall, build, counts); },
                  .prompts = work};
     if (stage->ownsSubmissions()) {
+      submit();
       stage->record(run);
       continue;
     }
     const auto t0 = Clock::now();
     rec->setStage(stage->name());
     stage->record(run);
-    rec->run();
-    addStageTimes(*rec, msSince(t0));
+    recordMs[stage->name()] += msSince(t0);
   }
+  submit();
 }
 
 const SparEncoded& SparPipeline::encode(const SparRequest& request) {
@@ -181,12 +205,13 @@ const SparEncoded& SparPipeline::encode(const SparRequest& request) {
   return encodedOut_;
 }
 
-std::vector<float> SparPipeline::renderRays(const Tensor& c2w, const Tensor& fxfycxcy) {
+std::vector<float> SparPipeline::renderRays(Recorder& rec, const Tensor& c2w, const Tensor& fxfycxcy) {
   features_ = Tensor();  // the previous call's features are replaced
   tensors_.erase("semantic_features");
   tensors_["render_c2w"] = c2w;
   tensors_["render_fxfycxcy"] = fxfycxcy;
-  runStages(stages_, StagePhase::Render, nullptr);
+  watch_->reset();
+  runStages(stages_, StagePhase::Render, &rec);
   watch_->check("rendering");
   keep("render_c2w", c2w);
   keep("render_fxfycxcy", fxfycxcy);
@@ -201,9 +226,8 @@ std::vector<float> SparPipeline::renderTargets() {
   const auto& targets = request_.plan.targets;
   const int64_t t = int64_t(targets.size());
   if (t == 0) return {};
-  // The targets' estimated cameras, gathered on the device.
+  // The targets' estimated cameras, gathered on the device in the render call's submission.
   const Tensor c2w = engine_.tensor({t, 4, 4}), k = engine_.tensor({t, 4});
-  const auto t0 = Clock::now();
   Recorder rec(engine_, options_.profile);
   rec.setStage("render_rays");
   const Tensor& all = tensors_.at("c2w");
@@ -212,9 +236,7 @@ std::vector<float> SparPipeline::renderTargets() {
            c2w.view(j * 16, {1, 16}), 16, 0, 1, 16);
     copy2d(rec, tensors_.at("fxfycxcy").view(targets[j] * 4, {1, 4}), 4, 0, k.view(j * 4, {1, 4}), 4, 0, 1, 4);
   }
-  rec.run();
-  addStageTimes(rec, msSince(t0));
-  return renderRays(c2w, k);
+  return renderRays(rec, c2w, k);
 }
 
 std::vector<float> SparPipeline::render(const RenderCameras& cameras) {
@@ -230,7 +252,9 @@ std::vector<float> SparPipeline::render(const RenderCameras& cameras) {
     c2w.insert(c2w.end(), cameras.c2w[j].begin(), cameras.c2w[j].end());
     k.insert(k.end(), cameras.fxfycxcy[j].begin(), cameras.fxfycxcy[j].end());
   }
-  return renderRays(engine_.fromFloats({r, 4, 4}, c2w), engine_.fromFloats({r, 4}, k));
+  const Tensor tc = engine_.fromFloats({r, 4, 4}, c2w), tk = engine_.fromFloats({r, 4}, k);
+  Recorder rec(engine_, options_.profile);
+  return renderRays(rec, tc, tk);
 }
 
 // The label phases' stages, as the list of a request with prompts has them.

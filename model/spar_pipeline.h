@@ -104,13 +104,15 @@ class SparPipeline {
   std::vector<std::string> intermediateNames() const;
 
  private:
-  // Runs the stages of `phase` in `list`, each one submission on `rec` with its times, or its
-  // own submissions.
+  // Runs the stages of `phase` in `list`: those that record on `rec` in one submission (split
+  // only where a stage submits its own work), with their times and counts per stage.
   void runStages(const StageList& list, StagePhase phase, Recorder* rec, PromptWork* work = nullptr);
+  void addBatchTimes(const Recorder& rec, const std::map<std::string, double>& recordMs, double runMs);
   StageList labelStages() const;
   void keep(const std::string& name, const Tensor& t);
   void addStageTimes(const Recorder& rec, double wallMs);
-  std::vector<float> renderRays(const Tensor& c2w, const Tensor& fxfycxcy);
+  // A render call on `rec` (which may hold the cameras' gathering): one submission.
+  std::vector<float> renderRays(Recorder& rec, const Tensor& c2w, const Tensor& fxfycxcy);
 
   Engine& engine_;
   const PackedModel& model_;

@@ -479,9 +479,9 @@ void compareOutputs(const std::string& name, const Outputs& o, bool assumeStatic
     stageNames.insert(s["name"].get<std::string>());
     EXPECT_GE(s["gpu_ms"].get<double>(), 0.0);
     EXPECT_GE(s["wall_ms"].get<double>(), 0.0);
-    // what it took in commands (a stage that ran dispatched and waited at least once)
+    // what it took in commands (a stage that ran dispatched; a phase's stages share a submission)
     EXPECT_GE(s["dispatches"].get<int64_t>(), 1) << s.dump();
-    EXPECT_GE(s["submits"].get<int64_t>(), 1) << s.dump();
+    EXPECT_GE(s["submits"].get<int64_t>(), 0) << s.dump();
     EXPECT_GE(s["transformer_blocks"].get<int64_t>(), 0) << s.dump();
   }
   for (const auto& s : stageNames) {

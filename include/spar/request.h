@@ -92,11 +92,10 @@ struct Encoded {
 
 // GPU time of one stage (its dispatches' timestamps: compute only), the time the driver spent
 // building kernels for it (compiles at first dispatch; 0 once they are in its cache, and on
-// drivers that compile at pipeline creation), and host wall time around it (which includes
-// both and pipeline creation). Device memory: what was in use when the stage ended (weights
-// it uploaded and buffers kept for later stages included) and the peak of the run so far; a
-// stage whose peak is above both its own and the previous stage's in-use figure allocated that
-// much transiently (for a stage that ran more than once, the largest of its runs).
+// drivers that compile at pipeline creation), and host wall time: the time it took to record,
+// plus its share (by GPU and build time) of the wait for the submission it shares with the
+// other stages of its phase. Device memory: what was in use when its submission ended (weights
+// it uploaded and buffers kept for later stages included) and the peak of the run so far.
 // What it took in commands: dispatches, the pipeline barriers before them, the submissions the
 // host waited for, and the transformer blocks among them (dispatches / blocks: what a block costs).
 struct StageTime {

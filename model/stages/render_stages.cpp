@@ -1,10 +1,9 @@
-// A render call (model/stages/stages.h, phase Render): the rays of the cameras to render, then the
-// decoder over ray queries and the scene tokens, the RGB head and, with semanticFeatures, the
-// semantic head (model/renderer.h). Two submissions, "render_rays" and "renderer", on one
-// recorder. Reads "render_c2w" [R, 4, 4] and "render_fxfycxcy" [R, 4]; writes "rgb" and
-// "semantic_features".
+// A render call (model/stages/stages.h, phase Render): the rays of the cameras to render (their
+// dispatches under the stage name "render_rays"), then the decoder over ray queries and the
+// scene tokens, the RGB head and, with semanticFeatures, the semantic head (model/renderer.h),
+// in the render call's one submission. Reads "render_c2w" [R, 4, 4] and "render_fxfycxcy"
+// [R, 4]; writes "rgb" and "semantic_features".
 #include <algorithm>
-#include <chrono>
 
 #include "model/nonfinite_watch.h"
 #include "model/plucker_rays.h"
@@ -14,15 +13,10 @@
 namespace spar::stages {
 namespace {
 
-double msSince(std::chrono::steady_clock::time_point t) {
-  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
-}
-
 class RendererStage : public PipelineStage {
  public:
   const char* name() const override { return "renderer"; }
   StagePhase phase() const override { return StagePhase::Render; }
-  bool ownsSubmissions() const override { return true; }
   std::vector<std::string> reads() const override { return {"render_c2w", "render_fxfycxcy", "scene_encoder_out"}; }
   std::vector<std::string> writes() const override { return {"rgb", "semantic_features"}; }
   std::vector<std::string> weightModules(const StageSizing& s) const override {
@@ -67,25 +61,18 @@ class RendererStage : public PipelineStage {
     const Tensor& c2w = r.at("render_c2w");
     const int64_t count = c2w.shape()[0];
     Renderer& renderer = r.models.renderer();
-    Recorder rec(r.engine, r.profile);
+    Recorder& rec = r.rec();
     const Tensor rays = r.engine.tensor({count, 6, h, w}), rgb = r.engine.tensor({count, 3, h, w});
-    auto t0 = std::chrono::steady_clock::now();
     rec.setStage("render_rays");
     pluckerRays(rec, c2w, r.at("render_fxfycxcy"), rays);
-    r.watch.reset();
     r.watch.watch(rec, "render_rays", rays);
-    rec.run();
-    r.submitted(rec, msSince(t0));
-    t0 = std::chrono::steady_clock::now();
-    rec.setStage("renderer");
+    rec.setStage(name());
     RenderTrace trace;
     const Tensor features = q.semanticFeatures ? r.engine.tensor({count, r.config.semanticDim, h / 2, w / 2}) : Tensor();
     renderer.forward(rec, rays, r.at("scene_encoder_out").view(0, {r.config.sceneTokens, r.config.d}), rgb, r.ws,
                      features, r.keepIntermediates ? &trace : nullptr);
-    r.watch.watch(rec, "renderer", rgb);
-    r.watch.watch(rec, "renderer", features);
-    rec.run();
-    r.submitted(rec, msSince(t0));
+    r.watch.watch(rec, name(), rgb);
+    r.watch.watch(rec, name(), features);
     r.tensors["rgb"] = rgb;
     r.tensors["semantic_features"] = features;
     r.keep("render_plucker", rays);
