@@ -27,6 +27,17 @@ std::string viewsText(const ViewPlan& p) {
          std::to_string(p.targets.size()) + " targets)";
 }
 
+// Why `request` cannot run on a device with `budget` bytes ("" when its least need fits).
+std::string refusalOf(const MemoryNeed& need, uint64_t budget, const std::string& source, const Request& request,
+                      const SparConfig& config) {
+  if (!budget || need.total() <= budget) return "";
+  const int64_t h = request.height ? request.height : config.imageHeight;
+  const int64_t w = request.width ? request.width : config.imageWidth;
+  return "this request needs at least " + mib(need.total()) + " of device memory (weights " + mib(need.weightBytes) +
+         ", activations " + mib(need.activationBytes) + " for " + viewsText(request.plan) + " at " + std::to_string(h) +
+         "x" + std::to_string(w) + "), more than the " + mib(budget) + " available (" + source + ")";
+}
+
 }  // namespace
 
 Session::Session(Context& context, const Model& model, const SessionOptions& options)
@@ -35,17 +46,14 @@ Session::~Session() = default;
 
 MemoryEstimate Session::estimateMemory(const Request& request, const RenderUse& use) {
   Impl& s = *impl_;
-  const int64_t targets = int64_t(request.plan.targets.size());
-  const MemoryNeed need = s.pipeline.memoryNeed(request, use.viewsPerCall >= 0 ? use.viewsPerCall : targets,
-                                                use.labelPrompts);
+  const int64_t perCall = use.viewsPerCall >= 0 ? use.viewsPerCall : int64_t(request.plan.targets.size());
+  const MemoryNeed need = s.pipeline.memoryNeed(request, perCall, use.labelPrompts);
   // The most input views this device surely takes at this size: the upper bound grows by about
   // the same amount with each one.
   Request more = request;
   ++more.plan.views;
   more.plan.inputs.push_back(request.plan.views);
-  const uint64_t perInput =
-      s.pipeline.memoryNeed(more, use.viewsPerCall >= 0 ? use.viewsPerCall : targets, use.labelPrompts).upperBytes -
-      need.upperBytes;
+  const uint64_t perInput = s.pipeline.memoryNeed(more, perCall, use.labelPrompts).upperBytes - need.upperBytes;
   MemoryEstimate e;
   e.minBytes = need.total();
   e.maxBytes = need.upperBytes;
@@ -57,14 +65,8 @@ MemoryEstimate Session::estimateMemory(const Request& request, const RenderUse& 
   e.maxInputViews = e.budgetBytes > e.maxBytes
                         ? inputs + int64_t((e.budgetBytes - e.maxBytes) / std::max<uint64_t>(perInput, 1))
                         : 0;
-  const int64_t h = request.height ? request.height : s.pipeline.config().imageHeight;
-  const int64_t w = request.width ? request.width : s.pipeline.config().imageWidth;
-  if (e.budgetBytes && e.minBytes > e.budgetBytes)
-    e.refusal = "this request needs at least " + mib(e.minBytes) + " of device memory (weights " + mib(e.weightBytes) +
-                ", activations " + mib(e.activationBytes) + " for " + viewsText(request.plan) + " at " +
-                std::to_string(h) + "x" + std::to_string(w) + "), more than the " + mib(e.budgetBytes) +
-                " available (" + e.budgetSource + ")";
-  else if (e.budgetBytes && e.maxBytes > e.budgetBytes)
+  e.refusal = refusalOf(need, e.budgetBytes, e.budgetSource, request, s.pipeline.config());
+  if (e.refusal.empty() && e.budgetBytes && e.maxBytes > e.budgetBytes)
     e.warning = "this request may need up to " + mib(e.maxBytes) + " of device memory, more than the " +
                 mib(e.budgetBytes) + " available (" + e.budgetSource + "): it may run out midway";
   return e;
@@ -73,7 +75,15 @@ MemoryEstimate Session::estimateMemory(const Request& request, const RenderUse& 
 const Encoded& Session::encode(const Request& request) {
   Impl& s = *impl_;
   s.pipeline.validate(request);  // a request that cannot mean anything is refused as such first
-  if (const MemoryEstimate e = estimateMemory(request); !e.refusal.empty()) throw Error(e.refusal);
+  // Refused before any work when even its least need is above the budget (the least need only:
+  // estimateMemory's bound and view count are for callers that ask).
+  if (const uint64_t budget = s.engine.memory().budget()) {
+    const MemoryNeed need = s.pipeline.memoryNeed(request, int64_t(request.plan.targets.size()), 0);
+    if (const std::string refusal = refusalOf(need, budget, s.engine.memory().budgetSource(), request,
+                                              s.pipeline.config());
+        !refusal.empty())
+      throw Error(refusal);
+  }
   s.features = request.semanticFeatures && s.pipeline.config().semanticDecoding();
   s.rendered = false;
   return s.pipeline.encode(request);
