@@ -8,6 +8,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
 #include <cmath>
 #include <memory>
 #include <mutex>
@@ -112,6 +113,32 @@ py::array_t<float> rgbArray(std::vector<float>&& rgb, SessionBox& s) {
 }
 
 void warn(const std::string& message) { PyErr_WarnEx(PyExc_UserWarning, message.c_str(), 1); }
+
+// A request's view plan and options as encode and estimate_memory take them: inputs None = every
+// view, targets None = the views that are not inputs.
+void setPlanAndOptions(spar::Request& r, int64_t views, const py::object& inputs, const py::object& targets,
+                       bool assumeStatic, bool targetMotion, bool semanticFeatures, bool refine,
+                       const std::string& maskSource) {
+  if (maskSource != "raw" && maskSource != "refined")
+    throw spar::Error("mask_source must be 'raw' or 'refined', got '" + maskSource + "'");
+  r.plan.views = views;
+  if (inputs.is_none()) {
+    for (int64_t i = 0; i < views; ++i) r.plan.inputs.push_back(i);
+  } else {
+    r.plan.inputs = inputs.cast<std::vector<int64_t>>();
+  }
+  if (targets.is_none()) {
+    for (int64_t i = 0; i < views; ++i)
+      if (std::find(r.plan.inputs.begin(), r.plan.inputs.end(), i) == r.plan.inputs.end()) r.plan.targets.push_back(i);
+  } else {
+    r.plan.targets = targets.cast<std::vector<int64_t>>();
+  }
+  r.assumeStatic = assumeStatic;
+  r.targetMotion = targetMotion;
+  r.semanticFeatures = semanticFeatures;
+  r.refine = refine;
+  r.maskSource = maskSource == "refined" ? spar::MaskSource::Refined : spar::MaskSource::Raw;
+}
 
 }  // namespace
 
@@ -291,25 +318,7 @@ PYBIND11_MODULE(spar, m) {
             const int64_t views = a.shape(0);
             r.height = a.shape(2);
             r.width = a.shape(3);
-            r.plan.views = views;
-            if (inputs.is_none()) {
-              for (int64_t i = 0; i < views; ++i) r.plan.inputs.push_back(i);
-            } else {
-              r.plan.inputs = inputs.cast<std::vector<int64_t>>();
-            }
-            if (targets.is_none()) {
-              for (int64_t i = 0; i < views; ++i)
-                if (std::find(r.plan.inputs.begin(), r.plan.inputs.end(), i) == r.plan.inputs.end()) r.plan.targets.push_back(i);
-            } else {
-              r.plan.targets = targets.cast<std::vector<int64_t>>();
-            }
-            r.assumeStatic = assumeStatic;
-            r.targetMotion = targetMotion;
-            r.semanticFeatures = semanticFeatures;
-            r.refine = refine;
-            if (maskSource != "raw" && maskSource != "refined")
-              throw spar::Error("mask_source must be 'raw' or 'refined', got '" + maskSource + "'");
-            r.maskSource = maskSource == "refined" ? spar::MaskSource::Refined : spar::MaskSource::Raw;
+            setPlanAndOptions(r, views, inputs, targets, assumeStatic, targetMotion, semanticFeatures, refine, maskSource);
             if (!refinePrompts.is_none()) r.refinePrompts = floats(refinePrompts, "refine_prompts", {views, r.height, r.width});
             spar::Session& session = s.open();
             {
@@ -410,25 +419,13 @@ PYBIND11_MODULE(spar, m) {
           "a semantic model), else None.")
       .def(
           "estimate_memory",
-          [](SessionBox& s, int64_t views, const std::vector<int64_t>& inputs, py::object targets, int64_t height,
+          [](SessionBox& s, int64_t views, const py::object& inputs, const py::object& targets, int64_t height,
              int64_t width, bool assumeStatic, bool targetMotion, bool semanticFeatures, bool refine,
              const std::string& maskSource, int64_t viewsPerRender, int64_t labelPrompts) {
             spar::Request r;
-            r.plan.views = views;
-            r.plan.inputs = inputs;
-            if (targets.is_none()) {
-              for (int64_t i = 0; i < views; ++i)
-                if (std::find(inputs.begin(), inputs.end(), i) == inputs.end()) r.plan.targets.push_back(i);
-            } else {
-              r.plan.targets = targets.cast<std::vector<int64_t>>();
-            }
+            setPlanAndOptions(r, views, inputs, targets, assumeStatic, targetMotion, semanticFeatures, refine, maskSource);
             r.height = height;
             r.width = width;
-            r.assumeStatic = assumeStatic;
-            r.targetMotion = targetMotion;
-            r.semanticFeatures = semanticFeatures;
-            r.refine = refine;
-            r.maskSource = maskSource == "refined" ? spar::MaskSource::Refined : spar::MaskSource::Raw;
             spar::Session& session = s.open();
             std::lock_guard<std::mutex> hold(s.ctx->lock);
             return estimateDict(session.estimateMemory(r, {viewsPerRender, labelPrompts}));

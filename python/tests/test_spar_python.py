@@ -198,6 +198,8 @@ def test_sam2_refinement(ctx):
         np.testing.assert_array_equal(gated["refined_input"], e["refined_input"])
         with pytest.raises(spar.Error, match="mask_source must be"):
             s.encode(images, inputs=[0, 2], mask_source="sam2")
+        with pytest.raises(spar.Error, match="mask_source must be"):
+            s.estimate_memory(images.shape[0], [0, 2], mask_source="sam2")
         with pytest.raises(spar.Error, match="refine_prompts: shape"):
             s.encode(images, inputs=[0, 2], refine=True, refine_prompts=prompts[:2])
     photometric = spar.Session(ctx, spar.Model.open(os.environ["SPAR_PHOTOMETRIC_MODEL"]))
