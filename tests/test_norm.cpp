@@ -220,7 +220,7 @@ TEST_F(EngineTest, RmsNormHeadsInPlaceOnFusedQkv) {
 // The q and the k heads in one dispatch (the transformer block's qk-norm): 2H heads at column
 // 0 with a [2, dh] weight, q_norm for the first H and k_norm for the next; the same values as
 // the two calls with a weight each, v untouched, and a weight whose rows do not divide the heads
-// refused.
+// (or that has none) refused.
 TEST_F(EngineTest, RmsNormHeadsWithAWeightRowPerGroup) {
   for (int64_t dh : {12, 64}) {
     const int64_t T = 61, H = 3, D = H * dh;
@@ -237,6 +237,7 @@ TEST_F(EngineTest, RmsNormHeadsWithAWeightRowPerGroup) {
     expectClose(out, qkNormRef(qkv, T, H, dh, wq, wk), 1e-9, 1e-5, "q and k heads at once dh=" + std::to_string(dh));
     expectVUntouched(out, qkv, T, D);
     EXPECT_THROW(rmsNormHeads(rec, t, 0, t, 0, 2 * H + 1, tw), Error);
+    EXPECT_THROW(rmsNormHeads(rec, t, 0, t, 0, 2 * H, eng().tensor({0, dh})), Error);  // no rows: no crash
   }
 }
 

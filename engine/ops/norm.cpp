@@ -103,7 +103,7 @@ void rmsNormHeads(Recorder& rec, const Tensor& x, int64_t xCol0, const Tensor& y
   const int64_t groups = dh ? weight.numel() / dh : 0;
   const int64_t rows = cx ? x.numel() / cx : 0;
   if (dh == 0 || heads < 0) throw Error(op + ": empty heads");
-  if (weight.rank() > 2 || heads % groups)
+  if (weight.rank() > 2 || groups == 0 || heads % groups)
     throw Error(op + ": weight " + weight.describe() + " is not [dh] or [G, dh] with G dividing the " +
                 std::to_string(heads) + " heads");
   if (rows != (cy ? y.numel() / cy : 0))
