@@ -195,8 +195,9 @@ TransformerBlock::TransformerBlock(Engine& engine, const TransformerBlockOptions
   }
   if (o_.mlpBias) mlp2B_ = lookup(weights, p, "mlp.mlp.2.bias", {D}, false);
   if (o_.layerScale) {
-    ls1_ = lookup(weights, p, "ls1.gamma", {D}, true);
-    ls2_ = lookup(weights, p, "ls2.gamma", {D}, true);
+    // x += gamma * (h W^T + b) in the GEMM's epilogue: the gammas ride in the bias binding.
+    fcB_ = layerScaleEpilogue(engine, fcB_, lookup(weights, p, "ls1.gamma", {D}, true));
+    mlp2B_ = layerScaleEpilogue(engine, mlp2B_, lookup(weights, p, "ls2.gamma", {D}, true));
   }
 
   if (o_.maskKBias) {
@@ -235,25 +236,14 @@ void TransformerBlock::forward(Recorder& rec, const Tensor& x, const Transformer
   // a block with fp16 weights (--precision fp16) may round q, k, v to fp16 for cooperative matrices
   attention(rec, {qkv, 0}, {qkv, D}, {qkv, 2 * D}, {attn, 0}, int(heads), int(dh), o_.causal, 0.0f,
             qkvW_.dtype() == DType::F16);
-  // x += fc(attn): the residual add fused into the GEMM, or with a layer scale after it
-  if (o_.layerScale) {
-    linear(rec, attn, fcW_, fcB_, norm);  // norm1's output is dead: reuse its buffer
-    mul(rec, norm, ls1_, norm);
-    add(rec, x, norm, x);
-  } else {
-    linear(rec, attn, fcW_, fcB_, x, Activation::None, /*accumulate=*/true);
-  }
+  // x += fc(attn) (times the layer scale where the block has one): the residual add, and the
+  // scale, fused into the GEMM
+  linear(rec, attn, fcW_, fcB_, x, Activation::None, /*accumulate=*/true);
 
   // MLP branch: the activation is fused into the first GEMM; hidden reuses qkv's buffer.
   layerNorm(rec, x, norm2W_, norm2B_, norm, o_.lnEps);
   linear(rec, norm, mlp0W_, mlp0B_, hidden, o_.activation);
-  if (o_.layerScale) {
-    linear(rec, hidden, mlp2W_, mlp2B_, attn);
-    mul(rec, attn, ls2_, attn);
-    add(rec, x, attn, x);
-  } else {
-    linear(rec, hidden, mlp2W_, mlp2B_, x, Activation::None, /*accumulate=*/true);
-  }
+  linear(rec, hidden, mlp2W_, mlp2B_, x, Activation::None, /*accumulate=*/true);
 }
 
 void forwardBlocks(Recorder& rec, const std::vector<TransformerBlock>& blocks, const Tensor& x,

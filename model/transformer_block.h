@@ -129,7 +129,8 @@ class TransformerBlock {
   TransformerBlockOptions o_;
   int64_t hiddenRow_ = 0;
   Tensor norm1W_, norm1B_, qkvW_, qkvB_, qkNormW_, fcW_, fcB_, norm2W_, norm2B_;
-  Tensor mlp0W_, mlp0B_, mlp2W_, mlp2B_, ls1_, ls2_;
+  // with a layer scale, fcB_ and mlp2B_ hold (bias, gamma) texels (layerScaleEpilogue)
+  Tensor mlp0W_, mlp0B_, mlp2W_, mlp2B_;
 };
 
 // Runs blocks one after the other on x (a stack without its final norm).

@@ -59,7 +59,7 @@ QUANT_INPUT(1, W)
 TEXEL_INPUT(1, W, TEXEL_K)
 #define W_AT(row, kk) fetch_W((row) + (kk))
 #endif
-TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
+#include "gemm_epilogue.glsl"  // the bias binding (2), SCALED
 layout(binding = 3) buffer Y { OUT_T y[]; };  // read back only with ACCUMULATE
 
 layout(push_constant) uniform Push {
@@ -144,8 +144,7 @@ void main() {
       const int n = n0 + c;
       if (n >= p.N) break;
       float v = acc[r * RN + c];
-      if (HAS_BIAS) v += fetch_BIAS(n).x;
-      STORE_OUT(b * p.yBatch + m * p.ldy + n, activate(v, ACT));
+      STORE_OUT(b * p.yBatch + m * p.ldy + n, gemm_epilogue(v, n));
     }
   }
 }

@@ -53,7 +53,7 @@ QUANT_INPUT(1, W)
 #else
 TEXEL_INPUT(1, W, TEXEL_K)
 #endif
-TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
+#include "gemm_epilogue.glsl"  // the bias binding (2), SCALED
 layout(binding = 3) buffer Y { OUT_T y[]; };  // read back only with ACCUMULATE
 
 layout(push_constant) uniform Push {
@@ -134,8 +134,7 @@ void main() {
         const int n = n0 + int((sgCol * WN + j) * CM_N + e % CM_N);
         if (m >= p.M || n >= p.N) continue;
         float v = staging[stage + e];
-        if (HAS_BIAS) v += fetch_BIAS(n).x;
-        STORE_OUT(img * p.yBatch + m * p.ldy + n, activate(v, ACT));
+        STORE_OUT(img * p.yBatch + m * p.ldy + n, gemm_epilogue(v, n));
       }
       barrier();
     }

@@ -39,7 +39,7 @@ layout(constant_id = 15) const bool ACCUMULATE = false;  // y += the result (a f
 
 TEXEL_INPUT(0, X, TEXEL_K)
 TEXEL_INPUT(1, W, TEXEL_K)
-TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
+#include "gemm_epilogue.glsl"  // the bias binding (2), SCALED
 layout(binding = 3) buffer Y { OUT_T y[]; };  // read back only with ACCUMULATE
 
 // Word i of x and w (fp32: the host binds no fp16 here).
@@ -112,8 +112,7 @@ void main() {
         bi = co;
       }
       float v = acc[r * RN + c];
-      if (HAS_BIAS) v += fetch_BIAS(bi).x;
-      STORE_OUT(p.yBase + b * p.yBatch + at, activate(v, ACT));
+      STORE_OUT(p.yBase + b * p.yBatch + at, gemm_epilogue(v, bi));
     }
   }
 }

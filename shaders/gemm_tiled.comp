@@ -67,7 +67,7 @@ QUANT_INPUT(1, W)
 #else
 TEXEL_INPUT(1, W, TEXEL_K)
 #endif
-TEXEL_INPUT(2, BIAS, 1)  // R texels; bound to w when HAS_BIAS is false
+#include "gemm_epilogue.glsl"  // the bias binding (2), SCALED
 layout(binding = 3) buffer Y { OUT_T y[]; };  // read back only with ACCUMULATE
 
 #if CONV
@@ -234,8 +234,7 @@ void main() {
       if (HAS_BIAS) v += fetch_BIAS(p.biasBase + n).x;
       y[p.outBase + (img * p.Cout + n) * rowsM() + m] = TO_OUT(activate(v, ACT));
 #else
-      if (HAS_BIAS) v += fetch_BIAS(n).x;
-      STORE_OUT(img * p.yBatch + m * p.ldy + n, activate(v, ACT));
+      STORE_OUT(img * p.yBatch + m * p.ldy + n, gemm_epilogue(v, n));
 #endif
     }
   }

@@ -71,14 +71,20 @@ TEST_F(EngineTest, LinearLanesSplitKMatchesFloat64) {
 // bias and an activation, a quantized weight, an output the device cannot bind where it starts
 // (the add then runs apart), through this device's plan and SwiftShader's lanes GEMM; the GPU
 // family and the device profiles run this program too (gpu_family.test_linear, ...).
-void expectAccumulates(Engine& engine, const LinearCase& c, int bits, int64_t offset, const std::string& what) {
+// With scaled, a layer scale in the epilogue too (layerScaleEpilogue, gemm_epilogue.glsl's
+// SCALED): y = y0 + gamma * act(x W^T + b), gammas of DINOv3's size (1e-5 .. 1) and of both signs.
+void expectAccumulates(Engine& engine, const LinearCase& c, int bits, int64_t offset, const std::string& what,
+                       bool scaled = false) {
   const auto x = randomUniform(c.M * c.K, -1, 1, 41), w = randomUniform(c.N * c.K, -1, 1, 42);
   const auto b = c.bias ? randomUniform(c.N, -1, 1, 43) : std::vector<float>{};
   const auto y0 = randomUniform(c.M * c.N, -2, 2, 44);
+  std::vector<float> gamma = randomUniform(c.N, -5, 0, 45);
+  for (size_t n = 0; n < gamma.size(); ++n) gamma[n] = float((n % 2 ? -1 : 1) * std::pow(10.0, gamma[n]));
   const QuantizedMatrix q = bits ? quantizeReference(w, c.N, c.K, bits) : QuantizedMatrix{};
   const Tensor tx = engine.fromFloats({c.M, c.K}, x);
   const Tensor tw = bits ? quantizedTensor(engine, q, c.N, c.K, bits) : engine.fromFloats({c.N, c.K}, w);
-  const Tensor tb = c.bias ? engine.fromFloats({c.N}, b) : Tensor();
+  const Tensor plainBias = c.bias ? engine.fromFloats({c.N}, b) : Tensor();
+  const Tensor tb = scaled ? layerScaleEpilogue(engine, plainBias, engine.fromFloats({c.N}, gamma)) : plainBias;
   const Tensor whole = engine.tensor({offset + c.M * c.N});
   const Tensor y = whole.view(offset, {c.M, c.N});
   engine.upload(y, y0);
@@ -88,7 +94,7 @@ void expectAccumulates(Engine& engine, const LinearCase& c, int bits, int64_t of
   const bool viaFp16 = bits && engine.plan().quantizedGemm() == KernelFamily::CoopMat;
   std::vector<double> ref = viaFp16 ? linearRef(roundToHalf(x), roundToHalf(q.values), b, 1, c.M, c.N, c.K, false, c.act)
                             : linearRef(x, bits ? q.values : w, b, 1, c.M, c.N, c.K, false, c.act);
-  for (size_t i = 0; i < ref.size(); ++i) ref[i] += y0[i];
+  for (size_t i = 0; i < ref.size(); ++i) ref[i] = y0[i] + (scaled ? double(gamma[i % size_t(c.N)]) : 1.0) * ref[i];
   expectClose(engine.download(y), ref, 1e-10 * std::max<int64_t>(1, c.K / 16), 1e-4, what);
 }
 
@@ -101,6 +107,24 @@ TEST_F(EngineTest, LinearAccumulateAddsToTheOutput) {
   withLanesKernelsForced(eng(), [&](const std::string& inputs) {
     expectAccumulates(eng(), gelu, 0, 0, "lanes, " + inputs + " inputs, accumulate 33x65x130 gelu");
   });
+}
+
+// DINOv3's layer-scaled residual branches, x += gamma * fc(h), as one GEMM: with and without a
+// bias, an activation, a quantized weight, an output bound past an aligned start, SwiftShader's
+// lanes GEMM; bad (bias, scale) tensors refused.
+TEST_F(EngineTest, LinearLayerScaleInTheEpilogue) {
+  expectAccumulates(eng(), {61, 7, 61, true, Activation::None}, 0, 0, "layer scale 61x7x61", true);
+  expectAccumulates(eng(), {33, 65, 130, false, Activation::Gelu}, 0, 0, "layer scale, no bias, 33x65x130 gelu", true);
+  expectAccumulates(eng(), {7, 61, 96, true, Activation::None}, 8, 0, "layer scale q8 7x61x96", true);
+  expectAccumulates(eng(), {61, 7, 61, true, Activation::None}, 0, 1, "layer scale, output past an aligned start", true);
+  withLanesKernelsForced(eng(), [&](const std::string& inputs) {
+    expectAccumulates(eng(), {33, 65, 130, true, Activation::Gelu}, 0, 0, "lanes, " + inputs + " inputs, layer scale", true);
+  });
+  const Tensor gamma = eng().fromFloats({5}, std::vector<float>(5, 0.5f));
+  EXPECT_THROW(layerScaleEpilogue(eng(), eng().tensor({4}), gamma), Error);
+  const Tensor x = eng().tensor({3, 8}), w = eng().tensor({5, 8}), y = eng().tensor({3, 5});
+  Recorder rec(eng());
+  EXPECT_THROW(linear(rec, x, w, eng().tensor({4, 4}), y), Error);  // (bias, scale) texels of 4 columns for 5
 }
 
 // llvmpipe's plan shares a workgroup's columns among its subgroup's lanes (gemm.comp's

@@ -27,13 +27,25 @@ struct GemmLaunch {
   int64_t rowsPerGroup, colsPerGroup;
 };
 
-// Every GEMM kernel's ACCUMULATE is specialization constant 15 (y += the result): set only where
-// asked, so that the kernels without it keep their constants as they were.
-constexpr size_t kAccumulateId = 15;
-void withAccumulate(std::vector<int32_t>& constants, bool accumulate) {
-  if (!accumulate) return;
-  if (constants.size() <= kAccumulateId) constants.resize(kAccumulateId + 1, 0);
-  constants[kAccumulateId] = 1;
+// What every GEMM kernel does with a finished sum (shaders/gemm_epilogue.glsl): the activation,
+// the bias, a layer scale (SCALED: the bias binding holds (bias, scale, 0, 0) texels), and the
+// residual add (ACCUMULATE: y += the result).
+struct Epilogue {
+  Activation act = Activation::None;
+  bool bias = false, accumulate = false, scaled = false;
+};
+
+// ACCUMULATE and SCALED are specialization constants 15 and 16 of every GEMM kernel: set only
+// where asked, so that the kernels without them keep their constants as they were.
+constexpr size_t kAccumulateId = 15, kScaledId = 16;
+void withFlag(std::vector<int32_t>& constants, size_t id, bool on) {
+  if (!on) return;
+  if (constants.size() <= id) constants.resize(id + 1, 0);
+  constants[id] = 1;
+}
+void withEpilogueFlags(std::vector<int32_t>& constants, const Epilogue& e) {
+  withFlag(constants, kAccumulateId, e.accumulate);
+  withFlag(constants, kScaledId, e.scaled);
 }
 // x, w and bias as texels; y written, or read and written (ACCUMULATE).
 std::vector<Bind> outputBinds(bool accumulate) {
@@ -44,13 +56,12 @@ std::vector<Bind> outputBinds(bool accumulate) {
 // workgroup: on SwiftShader (1024^3) 4.7 GFLOPS, against 3.7-3.9 for 4 x 4 and 8 x 8 and 4.1
 // for 8 x 4 with 4 subgroups. biasPerRow: bias[m] (conv2d's im2col products) instead of bias[n];
 // scatterK: conv_transpose2d's output blocks (gemm_lanes.comp, SCATTER_K).
-GemmLaunch lanesLaunch(Engine& engine, int texelK, Activation act, bool hasBias, bool biasPerRow, int scatterK = 0,
-                       bool accumulate = false) {
+GemmLaunch lanesLaunch(Engine& engine, int texelK, const Epilogue& e, bool biasPerRow, int scatterK = 0) {
   const int lanes = int(engine.caps().subgroupSize), rows = 4, cols = 8, subgroups = 2;
-  std::vector<int32_t> constants = {lanes, subgroups, 1, rows, cols, texelK, static_cast<int>(act), hasBias, lanes,
+  std::vector<int32_t> constants = {lanes, subgroups, 1, rows, cols, texelK, static_cast<int>(e.act), e.bias, lanes,
                                     biasPerRow, scatterK};
-  withAccumulate(constants, accumulate);
-  const Kernel& k = engine.kernel({"gemm_lanes_f32", outputBinds(accumulate), sizeof(GemmPush), constants, uint32_t(lanes),
+  withEpilogueFlags(constants, e);
+  const Kernel& k = engine.kernel({"gemm_lanes_f32", outputBinds(e.accumulate), sizeof(GemmPush), constants, uint32_t(lanes),
                                    engine.plan().freezeConstants});
   return {&k, rows, int64_t(cols) * subgroups};
 }
@@ -60,7 +71,7 @@ GemmLaunch lanesLaunch(Engine& engine, int texelK, Activation act, bool hasBias,
 // shared-memory tiles on GPUs (fp16 arithmetic for fp16 weights where the plan says so),
 // gemm_coopmat.comp for fp16 and quantized weights where the device has cooperative matrices.
 GemmLaunch gemmLaunch(Engine& engine, DType xType, DType wType, DType yType, int64_t M, int64_t N, int64_t B, int64_t K,
-                      int texelK, Activation act, bool hasBias, bool accumulate) {
+                      int texelK, const Epilogue& e) {
   const DeviceCaps& caps = engine.caps();
   const KernelPlan& plan = engine.plan();
   const bool f16Out = yType == DType::F16;
@@ -75,15 +86,15 @@ GemmLaunch gemmLaunch(Engine& engine, DType xType, DType wType, DType yType, int
     // needs the workgroup's x size to be a multiple of); the shader counts them itself.
     const uint32_t subgroup = caps.maxSubgroupSize;
     const int local = int(subgroup) * c.sgM * c.sgN;
-    std::vector<int32_t> constants = {local, 1, 1, c.sgM, c.sgN, c.wm, c.wn, c.kSteps, texelK, static_cast<int>(act),
-                                      hasBias};
+    std::vector<int32_t> constants = {local, 1, 1, c.sgM, c.sgN, c.wm, c.wn, c.kSteps, texelK, static_cast<int>(e.act),
+                                      e.bias};
     if (isQuantized(wType)) constants.push_back(wType == DType::Q8 ? 8 : 4);  // W_BITS
-    constants.resize(20, 0);  // ids 12-19 unused but ACCUMULATE (15); 20-22 the multiply-add shape
-    withAccumulate(constants, accumulate);
+    constants.resize(20, 0);  // ids 12-19 unused but ACCUMULATE (15) and SCALED (16); 20-22 the multiply-add shape
+    withEpilogueFlags(constants, e);
     constants.insert(constants.end(), {c.m, c.n, c.k});
     const std::string name = std::string(isQuantized(wType) ? "gemm_coopmat_q" : "gemm_coopmat") +
                              (f16Out ? "_f16out" : "_f32");
-    const Kernel& k = engine.kernel({name, outputBinds(accumulate), sizeof(GemmPush), constants, subgroup});
+    const Kernel& k = engine.kernel({name, outputBinds(e.accumulate), sizeof(GemmPush), constants, subgroup});
     return {&k, c.rows(), c.cols()};
   }
   if (family == KernelFamily::Tiled) {
@@ -91,15 +102,15 @@ GemmLaunch gemmLaunch(Engine& engine, DType xType, DType wType, DType yType, int
     const bool h16 = wType == DType::F16 && plan.fp16Math, quantized = isQuantized(wType);
     const std::string name = std::string(h16 ? "gemm_tiled_h16" : quantized ? "gemm_tiled_q" : "gemm_tiled") +
                              (f16Out ? "_f16out" : h16 ? "" : "_f32");
-    std::vector<int32_t> constants = {t.invocations(), 1, 1, t.bm, t.bn, t.bk, t.tm, t.tn, texelK, static_cast<int>(act),
-                                      hasBias, 1, 1, 1};
+    std::vector<int32_t> constants = {t.invocations(), 1, 1, t.bm, t.bn, t.bk, t.tm, t.tn, texelK, static_cast<int>(e.act),
+                                      e.bias, 1, 1, 1};
     if (quantized) constants.push_back(wType == DType::Q8 ? 8 : 4);  // W_BITS
-    withAccumulate(constants, accumulate);
-    const Kernel& k = engine.kernel({name, outputBinds(accumulate), sizeof(GemmPush), constants});
+    withEpilogueFlags(constants, e);
+    const Kernel& k = engine.kernel({name, outputBinds(e.accumulate), sizeof(GemmPush), constants});
     return {&k, t.bm, t.bn};
   }
   if (family == KernelFamily::CpuBlocks && plan.gemmLanesSplitK && xType == DType::F32 && wType == DType::F32 && !f16Out)
-    return lanesLaunch(engine, texelK, act, hasBias, false, 0, accumulate);
+    return lanesLaunch(engine, texelK, e, false);
   GemmTiles tiles = chooseGemmTiles(caps, engine.options().tuning, double(B) * double(M) * double(N) * double(K), N);
   // Small outputs (heads with N = 1 or 9, a handful of rows) would mostly compute clamped
   // duplicates with big blocks: on GPUs the blocks are halved down to the problem. CPU blocks
@@ -111,15 +122,15 @@ GemmLaunch gemmLaunch(Engine& engine, DType xType, DType wType, DType yType, int
     while (tiles.rowsPerInvocation > 4 && tiles.rowsPerInvocation / 2 >= M) tiles.rowsPerInvocation /= 2;
   }
   std::vector<int32_t> constants = {tiles.localX, tiles.localY, 1, tiles.rowsPerInvocation, tiles.colsPerInvocation,
-                                    texelK, static_cast<int>(act), hasBias, tiles.kUnroll,
+                                    texelK, static_cast<int>(e.act), e.bias, tiles.kUnroll,
                                     isQuantized(wType) ? (wType == DType::Q8 ? 8 : 4) : 8,  // W_BITS
                                     tiles.localX,                                           // LANES
                                     engine.plan().gemmRowGroups};                           // GROUP_M
   const std::string name = std::string(tiles.sharedColumns ? "gemm_sc" : "gemm") + (isQuantized(wType) ? "_q" : "") +
                            (f16Out ? "_f16out" : "_f32");
-  withAccumulate(constants, accumulate);
+  withEpilogueFlags(constants, e);
   // Shared columns: the workgroup must be one full subgroup (its shuffles read every lane).
-  const Kernel& k = engine.kernel({name, outputBinds(accumulate), sizeof(GemmPush), constants,
+  const Kernel& k = engine.kernel({name, outputBinds(e.accumulate), sizeof(GemmPush), constants,
                                    tiles.sharedColumns ? uint32_t(tiles.localX) : 0u});
   return {&k, int64_t(tiles.rowsPerInvocation) * tiles.localX, int64_t(tiles.colsPerInvocation) * tiles.localY};
 }
@@ -204,7 +215,11 @@ void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& 
   const int64_t M = batched ? x.dim(1) : x.numel() / K;
   if (y.dim(-1) != N || y.numel() != B * M * N)
     throw Error("linear: output " + y.describe() + " should hold " + std::to_string(M) + " x " + std::to_string(N));
-  if (bias.defined() && bias.numel() != N) throw Error("linear: bias " + bias.describe() + " should have " + std::to_string(N));
+  // a layer-scaled output: [N, 4] texels (bias, scale, 0, 0), layerScaleEpilogue()
+  const bool scaled = bias.defined() && bias.rank() == 2 && bias.dim(1) == 4;
+  if (bias.defined() && (scaled ? bias.dim(0) != N || bias.dtype() != DType::F32 : bias.numel() != N))
+    throw Error("linear: bias " + bias.describe() + " should have " + std::to_string(N) + " values or be f32 [" +
+                std::to_string(N) + ", 4] (bias, scale) texels");
   if (y.dtype() == DType::I32 || x.dtype() == DType::I32 || w.dtype() == DType::I32)
     throw Error("linear: integer tensors are not supported");
   const bool quantized = isQuantized(w.dtype());
@@ -218,7 +233,8 @@ void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& 
   const int64_t wRowTexels = quantized ? int64_t(rowBytes(w.dtype(), K) / 4) : K / texelK;
   const int64_t kTexels = K / texelK;
   const GemmLaunch launch =
-      gemmLaunch(engine, x.dtype(), w.dtype(), y.dtype(), M, N, B, K, texelK, act, bias.defined(), accumulate);
+      gemmLaunch(engine, x.dtype(), w.dtype(), y.dtype(), M, N, B, K, texelK, {act, bias.defined(), accumulate, scaled});
+  const int biasComponents = scaled ? 4 : 1;
   const auto output = [accumulate](const Tensor& t) { return accumulate ? Arg::inout(t) : Arg::out(t); };
   const Kernel& kernel = *launch.kernel;
   const Tensor biasArg = bias.defined() ? bias : w;
@@ -226,7 +242,7 @@ void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& 
   if (batched) {
     GemmPush push{int32_t(M), int32_t(N), int32_t(kTexels), int32_t(kTexels), int32_t(kTexels), int32_t(N),
                   int32_t(M * kTexels), int32_t(N * kTexels), int32_t(M * N)};
-    rec.dispatch(kernel, {Arg::texel(x, texelK), Arg::texel(w, texelK), Arg::texel(biasArg, 1), output(y)}, push,
+    rec.dispatch(kernel, {Arg::texel(x, texelK), Arg::texel(w, texelK), Arg::texel(biasArg, biasComponents), output(y)}, push,
                  ops::ceilDiv(M, launch.rowsPerGroup), ops::ceilDiv(N, launch.colsPerGroup), static_cast<uint32_t>(B));
     return;
   }
@@ -254,7 +270,8 @@ void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& 
   int64_t chunk = static_cast<int64_t>(std::min<uint64_t>(rowsByY, rowsByX));
   if (chunk < M) chunk = static_cast<int64_t>(uint64_t(chunk) / stepM * stepM);
   if (chunk <= 0) throw Error("linear: one row of " + y.describe() + " exceeds the device's binding limits");
-  const Tensor x2 = x.reshape({M, K}), y2 = y.reshape({M, N}), b1 = bias.defined() ? bias.reshape({N}) : Tensor();
+  const Tensor x2 = x.reshape({M, K}), y2 = y.reshape({M, N});
+  const Tensor b1 = bias.defined() ? bias.reshape({N * biasComponents}) : Tensor();
   for (int64_t m0 = 0; m0 < M; m0 += chunk) {
     const int64_t rows = std::min(chunk, M - m0);
     for (int64_t n0 = 0; n0 < N; n0 += chunkN) {
@@ -266,12 +283,12 @@ void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& 
       // Without a bias the binding is a placeholder never read: the weight, or one element of
       // it where the weight as R texels would be longer than a texel binding (of x for a
       // quantized weight, whose words are no float texels).
-      const Tensor bPart = bias.defined() ? (cols == N ? biasArg : b1.view(n0, {cols}))
+      const Tensor bPart = bias.defined() ? (cols == N ? biasArg : b1.view(n0 * biasComponents, {cols * biasComponents}))
                            : quantized ? xPart.reshape({xPart.numel()}).view(0, {1})
                            : uint64_t(wPart.numel()) <= ops::texelInputLimit(engine, 1) ? wPart
                                                                                     : wPart.reshape({wPart.numel()}).view(0, {1});
       rec.dispatch(kernel,
-                   {Arg::texel(xPart, texelK), Arg::texel(wPart, wComponents), Arg::texel(bPart, 1),
+                   {Arg::texel(xPart, texelK), Arg::texel(wPart, wComponents), Arg::texel(bPart, bias.defined() ? biasComponents : 1),
                     output(y2.view(m0 * N + n0, {(rows - 1) * N + cols}))},
                    push, ops::ceilDiv(rows, launch.rowsPerGroup), ops::ceilDiv(cols, launch.colsPerGroup), 1);
     }
@@ -279,6 +296,20 @@ void linearBound(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& 
 }
 
 }  // namespace
+
+Tensor layerScaleEpilogue(Engine& engine, const Tensor& bias, const Tensor& gamma) {
+  if (!gamma.defined() || gamma.rank() != 1 || (bias.defined() && bias.shape() != gamma.shape()))
+    throw Error("layerScaleEpilogue: gamma " + (gamma.defined() ? gamma.describe() : std::string("(none)")) +
+                " must be [N] and the bias, if any, as long");
+  const int64_t N = gamma.dim(0);
+  const std::vector<float> g = engine.download(gamma), b = bias.defined() ? engine.download(bias) : std::vector<float>{};
+  std::vector<float> texels(size_t(4 * N), 0.0f);
+  for (int64_t n = 0; n < N; ++n) {
+    texels[size_t(4 * n)] = b.empty() ? 0.0f : b[size_t(n)];
+    texels[size_t(4 * n + 1)] = g[size_t(n)];
+  }
+  return engine.fromFloats({N, 4}, texels);
+}
 
 void gemmLanesRowBias(Recorder& rec, const Tensor& a, const Tensor& b, const Tensor& bias, const Tensor& y, int64_t ldy,
                       Activation act, int scatterK, int64_t scatterW) {
@@ -303,7 +334,7 @@ void gemmLanesRowBias(Recorder& rec, const Tensor& a, const Tensor& b, const Ten
   if (bias.defined() && bias.numel() != (scatterK > 0 ? M / kk : M))
     throw Error("gemmLanesRowBias: bias " + bias.describe() + " does not match " + std::to_string(M) + " rows");
   const int texelK = K % 4 == 0 ? 4 : 1;
-  const GemmLaunch launch = lanesLaunch(engine, texelK, act, bias.defined(), true, scatterK);
+  const GemmLaunch launch = lanesLaunch(engine, texelK, {act, bias.defined()}, true, scatterK);
   const Tensor ax = ops::alignedInput(rec, a, true), bx = ops::alignedInput(rec, b, true);
   const Tensor biasArg = bias.defined() ? ops::alignedInput(rec, bias, true) : ax;
   const ops::BoundRange yr = ops::bindRange(engine.caps(), y, 0, y.numel(), false);

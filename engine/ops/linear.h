@@ -26,9 +26,15 @@ GemmTiles chooseGemmTiles(const DeviceCaps& caps, const KernelTuning& tuning, do
 // bias: [N] or undefined; y: [rows..., N] (f32 or f16). x, w, bias may be f32 or f16.
 // Tensors above the device's binding limits are processed in row chunks. With accumulate the
 // result is added to what y holds, y = y + act(x W^T + b): a residual add fused into the GEMM's
-// epilogue (every GEMM kernel's ACCUMULATE), one dispatch instead of two.
+// epilogue (every GEMM kernel's ACCUMULATE), one dispatch instead of two. A bias made by
+// layerScaleEpilogue() scales each column too: y (+)= gamma * act(x W^T + b).
 void linear(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor& bias, const Tensor& y,
             Activation act = Activation::None, bool accumulate = false);
+
+// The bias of a layer-scaled linear (shaders/gemm_epilogue.glsl, SCALED): f32 [N, 4] texels
+// (bias[n] or 0, gamma[n], 0, 0). bias: [N] or undefined, gamma: [N], f32 or f16. Made once,
+// with a host round trip: call it while loading weights, not while recording a request.
+Tensor layerScaleEpilogue(Engine& engine, const Tensor& bias, const Tensor& gamma);
 
 // The convolutions' im2col products (engine/ops/conv2d.cpp, conv_transpose2d.cpp) on the lanes
 // GEMM (shaders/gemm_lanes.comp; only where KernelPlan::gemmLanesSplitK): y[m * ldy + n] =
