@@ -278,6 +278,12 @@ void Recorder::emit(const Pending& d, const Pipeline& pipeline) {
   if (profile_) writeTimestamp();
 }
 
+void Recorder::noteTransformerBlock(uint64_t dispatches) {
+  StageCounts& c = blocks_[stage_];
+  ++c.transformerBlocks;
+  c.blockDispatches = std::max(c.blockDispatches, dispatches);
+}
+
 StageCounts Recorder::lastRunTotal() const {
   StageCounts total;
   for (const auto& [stage, counts] : lastCounts_) total += counts;
@@ -294,7 +300,10 @@ void Recorder::run() {
     ++c.dispatches;
     c.barriers += d.barrierBefore;
   }
-  for (const auto& [stage, n] : blocks_) lastCounts_[stage].transformerBlocks += n;
+  for (const auto& [stage, blocks] : blocks_) {
+    lastCounts_[stage].transformerBlocks += blocks.transformerBlocks;
+    lastCounts_[stage].blockDispatches = std::max(lastCounts_[stage].blockDispatches, blocks.blockDispatches);
+  }
   blocks_.clear();
   if (pending_.empty()) return;
   lastCounts_[pending_.back().stage].submits = 1;

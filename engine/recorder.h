@@ -7,6 +7,7 @@
 #include <vulkan/vulkan.h>
 
 #include <cstdint>
+#include <algorithm>
 #include <map>
 #include <set>
 #include <string>
@@ -45,9 +46,11 @@ struct StageCounts {
   uint64_t dispatches = 0;
   uint64_t barriers = 0;           // pipeline barriers recorded before dispatches
   uint64_t submits = 0;            // submissions the host waited for
-  uint64_t transformerBlocks = 0;  // transformer blocks recorded (noteTransformerBlock)
+  uint64_t transformerBlocks = 0;  // transformer blocks recorded (TransformerBlockCount)
+  uint64_t blockDispatches = 0;    // the most dispatches one of them took
   StageCounts& operator+=(const StageCounts& o) {
     dispatches += o.dispatches, barriers += o.barriers, submits += o.submits, transformerBlocks += o.transformerBlocks;
+    blockDispatches = std::max(blockDispatches, o.blockDispatches);
     return *this;
   }
 };
@@ -76,9 +79,9 @@ class Recorder {
   void run();
 
   size_t pending() const { return pending_.size(); }
-  // A transformer block was recorded in the current stage (model/transformer_block.cpp): the
-  // blocks a stage runs, beside its dispatches, say how many dispatches a block takes.
-  void noteTransformerBlock() { ++blocks_[stage_]; }
+  // A transformer block of `dispatches` dispatches was recorded in the current stage
+  // (TransformerBlockCount, below): a stage's blocks and the most dispatches one took.
+  void noteTransformerBlock(uint64_t dispatches);
   // Per stage, what the last run() submitted: dispatches, barriers, transformer blocks, and the
   // one submission it waited for (counted for the last stage of the batch).
   const std::map<std::string, StageCounts>& lastRunCounts() const { return lastCounts_; }
@@ -140,9 +143,23 @@ class Recorder {
   uint32_t queriesUsed_ = 0;
   std::string stage_;
   std::vector<DispatchTiming> timings_;
-  std::map<std::string, uint64_t> blocks_;  // noteTransformerBlock() since the last run()
+  std::map<std::string, StageCounts> blocks_;  // noteTransformerBlock() since the last run(): blocks, most dispatches
   std::map<std::string, StageCounts> lastCounts_;
   std::vector<std::string> lastStages_;
+};
+
+// Counts the dispatches recorded while it lives as one transformer block of the recorder's
+// stage (model/transformer_block.cpp, model/sam2_hiera_block.cpp).
+class TransformerBlockCount {
+ public:
+  explicit TransformerBlockCount(Recorder& rec) : rec_(rec), start_(rec.pending()) {}
+  ~TransformerBlockCount() { rec_.noteTransformerBlock(rec_.pending() - start_); }
+  TransformerBlockCount(const TransformerBlockCount&) = delete;
+  TransformerBlockCount& operator=(const TransformerBlockCount&) = delete;
+
+ private:
+  Recorder& rec_;
+  size_t start_;
 };
 
 }  // namespace spar

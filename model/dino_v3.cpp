@@ -225,10 +225,8 @@ void DinoV3::forward(Recorder& rec, const Tensor& images, const Tensor& tokens, 
   linear(rec, b.patches, patchWeight_, patchBias_, b.embedded);
   concat(rec, {b.prefix, b.embedded}, b.x, 1);
 
-  const RopeHook rope = [&tables, P](Recorder& r, const Tensor& qkv, int64_t heads, int64_t headDim) {
-    spar::rope(r, qkv, heads, headDim, P, tables.sin, tables.cos);
-  };
-  forwardBlocks(rec, blocks_, b.x, ws, rope);
+  const BlockRope rope{tables.sin, tables.cos, P};
+  forwardBlocks(rec, blocks_, b.x, ws, &rope);
 
   // LayerNorm is per token: normalize only the patch tokens, in the output.
   slice(rec, b.x, 1, P, n, tokens);

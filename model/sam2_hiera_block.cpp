@@ -14,7 +14,7 @@ namespace spar {
 
 void sam2HieraBlock(Recorder& rec, const Sam2BlockSpec& s, const WeightLookup& weights, const std::string& prefix,
                     const Tensor& x, const Tensor& y) {
-  rec.noteTransformerBlock();
+  const TransformerBlockCount count(rec);
   const std::string op = "sam2HieraBlock " + prefix;
   Engine& engine = rec.engine();
   if (s.dim <= 0 || s.dimOut <= 0 || s.heads <= 0 || s.dimOut % s.heads || s.window < 0)

@@ -71,6 +71,7 @@ void SparPipeline::recordStageTime(const std::string& name, double gpuMs, double
   it->barriers += counts.barriers;
   it->submits += counts.submits;
   it->transformerBlocks += counts.transformerBlocks;
+  it->blockDispatches = std::max(it->blockDispatches, counts.blockDispatches);
 }
 
 // A submission's times per stage. GPU and build times come from the timestamps of each stage's

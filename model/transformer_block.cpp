@@ -215,27 +215,25 @@ TransformerBlock::TransformerBlock(Engine& engine, const TransformerBlockOptions
 }
 
 void TransformerBlock::forward(Recorder& rec, const Tensor& x, const TransformerWorkspace& ws,
-                               const RopeHook& rope) const {
+                               const BlockRope* rope) const {
   const int64_t D = o_.dim, H = hiddenRow_, heads = o_.heads(), dh = o_.headDim;
   if (x.rank() != 3 || x.dim(2) != D || x.dtype() != DType::F32)
     throw Error(std::string(kWhat) + ": x must be f32 [B, N, " + std::to_string(D) + "], got " + x.describe());
   const int64_t B = x.dim(0), N = x.dim(1);
   if (B * N == 0) return;
-  rec.noteTransformerBlock();
+  const TransformerBlockCount count(rec);
   const Tensor norm = ws.norm(B, N, D), attn = ws.attn(B, N, D), qkv = ws.qkv(B, N, D), hidden = ws.hidden(B, N, H);
 
-  // Attention branch: qkv = to_qkv(norm1(x)); q, k RMS-normed per head in place; heads read
-  // straight out of the fused qkv tensor.
+  // Attention branch: qkv = to_qkv(norm1(x)); heads read straight out of the fused qkv tensor,
+  // q and k RMS-normed per head (q_norm, k_norm) and rotated (RoPE) as the kernel reads them.
   layerNorm(rec, x, norm1W_, norm1B_, norm, o_.lnEps);
   linear(rec, norm, qkvW_, qkvB_, qkv);
-  if (o_.qkNorm) {  // the q heads (columns 0..D) with q_norm, the k heads (D..2D) with k_norm
-    const Tensor rows = qkv.reshape({B * N, 3 * D});
-    rmsNormHeads(rec, rows, 0, rows, 0, 2 * heads, qkNormW_, o_.qkNormEps);
-  }
-  if (rope) rope(rec, qkv, heads, dh);
+  QkPrep prep;
+  if (o_.qkNorm) prep.normWeight = qkNormW_, prep.normEps = o_.qkNormEps;
+  if (rope) prep.ropeSin = rope->sin, prep.ropeCos = rope->cos, prep.ropePrefix = rope->prefix;
   // a block with fp16 weights (--precision fp16) may round q, k, v to fp16 for cooperative matrices
   attention(rec, {qkv, 0}, {qkv, D}, {qkv, 2 * D}, {attn, 0}, int(heads), int(dh), o_.causal, 0.0f,
-            qkvW_.dtype() == DType::F16);
+            qkvW_.dtype() == DType::F16, prep);
   // x += fc(attn) (times the layer scale where the block has one): the residual add, and the
   // scale, fused into the GEMM
   linear(rec, attn, fcW_, fcB_, x, Activation::None, /*accumulate=*/true);
@@ -247,7 +245,7 @@ void TransformerBlock::forward(Recorder& rec, const Tensor& x, const Transformer
 }
 
 void forwardBlocks(Recorder& rec, const std::vector<TransformerBlock>& blocks, const Tensor& x,
-                   const TransformerWorkspace& ws, const RopeHook& rope) {
+                   const TransformerWorkspace& ws, const BlockRope* rope) {
   for (const TransformerBlock& b : blocks) b.forward(rec, x, ws, rope);
 }
 

@@ -73,10 +73,13 @@ struct WeightLookup {
   explicit operator bool() const { return bool(find); }
 };
 
-// RoPE hook point: called after QK-norm with the fused qkv tensor [B, N, 3D]; must rotate q
-// (columns [0, D)) and k (columns [D, 2D)) in place by recording dispatches. None of SPAR's own
-// stacks uses it; the DINOv3 backbone will supply one.
-using RopeHook = std::function<void(Recorder& rec, const Tensor& qkv, int64_t heads, int64_t headDim)>;
+// Rotary position embedding of the q and k heads, after their norm (DINOv3's blocks; none of
+// SPAR's own stacks): rope()'s tables and prefix (engine/ops/rope.h), applied by the attention
+// kernel as it reads the heads (engine/ops/attention.h, QkPrep).
+struct BlockRope {
+  Tensor sin, cos;  // f32 [N - prefix, headDim]
+  int64_t prefix = 0;
+};
 
 // Scratch activations shared by every block of every stack (plan memory once, reuse across
 // layers). reserve() allocates only when the request exceeds what is already held, so one
@@ -118,7 +121,9 @@ class TransformerBlock {
   static std::vector<std::string> weightNames(const TransformerBlockOptions& options);
 
   // x: [B, N, D] f32, updated in place. ws must have been reserved for B * N tokens.
-  void forward(Recorder& rec, const Tensor& x, const TransformerWorkspace& ws, const RopeHook& rope = {}) const;
+  // A block is 7 dispatches (layerNorm, qkv, attention with the q / k norm and RoPE, fc with its
+  // residual add and layer scale, layerNorm, mlp.0 with its activation, mlp.2 likewise).
+  void forward(Recorder& rec, const Tensor& x, const TransformerWorkspace& ws, const BlockRope* rope = nullptr) const;
 
   const TransformerBlockOptions& options() const { return o_; }
   // The MLP's hidden row as laid out on the device: options().hidden(), or wider by
@@ -135,6 +140,6 @@ class TransformerBlock {
 
 // Runs blocks one after the other on x (a stack without its final norm).
 void forwardBlocks(Recorder& rec, const std::vector<TransformerBlock>& blocks, const Tensor& x,
-                   const TransformerWorkspace& ws, const RopeHook& rope = {});
+                   const TransformerWorkspace& ws, const BlockRope* rope = nullptr);
 
 }  // namespace spar

@@ -508,12 +508,14 @@ PYBIND11_MODULE(spar, m) {
                                   py::arg("build_ms") = t.buildMs, py::arg("device_bytes_after") = t.deviceBytesAfter,
                                   py::arg("device_peak_bytes") = t.devicePeakBytes, py::arg("dispatches") = t.dispatches,
                                   py::arg("barriers") = t.barriers, py::arg("submits") = t.submits,
-                                  py::arg("transformer_blocks") = t.transformerBlocks));
+                                  py::arg("transformer_blocks") = t.transformerBlocks,
+                                  py::arg("block_dispatches") = t.blockDispatches));
             return out;
           },
           "The stages that ran since the session was made: name, gpu_ms (compute), build_ms (the driver's "
           "kernel builds), wall_ms, device_bytes_after (device memory in use when it ended), device_peak_bytes "
-          "(the peak so far), dispatches, barriers, submits (host waits), transformer_blocks.")
+          "(the peak so far), dispatches, barriers, submits (host waits), transformer_blocks, block_dispatches (the "
+          "most dispatches one transformer block took).")
       .def(
           "close",
           [](SessionBox& s) {

@@ -13,10 +13,20 @@
 // and they share each block's keys: lane l fetches the k and v texels of keys l, LANES + l, ...
 // and every lane takes a key's values from its lane by a shuffle, so one fetch serves LANES keys
 // (on llvmpipe a texel fetch is a call that spills every register: shaders/gemm.comp).
+//
+// QK_NORM / QK_ROPE (shaders/attention_prep.glsl): the QPI query heads are prepared once into
+// registers; each lane weights and rotates the k texels it fetches (its own keys) and sums their
+// squares, and every score is multiplied by its key's 1 / rms at the end of the block. With
+// RoPE the channels go in pairs (texels u and u + DH / 8), so a lane fetches no more texels
+// than without it: the q texels it no longer fetches per block pay for the tables.
 //! variant attention_f32 OUT_F16=0
 //! variant attention_f16out OUT_F16=1
 //! variant attention_sk_f32 OUT_F16=0 SHARED_KEYS=1
 //! variant attention_sk_f16out OUT_F16=1 SHARED_KEYS=1
+//! variant attention_prep_f32 OUT_F16=0 QK_PREP_BINDINGS=1
+//! variant attention_prep_f16out OUT_F16=1 QK_PREP_BINDINGS=1
+//! variant attention_sk_prep_f32 OUT_F16=0 SHARED_KEYS=1 QK_PREP_BINDINGS=1
+//! variant attention_sk_prep_f16out OUT_F16=1 SHARED_KEYS=1 QK_PREP_BINDINGS=1
 #extension GL_GOOGLE_include_directive : require
 #ifndef SHARED_KEYS
 #define SHARED_KEYS 0
@@ -44,7 +54,10 @@ layout(push_constant) uniform Push {
   int qOff, kOff, vOff, oOff;              // column of head 0 in elements
   int qBatch, kBatch, vBatch, oBatch;      // batch strides in elements
   float scaleLog2;                         // softmax scale times log2(e)
+  float qkEps;                             // QK_NORM's epsilon
+  int ropePrefix;                          // QK_ROPE: leading tokens left unrotated
 } p;
+#include "attention_prep.glsl"
 
 const float kNegLarge = -3.4028235e38 / 2.0;
 
@@ -75,6 +88,17 @@ void main() {
   const int kBase = (b * p.kBatch + p.kOff + head * DH) / 4, kRow = p.kStride / 4;
   const int vBase = (b * p.vBatch + p.vOff + head * DH) / 4, vRow = p.vStride / 4;
 
+  // QK_PREP: the queries' heads, normed and rotated once
+  vec4 qp[QK_PREP ? QPI * (DH / 4) : 1];
+  if (QK_PREP) {
+    [[unroll]] for (int i = 0; i < QPI; ++i) {
+      vec4 head[DH / 4];
+      [[unroll]] for (int u = 0; u < DH / 4; ++u) head[u] = fetch_Q(qTexel[i] + u);
+      QK_PREP_HEAD(head, 0, min(q0 + i, p.Nq - 1))
+      [[unroll]] for (int u = 0; u < DH / 4; ++u) qp[i * (DH / 4) + u] = head[u];
+    }
+  }
+
   float runMax[QPI], runSum[QPI], acc[QPI * DH];
   [[unroll]] for (int i = 0; i < QPI; ++i) { runMax[i] = kNegLarge; runSum[i] = 0.0; }
   [[unroll]] for (int i = 0; i < QPI * DH; ++i) acc[i] = 0.0;
@@ -92,6 +116,50 @@ void main() {
     // QPI x KB dot-product steps.
     float s[QPI * KB];
     [[unroll]] for (int i = 0; i < QPI * KB; ++i) s[i] = 0.0;
+    if (QK_PREP) {
+      // Texels u (and, with RoPE, u + DH / 8) of the lane's own keys, weighted and rotated; the
+      // keys' sums of squares (QK_NORM) scale the scores below.
+      const int units = QK_ROPE ? DH / 8 : DH / 4, h = DH / 8;
+      float kss[KT];
+      [[unroll]] for (int t = 0; t < KT; ++t) kss[t] = 0.0;
+      for (int u = 0; u < units; ++u) {
+        const vec4 wa = qk_weight(1, u), wb = QK_ROPE ? qk_weight(1, u + h) : vec4(1.0);
+        vec4 ka[KT], kb2[KT];
+        [[unroll]] for (int t = 0; t < KT; ++t) {
+          ka[t] = fetch_K(kTexel[t] + u);
+          kss[t] += dot(ka[t], ka[t]);
+          ka[t] *= wa;
+          if (QK_ROPE) {
+            kb2[t] = fetch_K(kTexel[t] + u + h);
+            kss[t] += dot(kb2[t], kb2[t]);
+            kb2[t] *= wb;
+            qk_rotate(ka[t], kb2[t], min(kb + KEY_OF(t), p.Nk - 1), u);
+          }
+        }
+        [[unroll]] for (int j = 0; j < KB; ++j) {
+          const vec4 kv = KEY_TEXEL(ka, j);
+          [[unroll]] for (int i = 0; i < QPI; ++i) {
+            const vec4 qv = qp[i * (DH / 4) + u];
+            s[i * KB + j] = fma(qv.w, kv.w, fma(qv.z, kv.z, fma(qv.y, kv.y, fma(qv.x, kv.x, s[i * KB + j]))));
+          }
+          if (QK_ROPE) {
+            const vec4 kv2 = KEY_TEXEL(kb2, j);
+            [[unroll]] for (int i = 0; i < QPI; ++i) {
+              const vec4 qv = qp[i * (DH / 4) + u + h];
+              s[i * KB + j] = fma(qv.w, kv2.w, fma(qv.z, kv2.z, fma(qv.y, kv2.y, fma(qv.x, kv2.x, s[i * KB + j]))));
+            }
+          }
+        }
+      }
+      if (QK_NORM) {
+        float rk[KT];
+        [[unroll]] for (int t = 0; t < KT; ++t) rk[t] = qk_rstd(kss[t]);
+        [[unroll]] for (int j = 0; j < KB; ++j) {
+          const float r = KEY_TEXEL(rk, j);
+          [[unroll]] for (int i = 0; i < QPI; ++i) s[i * KB + j] *= r;
+        }
+      }
+    } else
     for (int d4 = 0; d4 < DH / 4; ++d4) {
       vec4 qv[QPI];
       [[unroll]] for (int i = 0; i < QPI; ++i) qv[i] = fetch_Q(qTexel[i] + d4);

@@ -9,9 +9,13 @@
 // all (the same address across the workgroup: a broadcast), scores its query against the
 // block, and folds it into its output with an online softmax, KC keys at a time. Same numerics as
 // attention.comp: running max from -FLT_MAX/2 (never -inf), masked keys contribute exactly
-// 0, guarded final division. Bindings and push constants are attention.comp's.
+// 0, guarded final division. Bindings and push constants are attention.comp's. With QK_NORM /
+// QK_ROPE (shaders/attention_prep.glsl) each query's head is prepared in registers, and each
+// block's k rows in shared memory after they arrive.
 //! variant attention_tiled_f32 OUT_F16=0
 //! variant attention_tiled_f16out OUT_F16=1
+//! variant attention_tiled_prep_f32 OUT_F16=0 QK_PREP_BINDINGS=1
+//! variant attention_tiled_prep_f16out OUT_F16=1 QK_PREP_BINDINGS=1
 #extension GL_GOOGLE_include_directive : require
 #include "common.glsl"
 
@@ -31,7 +35,10 @@ layout(push_constant) uniform Push {
   int qOff, kOff, vOff, oOff;              // column of head 0 in elements
   int qBatch, kBatch, vBatch, oBatch;      // batch strides in elements
   float scaleLog2;                         // softmax scale times log2(e)
+  float qkEps;                             // QK_NORM's epsilon
+  int ropePrefix;                          // QK_ROPE: leading tokens left unrotated
 } p;
+#include "attention_prep.glsl"
 
 const float kNegLarge = -3.4028235e38 / 2.0;
 const int D4 = DH / 4;
@@ -53,6 +60,7 @@ void main() {
     qv[d] = fetch_Q(qTexel + d);
     acc[d] = vec4(0.0);
   }
+  if (QK_PREP) QK_PREP_HEAD(qv, 0, min(q, p.Nq - 1))
   const int kBase = (b * p.kBatch + p.kOff + head * DH) / 4, kRow = p.kStride / 4;
   const int vBase = (b * p.vBatch + p.vOff + head * DH) / 4, vRow = p.vStride / 4;
   float runMax = kNegLarge, runSum = 0.0;
@@ -67,6 +75,15 @@ void main() {
       blockV[i] = inside ? fetch_V(vBase + key * vRow + d) : vec4(0.0);
     }
     barrier();
+    if (QK_PREP) {  // each k row of the block normed and rotated once, by one invocation
+      for (int r = int(gl_LocalInvocationID.x); r < BKEYS && kb + r < p.Nk; r += BQ) {
+        vec4 row[D4];
+        [[unroll]] for (int d = 0; d < D4; ++d) row[d] = blockK[r * D4 + d];
+        QK_PREP_HEAD(row, 1, kb + r)
+        [[unroll]] for (int d = 0; d < D4; ++d) blockK[r * D4 + d] = row[d];
+      }
+      barrier();
+    }
     // The block in chunks of KC keys: scores in registers, then one online-softmax step per
     // chunk. Only a chunk is unrolled, so the code (and a driver's compile time: llvmpipe took
     // 30 s for a 32-key block unrolled whole) stays that of KC keys whatever BKEYS is; the

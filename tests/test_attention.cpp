@@ -36,6 +36,92 @@ INSTANTIATE_TEST_SUITE_P(Shapes, AttentionTest,
                                            AttentionCase{1, 257, 2, 64, false}, AttentionCase{2, 61, 2, 32, true},
                                            AttentionCase{1, 130, 1, 64, true}, AttentionCase{1, 1, 1, 16, false}));
 
+// The q / k preparation (QkPrep: the heads' RMS norm, then RoPE) against float64: the heads
+// normed and rotated on the host in double, then attended. In the kernel (attention.comp,
+// attention_tiled.comp) or, where the plan's kernel cannot (SwiftShader's lanes, RoPE on heads
+// not a multiple of 8 wide), by rmsNormHeads and rope() first: norm only, RoPE only after a
+// prefix of unrotated tokens, both, causal, batches, odd token counts, a head of 1e3-sized
+// values and an all-zero k head (eps 0 there: it stays 0, no NaN).
+struct PrepCase {
+  int64_t B, N;
+  int heads, dh;
+  bool causal, norm, rope;
+  int64_t prefix;
+  float eps;
+};
+
+void expectPreparedMatches(Engine& engine, const PrepCase& c, const std::string& what) {
+  const int64_t D = int64_t(c.heads) * c.dh, C = 3 * D;
+  std::vector<float> qkv = randomNormal(c.B * c.N * C, 0, 1, 31);
+  for (int64_t i = 0; i < c.dh; ++i) qkv[size_t(C + i)] *= 1e3f;              // token 1's first q head: large
+  for (int64_t i = 0; i < c.dh; ++i) qkv[size_t(2 * C + D + i)] = 0.0f;       // token 2's first k head: zero
+  const std::vector<float> w = randomUniform(2 * c.dh, 0.5f, 1.5f, 32), angles = randomUniform((c.N - c.prefix) * c.dh, -3, 3, 33);
+  std::vector<float> sines, cosines;
+  for (float a : angles) sines.push_back(std::sin(a)), cosines.push_back(std::cos(a));
+  std::vector<double> prepared(qkv.begin(), qkv.end());
+  for (int64_t row = 0; row < c.B * c.N; ++row)
+    for (int64_t h = 0; h < 2 * c.heads; ++h) {
+      double* x = &prepared[size_t(row * C + h * c.dh)];
+      const bool isK = h >= c.heads;
+      if (c.norm) {
+        double ss = 0;
+        for (int64_t d = 0; d < c.dh; ++d) ss += x[d] * x[d];
+        const double ms = ss / c.dh + c.eps, r = ms > 0 ? 1.0 / std::sqrt(ms) : 0.0;
+        for (int64_t d = 0; d < c.dh; ++d) x[d] *= r * w[size_t((isK ? c.dh : 0) + d)];
+      }
+      const int64_t t = row % c.N;
+      if (c.rope && t >= c.prefix) {
+        const size_t tr = size_t((t - c.prefix) * c.dh);
+        for (int64_t j = 0; j < c.dh / 2; ++j) {
+          const double a = x[j], b = x[j + c.dh / 2];
+          x[j] = a * cosines[tr + j] - b * sines[tr + j];
+          x[j + c.dh / 2] = b * cosines[tr + j + c.dh / 2] + a * sines[tr + j + c.dh / 2];
+        }
+      }
+    }
+  const std::vector<float> preparedF(prepared.begin(), prepared.end());
+  const auto ref = attentionRef(preparedF, C, 0, preparedF, C, D, preparedF, C, 2 * D, c.B, c.N, c.N, c.heads, c.dh,
+                                c.causal, 1.0 / std::sqrt(double(c.dh)));
+  const Tensor t = engine.fromFloats({c.B, c.N, C}, qkv);
+  QkPrep prep;
+  if (c.norm) prep.normWeight = engine.fromFloats({2, c.dh}, w), prep.normEps = c.eps;
+  if (c.rope) {
+    prep.ropeSin = engine.fromFloats({c.N - c.prefix, c.dh}, sines);
+    prep.ropeCos = engine.fromFloats({c.N - c.prefix, c.dh}, cosines);
+    prep.ropePrefix = c.prefix;
+  }
+  GuardedOutput out(engine, {c.B, c.N, D});
+  Recorder rec(engine);
+  attention(rec, {t, 0}, {t, D}, {t, 2 * D}, {out.tensor(), 0}, c.heads, c.dh, c.causal, 0.0f, false, prep);
+  rec.run();
+  expectClose(out.read(), ref, 1e-9, 1e-4, what);
+  out.expectAllWritten();
+  if (preparesInKernel(engine, c.dh, prep)) EXPECT_EQ(rec.lastRunTotal().dispatches, 1u) << what << ": the preparation ran apart";
+}
+
+TEST_F(EngineTest, AttentionPreparesQAndKAsTheOpsWould) {
+  for (const PrepCase c : {PrepCase{2, 61, 2, 32, false, true, false, 0, 1e-6f}, PrepCase{1, 37, 1, 64, true, true, false, 0, 0.0f},
+                           PrepCase{2, 37, 2, 64, false, false, true, 5, 1e-6f}, PrepCase{1, 9, 3, 16, true, true, true, 1, 1e-5f},
+                           PrepCase{1, 13, 2, 12, false, true, true, 3, 1e-6f}}) {
+    const std::string what = std::string(c.norm ? "norm " : "") + (c.rope ? "rope " : "") + "N " + std::to_string(c.N) +
+                             ", dh " + std::to_string(c.dh) + (c.causal ? ", causal" : "");
+    expectPreparedMatches(eng(), c, what);
+  }
+  withLanesKernelsForced(eng(), [&](const std::string& inputs) {
+    expectPreparedMatches(eng(), {2, 9, 2, 16, false, true, true, 2, 1e-6f}, "lanes, " + inputs + " inputs, norm rope");
+  });
+  // q and k not in one fused tensor, or tables of the wrong size: refused
+  const Tensor q = eng().tensor({1, 8, 16}), qkv = eng().tensor({1, 8, 48}), out = eng().tensor({1, 8, 16});
+  QkPrep norm;
+  norm.normWeight = eng().tensor({2, 16});
+  Recorder rec(eng());
+  EXPECT_THROW(attention(rec, {q, 0}, {q, 0}, {q, 0}, {out, 0}, 1, 16, false, 0.0f, false, norm), Error);
+  QkPrep rope;
+  rope.ropeSin = rope.ropeCos = eng().tensor({8, 16});
+  rope.ropePrefix = 1;  // 7 rows wanted
+  EXPECT_THROW(attention(rec, {qkv, 0}, {qkv, 16}, {qkv, 32}, {out, 0}, 1, 16, false, 0.0f, false, rope), Error);
+}
+
 // Cross attention: separate q, k, v tensors, fewer queries than keys, k's heads at column 4,
 // output written into a column slice of a wider tensor.
 void expectCrossAttentionMatches(Engine& engine, const std::string& what) {

@@ -88,12 +88,17 @@ TEST(spar_bench_model, EveryStageCountsItsCommands) {
   }
   EXPECT_EQ(submits, 2) << doc["stages"].dump();
   EXPECT_LE(submits, 3);  // the GPU-speed issue's bar
-  for (const char* name : {"pose_estimator", "dino_v3", "scene_encoder", "renderer"}) {
+  // A transformer block is at most 7 dispatches in every stage made of them (the GPU-speed
+  // bar): SPAR's blocks with their q / k norm, DINOv3's with RoPE and layer scales.
+  for (const char* name : {"pose_estimator", "dino_v3", "cv_drp", "scene_encoder", "renderer"}) {
     const int64_t blocks = stage[name]["transformer_blocks"].get<int64_t>();
     EXPECT_GE(blocks, 1) << name;
     EXPECT_GT(stage[name]["dispatches"].get<int64_t>(), blocks) << name;
+    EXPECT_GE(stage[name]["block_dispatches"].get<int64_t>(), 5) << name;
+    EXPECT_LE(stage[name]["block_dispatches"].get<int64_t>(), 7) << name;
   }
   EXPECT_EQ(stage["image_tokens"]["transformer_blocks"].get<int64_t>(), 0);
+  EXPECT_EQ(stage["image_tokens"]["block_dispatches"].get<int64_t>(), 0);
 }
 
 TEST(spar_bench_model, AssumeStaticLeavesOutDinoAndCvDrp) {

@@ -7,6 +7,7 @@
 #include <map>
 #include <set>
 
+#include "engine/ops/attention.h"
 #include "engine/ops/row_padding.h"
 #include "formats/npy.h"
 #include "model/transformer_block.h"
@@ -187,8 +188,12 @@ TEST_F(EngineTest, MlpHiddenRowsPaddedGiveTheSameBlock) {
   }
 }
 
-// The RoPE hook point: called once per block, after QK-norm, with the fused qkv [B, N, 3D].
-TEST_F(EngineTest, TransformerBlockCallsRopeHook) {
+// A block is at most 7 dispatches (the GPU-speed bar), with the q / k norm and with RoPE: the
+// norm and the rotation happen inside the attention kernel (engine/ops/attention.h, QkPrep;
+// where the device's kernel cannot, SwiftShader's, they are one dispatch each before it).
+// RoPE changes the block's output (the tables reach the kernel); that it rotates exactly as
+// rope() would: test_attention's AttentionPreparesQAndKAsTheOpsWould.
+TEST_F(EngineTest, TransformerBlockIsSevenDispatchesWithNormAndRope) {
   const auto opts = TransformerBlockOptions::spar(kD, kHeadDim);
   std::map<std::string, Tensor> w;
   uint32_t seed = 50;
@@ -206,22 +211,38 @@ TEST_F(EngineTest, TransformerBlockCallsRopeHook) {
     }
     return w.at(k);
   };
-  std::vector<TransformerBlock> blocks;
-  for (int i = 0; i < 2; ++i) blocks.emplace_back(eng(), opts, lookup);
-  Tensor x = eng().fromFloats({kB, kN, kD}, randomNormal(kB * kN * kD, 0, 1, 60));
+  const TransformerBlock block(eng(), opts, lookup);
+  const std::vector<float> x0 = randomNormal(kB * kN * kD, 0, 1, 60);
+  const int64_t prefix = 2;
+  std::vector<float> angles = randomUniform((kN - prefix) * kHeadDim, -3, 3, 61), sines, cosines;
+  for (float a : angles) sines.push_back(std::sin(a)), cosines.push_back(std::cos(a));
+  const BlockRope rope{eng().fromFloats({kN - prefix, kHeadDim}, sines), eng().fromFloats({kN - prefix, kHeadDim}, cosines),
+                       prefix};
   TransformerWorkspace ws;
   ws.reserve(eng(), kB * kN, opts);
-  int calls = 0;
-  Recorder rec(eng());
-  forwardBlocks(rec, blocks, x, ws, [&](Recorder&, const Tensor& qkv, int64_t heads, int64_t headDim) {
-    ++calls;
-    EXPECT_EQ(qkv.shape(), (Shape{kB, kN, 3 * kD}));
-    EXPECT_EQ(heads, kD / kHeadDim);
-    EXPECT_EQ(headDim, kHeadDim);
-  });
-  rec.run();
-  EXPECT_EQ(calls, 2);
-  for (float v : eng().download(x)) ASSERT_TRUE(std::isfinite(v));
+  auto run = [&](const BlockRope* r) {
+    const Tensor x = eng().fromFloats({kB, kN, kD}, x0);
+    Recorder rec(eng());
+    rec.setStage("blocks");
+    block.forward(rec, x, ws, r);
+    rec.run();
+    const StageCounts c = rec.lastRunCounts().at("blocks");
+    EXPECT_EQ(c.transformerBlocks, 1u);
+    QkPrep prep;  // what the block asks attention for
+    prep.normWeight = eng().tensor({2, kHeadDim});
+    if (r) prep.ropeSin = r->sin;
+    const uint64_t apart = preparesInKernel(eng(), int(kHeadDim), prep) ? 0 : (r ? 2 : 1);
+    EXPECT_LE(c.blockDispatches, 7u + apart) << (r ? "with RoPE" : "without RoPE");
+    EXPECT_EQ(c.blockDispatches, c.dispatches);
+    return eng().download(x);
+  };
+  const std::vector<float> plain = run(nullptr), rotated = run(&rope);
+  double changed = 0;
+  for (size_t i = 0; i < plain.size(); ++i) {
+    ASSERT_TRUE(std::isfinite(rotated[i]));
+    changed = std::max(changed, double(std::abs(plain[i] - rotated[i])));
+  }
+  EXPECT_GT(changed, 1e-3);
 }
 
 // Missing and misshapen weights are reported with their full key.

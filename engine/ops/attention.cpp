@@ -8,6 +8,8 @@
 #include "engine/engine.h"
 #include "spar/error.h"
 #include "engine/ops/cpu_tiles.h"
+#include "engine/ops/norm.h"
+#include "engine/ops/rope.h"
 
 namespace spar {
 namespace {
@@ -18,7 +20,52 @@ struct AttentionPush {
   int32_t qOff, kOff, vOff, oOff;
   int32_t qBatch, kBatch, vBatch, oBatch;
   float scaleLog2;
+  float qkEps = 0;         // attention_prep.glsl (attention.comp, attention_tiled.comp only)
+  int32_t ropePrefix = 0;
 };
+
+// attention_prep.glsl's QK_NORM and QK_ROPE (specialization constants 12 and 13).
+constexpr size_t kQkNormId = 12, kQkRopeId = 13;
+void withPrep(std::vector<int32_t>& constants, const QkPrep& prep) {
+  if (!prep.any()) return;
+  if (constants.size() <= kQkRopeId) constants.resize(kQkRopeId + 1, 0);
+  constants[kQkNormId] = prep.normWeight.defined();
+  constants[kQkRopeId] = prep.ropeSin.defined();
+}
+
+// The bindings of a kernel with attention_prep.glsl: q, k, v, out, then the norm weight and the
+// RoPE tables (q where unused: never read).
+std::vector<Bind> prepBinds() {
+  return {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write, Bind::Texel, Bind::Texel, Bind::Texel};
+}
+std::vector<Arg> prepArgs(const std::vector<Arg>& args, const QkPrep& prep, const Tensor& q) {
+  std::vector<Arg> all = args;
+  all.push_back(Arg::texel(prep.normWeight.defined() ? prep.normWeight : q, 4));
+  all.push_back(Arg::texel(prep.ropeSin.defined() ? prep.ropeSin : q, 4));
+  all.push_back(Arg::texel(prep.ropeCos.defined() ? prep.ropeCos : q, 4));
+  return all;
+}
+
+// The prep's tensors against the fused qkv layout it needs; throws where they do not fit.
+void checkPrep(const QkPrep& prep, const HeadsView& q, const HeadsView& k, int heads, int headDim, bool causal) {
+  const Tensor& t = q.tensor;
+  const bool fused = t.bufferPtr() == k.tensor.bufferPtr() && t.byteOffset() == k.tensor.byteOffset() &&
+                     t.shape() == k.tensor.shape() && t.rank() == 3 && q.column == 0 &&
+                     k.column == int64_t(heads) * headDim && t.dtype() == DType::F32;
+  if (!fused) throw Error("attention: q / k preparation needs q and k in one f32 [B, N, C] qkv tensor (q at 0, k at D)");
+  (void)causal;
+  if (prep.normWeight.defined() &&
+      (prep.normWeight.shape() != Shape{2, headDim} || prep.normWeight.dtype() != DType::F32))
+    throw Error("attention: the q / k norm weight must be f32 [2, " + std::to_string(headDim) + "], got " +
+                prep.normWeight.describe());
+  if (prep.ropeSin.defined() != prep.ropeCos.defined()) throw Error("attention: RoPE needs both tables");
+  if (prep.ropeSin.defined()) {
+    const Shape want{t.dim(1) - prep.ropePrefix, headDim};
+    if (prep.ropePrefix < 0 || headDim % 2 || prep.ropeSin.shape() != want || prep.ropeCos.shape() != want ||
+        prep.ropeSin.dtype() != DType::F32 || prep.ropeCos.dtype() != DType::F32)
+      throw Error("attention: RoPE tables must be f32 " + shapeString(want) + ", got " + prep.ropeSin.describe());
+  }
+}
 
 struct Geometry {
   int64_t batch, rows, cols;
@@ -59,10 +106,31 @@ const Kernel* coopMatKernel(Engine& engine, const KernelPlan& plan, int headDim,
   return nullptr;
 }
 
+// The q / k preparation as its own ops, in place in the fused qkv tensor (the kernels without
+// attention_prep.glsl).
+void prepareInPlace(Recorder& rec, const Tensor& qkv, int heads, int headDim, const QkPrep& prep) {
+  if (prep.normWeight.defined()) {
+    const Tensor rows = qkv.reshape({qkv.dim(0) * qkv.dim(1), qkv.dim(2)});
+    rmsNormHeads(rec, rows, 0, rows, 0, 2 * int64_t(heads), prep.normWeight, prep.normEps);
+  }
+  if (prep.ropeSin.defined()) rope(rec, qkv, heads, headDim, prep.ropePrefix, prep.ropeSin, prep.ropeCos);
+}
+
 }  // namespace
 
+bool preparesInKernel(Engine& engine, int headDim, const QkPrep& prep, bool coopMat) {
+  const KernelPlan& plan = engine.plan();
+  const DeviceCaps& caps = engine.caps();
+  const bool splitDim = plan.attention == KernelFamily::CpuBlocks && plan.attentionLanesSplitDim &&
+                        headDim % int(caps.subgroupSize) == 0;
+  // attention_prep.glsl's 7 bindings are storage buffers where the plan reads inputs so (a
+  // device may allow 4 a kernel); it pairs texels u and u + headDim / 8 for RoPE.
+  const bool fits = plan.storageInputs ? caps.maxPerStageStorageBuffers >= 7 : caps.maxPerStageSampledImages >= 6;
+  return !coopMat && !splitDim && fits && (!prep.ropeSin.defined() || headDim % 8 == 0);
+}
+
 void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const HeadsView& v, const HeadsView& out,
-               int heads, int headDim, bool causal, float scale, bool fp16Layer) {
+               int heads, int headDim, bool causal, float scale, bool fp16Layer, const QkPrep& prep) {
   Engine& engine = rec.engine();
   if (heads <= 0 || headDim <= 0 || headDim % 4 != 0)
     throw Error("attention: head dimension must be a positive multiple of 4, got " + std::to_string(headDim));
@@ -75,6 +143,7 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
     if (g->cols % 4) throw Error("attention: q, k, v row lengths must be multiples of 4");
   if (q.column % 4 || k.column % 4 || v.column % 4) throw Error("attention: head columns must be multiples of 4");
   if (out.tensor.dtype() == DType::I32) throw Error("attention: integer output");
+  if (prep.any()) checkPrep(prep, q, k, heads, headDim, causal);
   if (gq.rows == 0 || gk.rows == 0) return;
   if (out.tensor.bytes() > engine.device().bindingRangeLimit())
     throw Error("attention: output " + out.tensor.describe() + " exceeds the device's storage binding range");
@@ -84,7 +153,8 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
                      int32_t(gq.cols), int32_t(gk.cols), int32_t(gv.cols), int32_t(go.cols),
                      int32_t(q.column), int32_t(k.column), int32_t(v.column), int32_t(out.column),
                      int32_t(gq.rows * gq.cols), int32_t(gk.rows * gk.cols), int32_t(gv.rows * gv.cols),
-                     int32_t(go.rows * go.cols), s * 1.4426950408889634f};
+                     int32_t(go.rows * go.cols), s * 1.4426950408889634f, prep.normEps,
+                     int32_t(prep.ropePrefix)};
   const std::vector<Arg> args = {Arg::texel(q.tensor, 4), Arg::texel(k.tensor, 4), Arg::texel(v.tensor, 4),
                                  Arg::out(out.tensor)};
   const bool f16Out = out.tensor.dtype() == DType::F16;
@@ -92,7 +162,24 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   const KernelPlan& plan = engine.plan();
   const bool halfInputs = q.tensor.dtype() == DType::F16 && k.tensor.dtype() == DType::F16 &&
                           v.tensor.dtype() == DType::F16;
-  if (plan.attentionF16 == KernelFamily::CoopMat && (fp16Layer || halfInputs)) {
+  const int lanes = int(engine.caps().subgroupSize);
+  const bool fp32Inputs = q.tensor.dtype() == DType::F32 && k.tensor.dtype() == DType::F32 &&
+                          v.tensor.dtype() == DType::F32;
+  const bool coopMat = plan.attentionF16 == KernelFamily::CoopMat && (fp16Layer || halfInputs) &&
+                       coopMatKernel(engine, plan, headDim, causal, f16Out) != nullptr;
+  const bool splitDim = plan.attention == KernelFamily::CpuBlocks && plan.attentionLanesSplitDim && fp32Inputs &&
+                        headDim % lanes == 0;
+  if (prep.any() && !preparesInKernel(engine, headDim, prep, coopMat)) {
+    prepareInPlace(rec, q.tensor, heads, headDim, prep);
+    attention(rec, q, k, v, out, heads, headDim, causal, scale, fp16Layer);
+    return;
+  }
+  // The *_prep variants of attention.comp and attention_tiled.comp have the prep's bindings.
+  const std::vector<Bind> binds =
+      prep.any() ? prepBinds() : std::vector<Bind>{Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write};
+  const std::vector<Arg> boundArgs = prep.any() ? prepArgs(args, prep, q.tensor) : args;
+  const std::string prepSuffix = prep.any() ? "_prep" : "";
+  if (coopMat) {
     if (const Kernel* kernel = coopMatKernel(engine, plan, headDim, causal, f16Out)) {
       const uint32_t queries = uint32_t(kernel->spec.constants[4]) * uint32_t(plan.coop.m);
       rec.dispatch(*kernel, args, push, static_cast<uint32_t>((gq.rows + queries - 1) / queries),
@@ -107,11 +194,11 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
     int keys = plan.attentionKeys;
     // (a multiple of 4: the shader's chunks of 4 or 8 keys divide the block)
     while (keys > 4 && uint64_t(keys) * headDim * 8 > engine.caps().maxSharedMemory) keys = std::max(4, keys / 8 * 4);
-    const Kernel& kernel = engine.kernel({f16Out ? "attention_tiled_f16out" : "attention_tiled_f32",
-                                          {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                                          sizeof(AttentionPush),
-                                          {queries, 1, 1, headDim, keys, causal ? 1 : 0}});
-    rec.dispatch(kernel, args, push, static_cast<uint32_t>((gq.rows + queries - 1) / queries),
+    std::vector<int32_t> constants = {queries, 1, 1, headDim, keys, causal ? 1 : 0};
+    withPrep(constants, prep);
+    const Kernel& kernel = engine.kernel({"attention_tiled" + prepSuffix + (f16Out ? "_f16out" : "_f32"), binds,
+                                          sizeof(AttentionPush), constants});
+    rec.dispatch(kernel, boundArgs, push, static_cast<uint32_t>((gq.rows + queries - 1) / queries),
                  static_cast<uint32_t>(heads), static_cast<uint32_t>(gq.batch));
     return;
   }
@@ -123,10 +210,7 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   // 2 x 4 blocks; the demo request's attention 1.57 -> 1.33 s. 2 x 4 with 4 subgroups and 1 x 4
   // with 2 or 4 ran within 10 % of it (1,4,x slower); 4 x 4, 2 x 8 and 4 x 8 ran out of memory
   // compiling (8 GB).
-  const int lanes = int(engine.caps().subgroupSize);
-  const bool fp32Inputs = q.tensor.dtype() == DType::F32 && k.tensor.dtype() == DType::F32 &&
-                          v.tensor.dtype() == DType::F32;
-  if (plan.attention == KernelFamily::CpuBlocks && plan.attentionLanesSplitDim && fp32Inputs && headDim % lanes == 0) {
+  if (splitDim) {
     const int queries = 2, keys = 4, subgroups = 2;
     const Kernel& kernel = engine.kernel({f16Out ? "attention_lanes_f16out" : "attention_lanes_f32",
                                           {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
@@ -166,15 +250,13 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   }
   // llvmpipe: the workgroup's lanes share each block's keys (attention.comp's SHARED_KEYS).
   const bool sharedKeys = cpu && plan.attentionSharedKeys && keysPerBlock % localX == 0;
-  const std::string name = std::string(sharedKeys ? "attention_sk" : "attention") + (f16Out ? "_f16out" : "_f32");
-  const Kernel& kernel = engine.kernel({name,
-                                        {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                                        sizeof(AttentionPush),
-                                        {localX, 1, 1, headDim, queriesPerInvocation, keysPerBlock, causal ? 1 : 0, localX},
-                                        sharedKeys ? uint32_t(localX) : 0u,
+  const std::string name = std::string(sharedKeys ? "attention_sk" : "attention") + prepSuffix + (f16Out ? "_f16out" : "_f32");
+  std::vector<int32_t> constants = {localX, 1, 1, headDim, queriesPerInvocation, keysPerBlock, causal ? 1 : 0, localX};
+  withPrep(constants, prep);
+  const Kernel& kernel = engine.kernel({name, binds, sizeof(AttentionPush), constants, sharedKeys ? uint32_t(localX) : 0u,
                                         frozen});
   const int64_t perGroup = int64_t(queriesPerInvocation) * localX;
-  rec.dispatch(kernel, args, push, static_cast<uint32_t>((gq.rows + perGroup - 1) / perGroup),
+  rec.dispatch(kernel, boundArgs, push, static_cast<uint32_t>((gq.rows + perGroup - 1) / perGroup),
                static_cast<uint32_t>(heads), static_cast<uint32_t>(gq.batch));
 }
 

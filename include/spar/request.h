@@ -97,12 +97,12 @@ struct Encoded {
 // other stages of its phase. Device memory: what was in use when its submission ended (weights
 // it uploaded and buffers kept for later stages included) and the peak of the run so far.
 // What it took in commands: dispatches, the pipeline barriers before them, the submissions the
-// host waited for, and the transformer blocks among them (dispatches / blocks: what a block costs).
+// host waited for, the transformer blocks among them and the most dispatches one block took.
 struct StageTime {
   std::string name;
   double gpuMs = 0, wallMs = 0, buildMs = 0;
   uint64_t deviceBytesAfter = 0, devicePeakBytes = 0;
-  uint64_t dispatches = 0, barriers = 0, submits = 0, transformerBlocks = 0;
+  uint64_t dispatches = 0, barriers = 0, submits = 0, transformerBlocks = 0, blockDispatches = 0;
 };
 
 }  // namespace spar

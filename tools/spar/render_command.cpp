@@ -301,13 +301,13 @@ std::vector<float> renderViews(const RenderArgs& a, const std::string& mode, con
 ojson stagesJson(const std::vector<StageTime>& times) {
   // gpu_ms: compute only; build_ms: the driver building kernels during the stage (first
   // dispatches on llvmpipe); wall_ms includes both and pipeline creation; dispatches, barriers,
-  // submits (host waits) and transformer blocks: what it took in commands.
+  // submits (host waits), transformer blocks and the most dispatches one took: what it took in commands.
   ojson stages = ojson::array();
   for (const auto& s : times)
     stages.push_back({{"name", s.name}, {"gpu_ms", s.gpuMs}, {"build_ms", s.buildMs}, {"wall_ms", s.wallMs},
                       {"device_bytes_after", s.deviceBytesAfter}, {"device_peak_bytes", s.devicePeakBytes},
                       {"dispatches", s.dispatches}, {"barriers", s.barriers}, {"submits", s.submits},
-                      {"transformer_blocks", s.transformerBlocks}});
+                      {"transformer_blocks", s.transformerBlocks}, {"block_dispatches", s.blockDispatches}});
   return stages;
 }
 

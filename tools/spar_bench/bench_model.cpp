@@ -102,6 +102,7 @@ TimedRuns timeRuns(Session& session, const Request& req, int repeats) {
       one.barriers = s.barriers - b.barriers;
       one.submits = s.submits - b.submits;
       one.transformerBlocks = s.transformerBlocks - b.transformerBlocks;
+      one.blockDispatches = s.blockDispatches;  // a maximum, the same every run
       sum += s.gpuMs - b.gpuMs;
     }
     t.totalGpu.push_back(sum);
@@ -117,7 +118,7 @@ nlohmann::ordered_json stagesJson(const TimedRuns& t) {
     stages.push_back({{"name", name}, {"gpu_ms", median(t.gpu.count(name) ? t.gpu.at(name) : std::vector<double>{})},
                       {"wall_ms", median(t.wall.count(name) ? t.wall.at(name) : std::vector<double>{})},
                       {"dispatches", one.dispatches}, {"barriers", one.barriers}, {"submits", one.submits},
-                      {"transformer_blocks", one.transformerBlocks}});
+                      {"transformer_blocks", one.transformerBlocks}, {"block_dispatches", one.blockDispatches}});
   }
   return stages;
 }
@@ -179,13 +180,14 @@ void printModelBench(const nlohmann::ordered_json& d) {
               d["device"].get<std::string>().c_str());
   std::printf("first run (weights, kernel creation and builds): %.1f ms wall, %.1f ms driver builds\n",
               d["first_run"]["wall_ms"].get<double>(), d["first_run"]["build_ms"].get<double>());
-  std::printf("%-20s %12s %12s %10s %9s %8s %7s   (median of %d runs)\n", "stage", "GPU ms", "wall ms", "dispatches",
-              "barriers", "submits", "blocks", d["repeats"].get<int>());
+  std::printf("%-20s %12s %12s %10s %9s %8s %7s %9s   (median of %d runs)\n", "stage", "GPU ms", "wall ms", "dispatches",
+              "barriers", "submits", "blocks", "per block", d["repeats"].get<int>());
   for (const auto& s : d["stages"])
-    std::printf("%-20s %12.3f %12.3f %10llu %9llu %8llu %7llu\n", s["name"].get<std::string>().c_str(),
+    std::printf("%-20s %12.3f %12.3f %10llu %9llu %8llu %7llu %9llu\n", s["name"].get<std::string>().c_str(),
                 s["gpu_ms"].get<double>(), s["wall_ms"].get<double>(), (unsigned long long)s["dispatches"].get<uint64_t>(),
                 (unsigned long long)s["barriers"].get<uint64_t>(), (unsigned long long)s["submits"].get<uint64_t>(),
-                (unsigned long long)s["transformer_blocks"].get<uint64_t>());
+                (unsigned long long)s["transformer_blocks"].get<uint64_t>(),
+                (unsigned long long)s["block_dispatches"].get<uint64_t>());
   std::printf("%-20s %12.3f %12.3f   (without timestamps: %.3f ms wall)\n", "total", d["total"]["gpu_ms"].get<double>(),
               d["total"]["wall_ms"].get<double>(), d["total"]["wall_ms_unprofiled"].get<double>());
 }
