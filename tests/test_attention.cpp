@@ -38,8 +38,9 @@ INSTANTIATE_TEST_SUITE_P(Shapes, AttentionTest,
 
 // The q / k preparation (QkPrep: the heads' RMS norm, then RoPE) against float64: the heads
 // normed and rotated on the host in double, then attended. In the kernel (attention.comp,
-// attention_tiled.comp) or, where the plan's kernel cannot (SwiftShader's lanes, RoPE on heads
-// not a multiple of 8 wide), by rmsNormHeads and rope() first: norm only, RoPE only after a
+// attention_tiled.comp, SwiftShader's attention_lanes.comp) or, where it cannot (RoPE channels
+// that do not pair up: heads not a multiple of 8 wide, an odd number of channels a lane), by
+// rmsNormHeads and rope() first: norm only, RoPE only after a
 // prefix of unrotated tokens, both, causal, batches, odd token counts, a head of 1e3-sized
 // values and an all-zero k head (eps 0 there: it stays 0, no NaN).
 struct PrepCase {
@@ -108,7 +109,9 @@ TEST_F(EngineTest, AttentionPreparesQAndKAsTheOpsWould) {
     expectPreparedMatches(eng(), c, what);
   }
   withLanesKernelsForced(eng(), [&](const std::string& inputs) {
-    expectPreparedMatches(eng(), {2, 9, 2, 16, false, true, true, 2, 1e-6f}, "lanes, " + inputs + " inputs, norm rope");
+    for (const PrepCase c : {PrepCase{2, 9, 2, 16, false, true, true, 2, 1e-6f}, PrepCase{1, 37, 2, 32, true, true, true, 3, 1e-6f},
+                             PrepCase{1, 11, 1, 32, false, true, false, 0, 1e-6f}, PrepCase{2, 9, 1, 24, false, true, true, 1, 1e-6f}})
+      expectPreparedMatches(eng(), c, "lanes, " + inputs + " inputs, dh " + std::to_string(c.dh) + (c.rope ? ", rope" : ""));
   });
   // q and k not in one fused tensor, or tables of the wrong size: refused
   const Tensor q = eng().tensor({1, 8, 16}), qkv = eng().tensor({1, 8, 48}), out = eng().tensor({1, 8, 16});

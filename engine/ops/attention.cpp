@@ -124,9 +124,12 @@ bool preparesInKernel(Engine& engine, int headDim, const QkPrep& prep, bool coop
   const bool splitDim = plan.attention == KernelFamily::CpuBlocks && plan.attentionLanesSplitDim &&
                         headDim % int(caps.subgroupSize) == 0;
   // attention_prep.glsl's 7 bindings are storage buffers where the plan reads inputs so (a
-  // device may allow 4 a kernel); it pairs texels u and u + headDim / 8 for RoPE.
+  // device may allow 4 a kernel). RoPE pairs channel c with c + headDim / 2: in texels u and
+  // u + headDim / 8 (attention.comp, attention_tiled.comp), or in the same lane of
+  // attention_lanes.comp where each lane owns an even number of channels.
   const bool fits = plan.storageInputs ? caps.maxPerStageStorageBuffers >= 7 : caps.maxPerStageSampledImages >= 6;
-  return !coopMat && !splitDim && fits && (!prep.ropeSin.defined() || headDim % 8 == 0);
+  const bool ropePairs = splitDim ? (headDim / int(caps.subgroupSize)) % 2 == 0 : headDim % 8 == 0;
+  return !coopMat && fits && (!prep.ropeSin.defined() || ropePairs);
 }
 
 void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const HeadsView& v, const HeadsView& out,
@@ -212,14 +215,12 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   // compiling (8 GB).
   if (splitDim) {
     const int queries = 2, keys = 4, subgroups = 2;
-    const Kernel& kernel = engine.kernel({f16Out ? "attention_lanes_f16out" : "attention_lanes_f32",
-                                          {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                                          sizeof(AttentionPush),
-                                          {lanes, subgroups, 1, headDim, queries, keys, causal ? 1 : 0, lanes},
-                                          uint32_t(lanes),
-                                          plan.freezeConstants});
+    std::vector<int32_t> constants = {lanes, subgroups, 1, headDim, queries, keys, causal ? 1 : 0, lanes};
+    withPrep(constants, prep);
+    const Kernel& kernel = engine.kernel({"attention_lanes" + prepSuffix + (f16Out ? "_f16out" : "_f32"), binds,
+                                          sizeof(AttentionPush), constants, uint32_t(lanes), plan.freezeConstants});
     const int64_t perGroup = int64_t(queries) * subgroups;
-    rec.dispatch(kernel, args, push, static_cast<uint32_t>((gq.rows + perGroup - 1) / perGroup),
+    rec.dispatch(kernel, boundArgs, push, static_cast<uint32_t>((gq.rows + perGroup - 1) / perGroup),
                  static_cast<uint32_t>(heads), static_cast<uint32_t>(gq.batch));
     return;
   }

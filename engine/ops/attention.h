@@ -14,9 +14,9 @@ struct HeadsView {
 // What attention does to the q and k heads first (both optional): each head RMS-normed (SPAR's
 // q_norm / k_norm: x / sqrt(mean(x^2) + eps) * weight), then rotated by RoPE (DINOv3: rope()'s
 // tables and prefix, engine/ops/rope.h). The GPU and llvmpipe kernels do it as they read the
-// heads (shaders/attention_prep.glsl): one dispatch instead of three. The others (SwiftShader's,
-// cooperative matrices, RoPE on heads not a multiple of 8 wide) run rmsNormHeads and rope() first,
-// in place. Either way q and k must be one fused [B, N, C] qkv tensor, q at column 0 and k at
+// heads (shaders/attention_prep.glsl): one dispatch instead of three. Where the kernel cannot
+// (cooperative matrices, RoPE on heads whose channels do not pair up, preparesInKernel) rmsNormHeads
+// and rope() run first, in place. Either way q and k must be one fused [B, N, C] qkv tensor, q at column 0 and k at
 // heads * headDim, and the values attention sees are those the in-place ops would leave.
 struct QkPrep {
   Tensor normWeight;  // f32 [2, headDim]: q_norm's weight, then k_norm's; undefined: no norm
@@ -27,8 +27,8 @@ struct QkPrep {
 };
 
 // Whether attention() prepares fp32 q and k heads of headDim inside its kernel on this device,
-// one dispatch (else rmsNormHeads and rope() run first): not SwiftShader's kernel, not
-// cooperative matrices (coopMat: the fp16 layer's kernel), bindings the device allows.
+// one dispatch (else rmsNormHeads and rope() run first): not with cooperative matrices (coopMat:
+// the fp16 layer's kernel), bindings the device allows, RoPE channels that pair up.
 bool preparesInKernel(Engine& engine, int headDim, const QkPrep& prep, bool coopMat = false);
 
 // out = softmax(q k^T * scale) v per head (scale 0 means 1/sqrt(headDim)); causal masks
