@@ -304,8 +304,8 @@ TEST(KernelPlan, SmallProductsGetSmallTiles) {
   EXPECT_EQ(p.tilesFor(64, 768, 1), p.gemmSmallTiles);
 }
 
-// On a CPU device forced onto the GPU family and asked to measure: GEMM tiles and attention
-// blocks are measured once, written beside the pipeline cache, and read back by the next
+// On a CPU device forced onto the GPU family and asked to measure: GEMM tiles (on a transformer
+// block's four products) and attention blocks are measured once, written beside the pipeline cache, and read back by the next
 // engine without measuring.
 TEST(KernelTuner, MeasuresOnceThenReadsTheCacheFile) {
   const fs::path dir = scratchDir("kernel_tuner");
@@ -329,6 +329,8 @@ TEST(KernelTuner, MeasuresOnceThenReadsTheCacheFile) {
   const auto j = nlohmann::json::parse(in);
   ASSERT_EQ(j.size(), 1u);
   const auto& entry = j.begin().value();
+  // the GEMM tiles timed on a transformer block's products (the model's aspect ratios), not a square
+  EXPECT_NE(entry["gemm"]["workload"].get<std::string>().find("block"), std::string::npos) << entry.dump();
   for (const char* what : {"gemm", "attention"}) {
     EXPECT_GE(entry[what]["candidates"].size(), 3u) << what;
     for (const auto& c : entry[what]["candidates"]) EXPECT_GT(c["ms"].get<double>(), 0.0) << what;
