@@ -15,10 +15,14 @@
 //   4. each subgroup adds probabilities times v to its output, loaded from and stored back to
 //      shared memory as fp32 accumulators.
 // The output rows are divided by their sums (guarded) at the end.
+// QK_NORM / QK_ROPE (shaders/attention_prep.glsl, the *_prep variants): q and k rows are staged
+// one row an invocation instead, each normed and rotated in fp32 before its rounding to fp16.
 // Written against GL_NV_cooperative_matrix and rewritten into SPV_KHR_cooperative_matrix at
 // build time (cmake/coopmat_nv_to_khr.py): A is CM_M x CM_K, B CM_K x CM_N, C CM_M x CM_N.
 //! variant attention_coopmat_f32 OUT_F16=0
 //! variant attention_coopmat_f16out OUT_F16=1
+//! variant attention_coopmat_prep_f32 OUT_F16=0 QK_PREP_BINDINGS=1
+//! variant attention_coopmat_prep_f16out OUT_F16=1 QK_PREP_BINDINGS=1
 //! spirv coopmat-khr
 #extension GL_GOOGLE_include_directive : require
 #extension GL_NV_cooperative_matrix : require
@@ -47,7 +51,10 @@ layout(push_constant) uniform Push {
   int qOff, kOff, vOff, oOff;              // column of head 0 in elements
   int qBatch, kBatch, vBatch, oBatch;      // batch strides in elements
   float scaleLog2;                         // softmax scale times log2(e)
+  float qkEps;                             // QK_NORM's epsilon
+  int ropePrefix;                          // QK_ROPE: leading tokens left unrotated
 } p;
+#include "attention_prep.glsl"
 
 const float kNegLarge = -3.4028235e38 / 2.0;
 const uint BQ = NSG * CM_M;
@@ -83,6 +90,24 @@ void stage(bool isV, bool isQ, int b, int head, int row0, uint rows) {
   }
 }
 
+// QK_PREP: rows [row0, row0 + rows) of the q (isQ) or k heads into stagedK as fp16, one row an
+// invocation, each prepared in fp32 first; zero past the last row.
+void stagePrepared(bool isQ, int b, int head, int row0, uint rows) {
+  const int n = isQ ? p.Nq : p.Nk;
+  for (uint r = gl_LocalInvocationIndex; r < rows; r += gl_WorkGroupSize.x) {
+    const int row = row0 + int(r);
+    vec4 h[DH / 4];
+    const int base = isQ ? (b * p.qBatch + row * p.qStride + p.qOff + head * int(DH)) / 4
+                         : (b * p.kBatch + row * p.kStride + p.kOff + head * int(DH)) / 4;
+    [[unroll]] for (int u = 0; u < QK_DH / 4; ++u) h[u] = row < n ? (isQ ? fetch_Q(base + u) : fetch_K(base + u)) : vec4(0.0);
+    if (row < n) QK_PREP_HEAD(h, isQ ? 0 : 1, row)
+    [[unroll]] for (int u = 0; u < QK_DH / 4; ++u) {
+      const f16vec4 x = f16vec4(clamp(h[u], vec4(-65504.0), vec4(65504.0)));
+      [[unroll]] for (uint e = 0; e < 4; ++e) stagedK[r * LD + uint(u) * 4 + e] = x[e];
+    }
+  }
+}
+
 void main() {
   const int q0 = int(gl_WorkGroupID.x * BQ);
   const int head = int(gl_WorkGroupID.y);
@@ -91,7 +116,8 @@ void main() {
   const uint r0 = sg * CM_M;  // this subgroup's first row of the workgroup's queries
 
   // q fragments, staged through the k area once.
-  stage(false, true, b, head, q0, BQ);
+  if (QK_PREP) stagePrepared(true, b, head, q0, BQ);
+  else stage(false, true, b, head, q0, BQ);
   for (uint i = gl_LocalInvocationIndex; i < BQ; i += gl_WorkGroupSize.x) {
     rowMax[i] = kNegLarge;
     rowSum[i] = 0.0;
@@ -104,7 +130,8 @@ void main() {
 
   const int kEnd = CAUSAL ? min(p.Nk, q0 + int(BQ)) : p.Nk;
   for (int kb = 0; kb < kEnd; kb += int(BKV)) {
-    stage(false, false, b, head, kb, BKV);
+    if (QK_PREP) stagePrepared(false, b, head, kb, BKV);
+    else stage(false, false, b, head, kb, BKV);
     stage(true, false, b, head, kb, BKV);
     barrier();
     // scores = q k^T for this subgroup's rows

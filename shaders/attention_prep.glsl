@@ -13,6 +13,7 @@
 #ifndef QK_PREP_BINDINGS
 #define QK_PREP_BINDINGS 0
 #endif
+const int QK_DH = int(DH);  // the head dimension as an int (attention_coopmat.comp's DH is a uint)
 #if QK_PREP_BINDINGS
 layout(constant_id = 12) const bool QK_NORM = false;
 layout(constant_id = 13) const bool QK_ROPE = false;
@@ -22,18 +23,18 @@ TEXEL_INPUT(6, ROPE_COS, 4)
 
 // 1 / rms of a head from its sum of squares: norm.comp's formula (0 for an all-zero head at eps 0).
 float qk_rstd(float sumSquares) {
-  const float ms = sumSquares / float(DH) + p.qkEps;
+  const float ms = sumSquares / float(QK_DH) + p.qkEps;
   return ms > 0.0 ? 1.0 / sqrt(ms) : 0.0;
 }
 
 // The norm weight of texel u of a q (which 0) or k (which 1) head.
-vec4 qk_weight(int which, int u) { return QK_NORM ? fetch_QK_NORM_W(which * (DH / 4) + u) : vec4(1.0); }
+vec4 qk_weight(int which, int u) { return QK_NORM ? fetch_QK_NORM_W(which * (QK_DH / 4) + u) : vec4(1.0); }
 
 // Rotates texels u and u + DH / 8 of the head of `token` (rope.comp's x cos + rotate_half(x) sin);
 // the first ropePrefix tokens (DINOv3's class and storage tokens) stay as they are.
 void qk_rotate(inout vec4 a, inout vec4 b, int token, int u) {
   if (!QK_ROPE || token < p.ropePrefix) return;
-  const int row = (token - p.ropePrefix) * (DH / 4), h = DH / 8;
+  const int row = (token - p.ropePrefix) * (QK_DH / 4), h = QK_DH / 8;
   const vec4 na = a * fetch_ROPE_COS(row + u) - b * fetch_ROPE_SIN(row + u);
   const vec4 nb = b * fetch_ROPE_COS(row + u + h) + a * fetch_ROPE_SIN(row + u + h);
   a = na;
@@ -54,11 +55,11 @@ const bool QK_PREP = QK_NORM || QK_ROPE;
   {                                                                                              \
     if (QK_NORM) {                                                                               \
       float ss_ = 0.0;                                                                           \
-      [[unroll]] for (int u_ = 0; u_ < DH / 4; ++u_) ss_ += dot(head[u_], head[u_]);            \
+      [[unroll]] for (int u_ = 0; u_ < QK_DH / 4; ++u_) ss_ += dot(head[u_], head[u_]);            \
       const float r_ = qk_rstd(ss_);                                                             \
-      [[unroll]] for (int u_ = 0; u_ < DH / 4; ++u_) head[u_] = head[u_] * r_ * qk_weight(which, u_); \
+      [[unroll]] for (int u_ = 0; u_ < QK_DH / 4; ++u_) head[u_] = head[u_] * r_ * qk_weight(which, u_); \
     }                                                                                            \
     if (QK_ROPE) {                                                                               \
-      [[unroll]] for (int u_ = 0; u_ < DH / 8; ++u_) qk_rotate(head[u_], head[u_ + DH / 8], token, u_); \
+      [[unroll]] for (int u_ = 0; u_ < QK_DH / 8; ++u_) qk_rotate(head[u_], head[u_ + QK_DH / 8], token, u_); \
     }                                                                                            \
   }

@@ -59,27 +59,9 @@ void expectPreparedMatches(Engine& engine, const PrepCase& c, const std::string&
   const std::vector<float> w = randomUniform(2 * c.dh, 0.5f, 1.5f, 32), angles = randomUniform((c.N - c.prefix) * c.dh, -3, 3, 33);
   std::vector<float> sines, cosines;
   for (float a : angles) sines.push_back(std::sin(a)), cosines.push_back(std::cos(a));
-  std::vector<double> prepared(qkv.begin(), qkv.end());
-  for (int64_t row = 0; row < c.B * c.N; ++row)
-    for (int64_t h = 0; h < 2 * c.heads; ++h) {
-      double* x = &prepared[size_t(row * C + h * c.dh)];
-      const bool isK = h >= c.heads;
-      if (c.norm) {
-        double ss = 0;
-        for (int64_t d = 0; d < c.dh; ++d) ss += x[d] * x[d];
-        const double ms = ss / c.dh + c.eps, r = ms > 0 ? 1.0 / std::sqrt(ms) : 0.0;
-        for (int64_t d = 0; d < c.dh; ++d) x[d] *= r * w[size_t((isK ? c.dh : 0) + d)];
-      }
-      const int64_t t = row % c.N;
-      if (c.rope && t >= c.prefix) {
-        const size_t tr = size_t((t - c.prefix) * c.dh);
-        for (int64_t j = 0; j < c.dh / 2; ++j) {
-          const double a = x[j], b = x[j + c.dh / 2];
-          x[j] = a * cosines[tr + j] - b * sines[tr + j];
-          x[j + c.dh / 2] = b * cosines[tr + j + c.dh / 2] + a * sines[tr + j + c.dh / 2];
-        }
-      }
-    }
+  const std::vector<double> prepared = prepareQkRef(qkv, c.B, c.N, c.heads, c.dh, c.norm ? w : std::vector<float>{}, c.eps,
+                                                    c.rope ? sines : std::vector<float>{},
+                                                    c.rope ? cosines : std::vector<float>{}, c.prefix);
   const std::vector<float> preparedF(prepared.begin(), prepared.end());
   const auto ref = attentionRef(preparedF, C, 0, preparedF, C, D, preparedF, C, 2 * D, c.B, c.N, c.N, c.heads, c.dh,
                                 c.causal, 1.0 / std::sqrt(double(c.dh)));

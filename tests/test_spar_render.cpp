@@ -483,6 +483,10 @@ void compareOutputs(const std::string& name, const Outputs& o, bool assumeStatic
     EXPECT_GE(s["dispatches"].get<int64_t>(), 1) << s.dump();
     EXPECT_GE(s["submits"].get<int64_t>(), 0) << s.dump();
     EXPECT_GE(s["transformer_blocks"].get<int64_t>(), 0) << s.dump();
+    // a stage of blocks says what one took (at most 7, the GPU-speed bar); others 0
+    const int64_t perBlock = s["block_dispatches"].get<int64_t>();
+    if (s["transformer_blocks"].get<int64_t>() > 0) EXPECT_LE(perBlock, 7) << s.dump();
+    else EXPECT_EQ(perBlock, 0) << s.dump();
   }
   for (const auto& s : stageNames) {
     if (assumeStatic) {

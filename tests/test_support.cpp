@@ -257,6 +257,32 @@ std::vector<double> linearRef(const std::vector<float>& x, const std::vector<flo
   return y;
 }
 
+std::vector<double> prepareQkRef(const std::vector<float>& qkv, int64_t B, int64_t N, int heads, int dh,
+                                 const std::vector<float>& weight, double eps, const std::vector<float>& sines,
+                                 const std::vector<float>& cosines, int64_t prefix) {
+  const int64_t D = int64_t(heads) * dh, C = 3 * D;
+  std::vector<double> out(qkv.begin(), qkv.end());
+  for (int64_t row = 0; row < B * N; ++row)
+    for (int64_t h = 0; h < 2 * heads; ++h) {
+      double* x = &out[size_t(row * C + h * dh)];
+      if (!weight.empty()) {
+        double ss = 0;
+        for (int64_t d = 0; d < dh; ++d) ss += x[d] * x[d];
+        const double ms = ss / dh + eps, r = ms > 0 ? 1.0 / std::sqrt(ms) : 0.0;
+        for (int64_t d = 0; d < dh; ++d) x[d] *= r * weight[size_t((h >= heads ? dh : 0) + d)];
+      }
+      const int64_t t = row % N;
+      if (sines.empty() || t < prefix) continue;
+      const size_t at = size_t((t - prefix) * dh);
+      for (int64_t j = 0; j < dh / 2; ++j) {
+        const double a = x[j], b = x[j + dh / 2];
+        x[j] = a * cosines[at + j] - b * sines[at + j];
+        x[j + dh / 2] = b * cosines[at + j + dh / 2] + a * sines[at + j + dh / 2];
+      }
+    }
+  return out;
+}
+
 std::vector<double> attentionRef(const std::vector<float>& q, int64_t qCols, int64_t qOff, const std::vector<float>& k,
                                  int64_t kCols, int64_t kOff, const std::vector<float>& v, int64_t vCols, int64_t vOff,
                                  int64_t B, int64_t Nq, int64_t Nk, int heads, int dh, bool causal, double scale) {

@@ -84,6 +84,14 @@ std::vector<double> attentionRef(const std::vector<float>& q, int64_t qCols, int
                                  int64_t kCols, int64_t kOff, const std::vector<float>& v, int64_t vCols, int64_t vOff,
                                  int64_t B, int64_t Nq, int64_t Nk, int heads, int dh, bool causal, double scale);
 
+// Attention's q / k preparation (engine/ops/attention.h, QkPrep) in float64 on a fused qkv
+// [B, N, 3 * heads * dh]: each q and k head RMS-normed (weight: [2, dh], q's then k's; none
+// when empty), then rotated by RoPE for tokens t >= prefix (sines, cosines: [N - prefix, dh];
+// none when empty). v is copied as it is.
+std::vector<double> prepareQkRef(const std::vector<float>& qkv, int64_t B, int64_t N, int heads, int dh,
+                                 const std::vector<float>& weight, double eps, const std::vector<float>& sines,
+                                 const std::vector<float>& cosines, int64_t prefix);
+
 // The fused activations (shaders/common.glsl) in float64.
 double activateRef(double x, Activation act);
 

@@ -84,7 +84,8 @@ Geometry geometryOf(const HeadsView& h, const char* what, int heads, int headDim
 // shaders/attention_coopmat.comp for this head size, or null where the head size is not a
 // multiple of the multiply-add's or its shared memory does not fit: 4 subgroups of the
 // multiply-add's rows, blocks of twice its columns of keys, fewer subgroups where needed.
-const Kernel* coopMatKernel(Engine& engine, const KernelPlan& plan, int headDim, bool causal, bool f16Out) {
+const Kernel* coopMatKernel(Engine& engine, const KernelPlan& plan, int headDim, bool causal, bool f16Out,
+                            const QkPrep& prep) {
   const DeviceCaps& caps = engine.caps();
   const CoopMatTiles& c = plan.coop;
   if (headDim % c.k || headDim % c.n) return nullptr;
@@ -95,10 +96,11 @@ const Kernel* coopMatKernel(Engine& engine, const KernelPlan& plan, int headDim,
                             rows * dh * 4 + 2 * rows * 4;
     if (shared > caps.maxSharedMemory) continue;
     std::vector<int32_t> constants = {int(caps.maxSubgroupSize * groups), 1, 1, headDim, int(groups), int(keys), causal};
-    constants.resize(20, 0);  // ids 7-19 unused; 20-22 the multiply-add shape
+    constants.resize(20, 0);  // ids 7-19 unused but QK_NORM, QK_ROPE (12, 13); 20-22 the multiply-add shape
+    withPrep(constants, prep);
     constants.insert(constants.end(), {c.m, c.n, c.k});
-    return &engine.kernel({f16Out ? "attention_coopmat_f16out" : "attention_coopmat_f32",
-                           {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+    return &engine.kernel({std::string("attention_coopmat") + (prep.any() ? "_prep" : "") + (f16Out ? "_f16out" : "_f32"),
+                           prep.any() ? prepBinds() : std::vector<Bind>{Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
                            sizeof(AttentionPush),
                            constants,
                            caps.maxSubgroupSize});
@@ -128,8 +130,8 @@ bool preparesInKernel(Engine& engine, int headDim, const QkPrep& prep, bool coop
   // u + headDim / 8 (attention.comp, attention_tiled.comp), or in the same lane of
   // attention_lanes.comp where each lane owns an even number of channels.
   const bool fits = plan.storageInputs ? caps.maxPerStageStorageBuffers >= 7 : caps.maxPerStageSampledImages >= 6;
-  const bool ropePairs = splitDim ? (headDim / int(caps.subgroupSize)) % 2 == 0 : headDim % 8 == 0;
-  return !coopMat && fits && (!prep.ropeSin.defined() || ropePairs);
+  const bool ropePairs = splitDim && !coopMat ? (headDim / int(caps.subgroupSize)) % 2 == 0 : headDim % 8 == 0;
+  return fits && (!prep.ropeSin.defined() || ropePairs);
 }
 
 void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const HeadsView& v, const HeadsView& out,
@@ -169,7 +171,7 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   const bool fp32Inputs = q.tensor.dtype() == DType::F32 && k.tensor.dtype() == DType::F32 &&
                           v.tensor.dtype() == DType::F32;
   const bool coopMat = plan.attentionF16 == KernelFamily::CoopMat && (fp16Layer || halfInputs) &&
-                       coopMatKernel(engine, plan, headDim, causal, f16Out) != nullptr;
+                       coopMatKernel(engine, plan, headDim, causal, f16Out, {}) != nullptr;
   const bool splitDim = plan.attention == KernelFamily::CpuBlocks && plan.attentionLanesSplitDim && fp32Inputs &&
                         headDim % lanes == 0;
   if (prep.any() && !preparesInKernel(engine, headDim, prep, coopMat)) {
@@ -183,9 +185,9 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
   const std::vector<Arg> boundArgs = prep.any() ? prepArgs(args, prep, q.tensor) : args;
   const std::string prepSuffix = prep.any() ? "_prep" : "";
   if (coopMat) {
-    if (const Kernel* kernel = coopMatKernel(engine, plan, headDim, causal, f16Out)) {
+    if (const Kernel* kernel = coopMatKernel(engine, plan, headDim, causal, f16Out, prep)) {
       const uint32_t queries = uint32_t(kernel->spec.constants[4]) * uint32_t(plan.coop.m);
-      rec.dispatch(*kernel, args, push, static_cast<uint32_t>((gq.rows + queries - 1) / queries),
+      rec.dispatch(*kernel, boundArgs, push, static_cast<uint32_t>((gq.rows + queries - 1) / queries),
                    static_cast<uint32_t>(heads), static_cast<uint32_t>(gq.batch));
       return;
     }

@@ -15,7 +15,7 @@ struct HeadsView {
 // q_norm / k_norm: x / sqrt(mean(x^2) + eps) * weight), then rotated by RoPE (DINOv3: rope()'s
 // tables and prefix, engine/ops/rope.h). The GPU and llvmpipe kernels do it as they read the
 // heads (shaders/attention_prep.glsl): one dispatch instead of three. Where the kernel cannot
-// (cooperative matrices, RoPE on heads whose channels do not pair up, preparesInKernel) rmsNormHeads
+// (RoPE on heads whose channels do not pair up, too few bindings: preparesInKernel) rmsNormHeads
 // and rope() run first, in place. Either way q and k must be one fused [B, N, C] qkv tensor, q at column 0 and k at
 // heads * headDim, and the values attention sees are those the in-place ops would leave.
 struct QkPrep {
@@ -27,8 +27,8 @@ struct QkPrep {
 };
 
 // Whether attention() prepares fp32 q and k heads of headDim inside its kernel on this device,
-// one dispatch (else rmsNormHeads and rope() run first): not with cooperative matrices (coopMat:
-// the fp16 layer's kernel), bindings the device allows, RoPE channels that pair up.
+// one dispatch (else rmsNormHeads and rope() run first): bindings the device allows, RoPE
+// channels that pair up in the kernel chosen (coopMat: the fp16 layer's cooperative matrices).
 bool preparesInKernel(Engine& engine, int headDim, const QkPrep& prep, bool coopMat = false);
 
 // out = softmax(q k^T * scale) v per head (scale 0 means 1/sqrt(headDim)); causal masks

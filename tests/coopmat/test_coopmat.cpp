@@ -133,6 +133,39 @@ INSTANTIATE_TEST_SUITE_P(Shapes, CoopMatAttention,
                                            AttentionCase{1, 257, 257, 2, 64, false}, AttentionCase{2, 61, 61, 2, 32, true},
                                            AttentionCase{1, 130, 130, 1, 64, true}, AttentionCase{1, 5, 1, 1, 32, false}));
 
+// The q / k norm and RoPE inside the cooperative-matrix kernel (attention_coopmat.comp's *_prep
+// variants; SPAR's and DINOv3's fp16 layers): prepared in fp32, then rounded to fp16, against
+// float64 preparation rounded the same way. One dispatch, odd token counts, a prefix, causal.
+TEST_F(CoopMatTest, AttentionPreparesQAndK) {
+  for (const bool causal : {false, true}) {
+    const int64_t B = 2, N = 45, prefix = 3;
+    const int heads = 2, dh = 32;
+    const int64_t D = int64_t(heads) * dh;
+    const auto qkv = randomNormal(B * N * 3 * D, 0, 1, 51), w = randomUniform(2 * dh, 0.5f, 1.5f, 52);
+    const auto angles = randomUniform((N - prefix) * dh, -3, 3, 53);
+    std::vector<float> sines, cosines;
+    for (float a : angles) sines.push_back(std::sin(a)), cosines.push_back(std::cos(a));
+    QkPrep prep;
+    prep.normWeight = eng().fromFloats({2, dh}, w);
+    prep.ropeSin = eng().fromFloats({N - prefix, dh}, sines);
+    prep.ropeCos = eng().fromFloats({N - prefix, dh}, cosines);
+    prep.ropePrefix = prefix;
+    const Tensor t = eng().fromFloats({B, N, 3 * D}, qkv);
+    GuardedOutput out(eng(), {B, N, D});
+    Recorder rec(eng());
+    attention(rec, {t, 0}, {t, D}, {t, 2 * D}, {out.tensor(), 0}, heads, dh, causal, 0.0f, /*fp16Layer=*/true, prep);
+    rec.run();
+    EXPECT_EQ(rec.lastRunTotal().dispatches, 1u);
+    const auto prepared = prepareQkRef(qkv, B, N, heads, dh, w, prep.normEps, sines, cosines, prefix);
+    const auto rounded = roundToHalf(std::vector<float>(prepared.begin(), prepared.end()));
+    expectClose(out.read(),
+                attentionRef(rounded, 3 * D, 0, rounded, 3 * D, D, rounded, 3 * D, 2 * D, B, N, N, heads, dh, causal,
+                             1.0 / std::sqrt(double(dh))),
+                1e-6, 2e-2, causal ? "coopmat prepared, causal" : "coopmat prepared");
+    out.expectAllWritten();
+  }
+}
+
 // Stiff: logits of +-1e4 (q, k of 100 in fp16) and one dominant key per query stay finite and
 // pick the right value row.
 TEST_F(CoopMatTest, AttentionOneKeyDominates) {
