@@ -14,11 +14,11 @@
 // and every lane takes a key's values from its lane by a shuffle, so one fetch serves LANES keys
 // (on llvmpipe a texel fetch is a call that spills every register: shaders/gemm.comp).
 //
-// QK_NORM / QK_ROPE (shaders/attention_prep.glsl): the QPI query heads are prepared once into
-// registers; each lane weights and rotates the k texels it fetches (its own keys) and sums their
-// squares, and every score is multiplied by its key's 1 / rms at the end of the block. With
-// RoPE the channels go in pairs (texels u and u + DH / 8), so a lane fetches no more texels
-// than without it: the q texels it no longer fetches per block pay for the tables.
+// QK_NORM / QK_ROPE (shaders/attention_prep.glsl): the queries' 1 / rms are found once, and
+// their texels are normed and rotated as they are fetched, as in the plain kernel, per block;
+// each lane weights and rotates the k texels it fetches (its own keys) and sums their squares,
+// and every score is multiplied by its key's 1 / rms at the end of the block. With RoPE the
+// channels go in pairs (texels u and u + DH / 8).
 //! variant attention_f32 OUT_F16=0
 //! variant attention_f16out OUT_F16=1
 //! variant attention_sk_f32 OUT_F16=0 SHARED_KEYS=1
@@ -88,15 +88,17 @@ void main() {
   const int kBase = (b * p.kBatch + p.kOff + head * DH) / 4, kRow = p.kStride / 4;
   const int vBase = (b * p.vBatch + p.vOff + head * DH) / 4, vRow = p.vStride / 4;
 
-  // QK_PREP: the queries' heads, normed and rotated once
-  vec4 qp[QK_PREP ? QPI * (DH / 4) : 1];
-  if (QK_PREP) {
-    [[unroll]] for (int i = 0; i < QPI; ++i) {
-      vec4 head[DH / 4];
-      [[unroll]] for (int u = 0; u < DH / 4; ++u) head[u] = fetch_Q(qTexel[i] + u);
-      QK_PREP_HEAD(head, 0, min(q0 + i, p.Nq - 1))
-      [[unroll]] for (int u = 0; u < DH / 4; ++u) qp[i * (DH / 4) + u] = head[u];
-    }
+  // QK_NORM: the queries' 1 / rms, once; their texels are prepared as they are fetched below
+  // (a prepared copy of the heads, indexed by the loop's texel, took llvmpipe 2.7-3.8 s to compile)
+  float qr[QPI];
+  [[unroll]] for (int i = 0; i < QPI; ++i) {
+    float ss = 0.0;
+    if (QK_NORM)
+      for (int u = 0; u < DH / 4; ++u) {
+        const vec4 x = fetch_Q(qTexel[i] + u);
+        ss += dot(x, x);
+      }
+    qr[i] = QK_NORM ? qk_rstd(ss) : 1.0;
   }
 
   float runMax[QPI], runSum[QPI], acc[QPI * DH];
@@ -136,16 +138,25 @@ void main() {
             qk_rotate(ka[t], kb2[t], min(kb + KEY_OF(t), p.Nk - 1), u);
           }
         }
+        // the queries' texels u (and u + DH / 8), normed (head * rstd * weight) and rotated
+        vec4 qa[QPI], qb[QPI];
+        [[unroll]] for (int i = 0; i < QPI; ++i) {
+          qa[i] = fetch_Q(qTexel[i] + u) * qr[i] * qk_weight(0, u);
+          if (QK_ROPE) {
+            qb[i] = fetch_Q(qTexel[i] + u + h) * qr[i] * qk_weight(0, u + h);
+            qk_rotate(qa[i], qb[i], min(q0 + i, p.Nq - 1), u);
+          }
+        }
         [[unroll]] for (int j = 0; j < KB; ++j) {
           const vec4 kv = KEY_TEXEL(ka, j);
           [[unroll]] for (int i = 0; i < QPI; ++i) {
-            const vec4 qv = qp[i * (DH / 4) + u];
+            const vec4 qv = qa[i];
             s[i * KB + j] = fma(qv.w, kv.w, fma(qv.z, kv.z, fma(qv.y, kv.y, fma(qv.x, kv.x, s[i * KB + j]))));
           }
           if (QK_ROPE) {
             const vec4 kv2 = KEY_TEXEL(kb2, j);
             [[unroll]] for (int i = 0; i < QPI; ++i) {
-              const vec4 qv = qp[i * (DH / 4) + u + h];
+              const vec4 qv = qb[i];
               s[i * KB + j] = fma(qv.w, kv2.w, fma(qv.z, kv2.z, fma(qv.y, kv2.y, fma(qv.x, kv2.x, s[i * KB + j]))));
             }
           }

@@ -47,13 +47,12 @@ std::vector<Arg> prepArgs(const std::vector<Arg>& args, const QkPrep& prep, cons
 }
 
 // The prep's tensors against the fused qkv layout it needs; throws where they do not fit.
-void checkPrep(const QkPrep& prep, const HeadsView& q, const HeadsView& k, int heads, int headDim, bool causal) {
+void checkPrep(const QkPrep& prep, const HeadsView& q, const HeadsView& k, int heads, int headDim) {
   const Tensor& t = q.tensor;
   const bool fused = t.bufferPtr() == k.tensor.bufferPtr() && t.byteOffset() == k.tensor.byteOffset() &&
                      t.shape() == k.tensor.shape() && t.rank() == 3 && q.column == 0 &&
                      k.column == int64_t(heads) * headDim && t.dtype() == DType::F32;
   if (!fused) throw Error("attention: q / k preparation needs q and k in one f32 [B, N, C] qkv tensor (q at 0, k at D)");
-  (void)causal;
   if (prep.normWeight.defined() &&
       (prep.normWeight.shape() != Shape{2, headDim} || prep.normWeight.dtype() != DType::F32))
     throw Error("attention: the q / k norm weight must be f32 [2, " + std::to_string(headDim) + "], got " +
@@ -148,7 +147,7 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
     if (g->cols % 4) throw Error("attention: q, k, v row lengths must be multiples of 4");
   if (q.column % 4 || k.column % 4 || v.column % 4) throw Error("attention: head columns must be multiples of 4");
   if (out.tensor.dtype() == DType::I32) throw Error("attention: integer output");
-  if (prep.any()) checkPrep(prep, q, k, heads, headDim, causal);
+  if (prep.any()) checkPrep(prep, q, k, heads, headDim);
   if (gq.rows == 0 || gk.rows == 0) return;
   if (out.tensor.bytes() > engine.device().bindingRangeLimit())
     throw Error("attention: output " + out.tensor.describe() + " exceeds the device's storage binding range");
