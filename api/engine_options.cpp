@@ -70,16 +70,21 @@ void KernelTuning::validate() const {
     throw Error("attention tiles (SPAR_ATTENTION_TILES): keys per block must be a multiple of 4");
   positive(convTiles, "conv2d tiles (SPAR_CONV_TILES: RC,RY,RX,LX,LY)");
   positive(convTransposeTiles, "conv_transpose2d tiles (SPAR_CONVT_TILES: RC,RY,RX,LX,LY)");
-  positive(gpuGemmTiles, "GPU GEMM tiles (SPAR_GPU_GEMM_TILES: BM,BN,BK,TM,TN)");
   if (gpuGemmTiles) {
-    const auto [bm, bn, bk, tm, tn] = *gpuGemmTiles;
+    const auto [bm, bn, bk, tm, tn, pipelined] = *gpuGemmTiles;
+    if (bm <= 0 || bn <= 0 || bk <= 0 || tm <= 0 || tn <= 0 || (pipelined != 0 && pipelined != 1))
+      throw Error("GPU GEMM tiles (SPAR_GPU_GEMM_TILES: BM,BN,BK,TM,TN,PIPELINED) must be 5 positive integers and 0 or 1");
     if (bm % tm || bn % tn || bk % 4 || (bm / tm) * (bn / tn) > 1024)
       throw Error("GPU GEMM tiles (SPAR_GPU_GEMM_TILES): BM, BN multiples of TM, TN, BK of 4, at most 1024 invocations");
   }
-  positive(gpuAttentionTiles, "GPU attention tiles (SPAR_GPU_ATTENTION_TILES: QUERIES,KEYS)");
+  if (gpuAttentionTiles) {
+    const auto [queries, keys, lanes] = *gpuAttentionTiles;
+    if (queries <= 0 || keys <= 0 || lanes < 0 || queries > 1024 || keys % 4 ||
+        (lanes > 0 && (queries % 4 || keys % lanes || queries / 4 * lanes > 1024)))
+      throw Error("GPU attention tiles (SPAR_GPU_ATTENTION_TILES: QUERIES,KEYS,LANES): at most 1024 queries, keys a multiple "
+                  "of 4; with LANES > 0 queries a multiple of 4, keys of LANES, at most 1024 invocations");
+  }
   positive(coopMatTiles, "cooperative-matrix GEMM tiles (SPAR_COOPMAT_TILES: WM,WN,SGM,SGN,KSTEPS)");
-  if (gpuAttentionTiles && ((*gpuAttentionTiles)[0] > 1024 || (*gpuAttentionTiles)[1] % 4))
-    throw Error("GPU attention tiles (SPAR_GPU_ATTENTION_TILES): at most 1024 queries, keys a multiple of 4");
   if (!kernels.empty() && kernels != "cpu" && kernels != "gpu" && kernels != "gpu-fp16" && kernels != "coopmat")
     throw Error("kernel family (SPAR_KERNELS) must be cpu, gpu, gpu-fp16 or coopmat, got '" + kernels + "'");
   if (!inputs.empty() && inputs != "texel" && inputs != "storage")
@@ -116,8 +121,8 @@ EngineOptions EngineOptions::fromEnvironment(EngineOptions base) {
     if (const char* k = env("SPAR_KERNELS")) t.kernels = k;
   if (t.inputs.empty())
     if (const char* i = env("SPAR_INPUTS")) t.inputs = i;
-  if (!t.gpuGemmTiles) t.gpuGemmTiles = ints<5>("SPAR_GPU_GEMM_TILES", "BM,BN,BK,TM,TN");
-  if (!t.gpuAttentionTiles) t.gpuAttentionTiles = ints<2>("SPAR_GPU_ATTENTION_TILES", "QUERIES,KEYS");
+  if (!t.gpuGemmTiles) t.gpuGemmTiles = ints<6>("SPAR_GPU_GEMM_TILES", "BM,BN,BK,TM,TN,PIPELINED");
+  if (!t.gpuAttentionTiles) t.gpuAttentionTiles = ints<3>("SPAR_GPU_ATTENTION_TILES", "QUERIES,KEYS,LANES");
   if (!t.coopMatTiles) t.coopMatTiles = ints<5>("SPAR_COOPMAT_TILES", "WM,WN,SGM,SGN,KSTEPS");
   if (!t.measureKernels)
     if (const char* m = env("SPAR_MEASURE_KERNELS")) t.measureKernels = std::string(m) != "0";

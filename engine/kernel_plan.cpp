@@ -18,8 +18,15 @@ const char* familyName(KernelFamily family) {
 
 std::string TiledGemmTiles::text() const {
   char b[64];
-  std::snprintf(b, sizeof(b), "%dx%dx%d / %dx%d", bm, bn, bk, tm, tn);
+  std::snprintf(b, sizeof(b), "%dx%dx%d / %dx%d%s", bm, bn, bk, tm, tn, pipelined ? "" : ", one step at a time");
   return b;
+}
+
+void TiledGemmTiles::addConstants(std::vector<int32_t>& constants) const {
+  constexpr size_t kPrefetchId = 17, kInterleaveId = 18;
+  if (pipelined) return;
+  if (constants.size() <= kInterleaveId) constants.resize(kInterleaveId + 1, 0);
+  constants[kPrefetchId] = constants[kInterleaveId] = 0;
 }
 
 bool CoopMatTiles::fits(const DeviceCaps& caps) const {
@@ -32,6 +39,14 @@ std::string CoopMatTiles::text() const {
   std::snprintf(b, sizeof(b), "%dx%dx%d MMA, %dx%d per subgroup, %dx%d subgroups, k step %d", m, n, k, wm, wn,
                 sgM, sgN, k * kSteps);
   return b;
+}
+
+std::string attentionText(const KernelPlan& plan) {
+  const std::string blocks = std::to_string(plan.attentionQueries) + " queries a workgroup, " +
+                             std::to_string(plan.attentionKeys) + "-key blocks";
+  if (plan.attentionLanes == 0) return "attention_tiled.comp (" + blocks + ", one query an invocation)";
+  return "attention_flash.comp (" + blocks + ", " + std::to_string(plan.attentionLanes) +
+         " invocations sharing each 4 queries' scores and outputs)";
 }
 
 const TiledGemmTiles& KernelPlan::tilesFor(int64_t m, int64_t n, int64_t batch) const {
@@ -155,13 +170,13 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
                                    std::to_string(caps.subgroupSize) + ")"
                              : "no subgroup arithmetic in compute shaders: reductions through shared memory");
   // GEMM tiles: 64 x 64 outputs a workgroup of 256 invocations, 4 x 4 each, from 16 k a step
-  // (8 KiB of shared memory); 128 x 128 / 8 x 8 is the other common GPU choice and the first
-  // measured candidate (kernel_tuner.cpp). Small products get 32 x 32 so that they still
+  // (8 KiB of shared memory); 128 x 128 / 8 x 8 is the other common GPU choice, measured
+  // among the candidates (kernel_tuner.cpp). Small products get 64 x 32 so that they still
   // spread over the device.
   plan.gemmTiles = {64, 64, 16, 4, 4};
   if (tuning.gpuGemmTiles) {
     const auto& t = *tuning.gpuGemmTiles;
-    plan.gemmTiles = plan.gemmSmallTiles = {t[0], t[1], t[2], t[3], t[4]};
+    plan.gemmTiles = plan.gemmSmallTiles = {t[0], t[1], t[2], t[3], t[4], t[5] != 0};
     plan.reasons.push_back("GEMM tiles forced: " + plan.gemmTiles.text());
   } else {
     // Any tile forced by the user means no measuring: the plan is what they asked for.
@@ -182,10 +197,13 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
   if (tuning.gpuAttentionTiles) {
     plan.attentionQueries = (*tuning.gpuAttentionTiles)[0];
     plan.attentionKeys = (*tuning.gpuAttentionTiles)[1];
+    plan.attentionLanes = (*tuning.gpuAttentionTiles)[2];
   }
-  plan.reasons.push_back("attention: " + std::to_string(plan.attentionQueries) + " queries a workgroup, keys in blocks of " +
-                         std::to_string(plan.attentionKeys) + " through shared memory, online softmax" +
-                         (plan.measureTiles ? ", to be measured against other blocks at first use" : ""));
+  // Several invocations a query (attention_flash.comp) by default: one query an invocation
+  // (attention_tiled.comp) left an H200 7/8 idle at the model's 2816 tokens x 12 heads
+  // (docs/gpus.md); the tuner times both kernels wherever it measures.
+  plan.reasons.push_back("attention: " + attentionText(plan) + ", online softmax" +
+                         (plan.measureTiles ? ", to be measured against other blocks and attention_tiled.comp at first use" : ""));
   plan.reasons.push_back("conv2d: implicit GEMM on the GEMM tiles (im2col while loading a tile)");
 
   // fp16 weights (the fp16 precision): cooperative matrices where the device multiplies fp16
@@ -273,8 +291,7 @@ std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& 
                           (plan.attentionSharedKeys ? "; each block's keys shared by the subgroup's lanes)"
                            : plan.freezeConstants   ? "; 2 queries x 4 keys, constants written into the module)"
                                                     : ")")
-                    : "attention: attention_tiled.comp (" + std::to_string(plan.attentionQueries) + " queries, " +
-                          std::to_string(plan.attentionKeys) + "-key blocks)");
+                    : "attention: " + attentionText(plan));
   if (plan.attentionF16 == KernelFamily::CoopMat)
     out.push_back("attention, fp16 layers: attention_coopmat.comp (" + std::to_string(plan.coop.m) + "x" +
                   std::to_string(plan.coop.n) + "x" + std::to_string(plan.coop.k) + " MMA)");

@@ -19,10 +19,15 @@ enum class KernelFamily {
 const char* familyName(KernelFamily family);
 
 // gemm_tiled.comp: a workgroup computes BM x BN outputs per BK step, an invocation TM x TN.
+// pipelined: the next k step fetched while this one computes, register blocks interleaved
+// (PREFETCH, INTERLEAVE); off, the kernel as it was before them, kept as a tuner candidate.
 struct TiledGemmTiles {
   int bm = 64, bn = 64, bk = 16, tm = 4, tn = 4;
+  bool pipelined = true;
   int invocations() const { return (bm / tm) * (bn / tn); }
-  std::string text() const;  // "64x64x16 / 4x4"
+  std::string text() const;  // "64x64x16 / 4x4" (", one step at a time" when not pipelined)
+  // gemm_tiled.comp's PREFETCH and INTERLEAVE (constants 17, 18), set only when off.
+  void addConstants(std::vector<int32_t>& constants) const;
   bool operator==(const TiledGemmTiles&) const = default;
 };
 
@@ -90,9 +95,15 @@ struct KernelPlan {
   // dispatched, each block of columns reading all of x again).
   int gemmRowGroups = 0;
   TiledGemmTiles gemmTiles;                          // products that fill the device
-  TiledGemmTiles gemmSmallTiles{32, 32, 16, 2, 2};   // products with few output tiles
+  // Products with few output tiles: twice the workgroups of 64 x 64 with 4 x 2 outputs an
+  // invocation (a 2 x 2 block loads one value per multiply-add; the model's 768-wide products
+  // landed there on the H200, docs/gpus.md).
+  TiledGemmTiles gemmSmallTiles{64, 32, 16, 4, 2};
   CoopMatTiles coop;
-  int attentionQueries = 64, attentionKeys = 32;     // attention_tiled.comp: per workgroup / block
+  // GPU attention: queries a workgroup and keys a block; attentionLanes invocations share each 4
+  // queries in attention_flash.comp (tiles of scores), 0 means attention_tiled.comp (one query an
+  // invocation). Both are the tuner's candidates (engine/kernel_tuner.cpp).
+  int attentionQueries = 32, attentionKeys = 32, attentionLanes = 16;
   bool measureTiles = false;  // GEMM tiles and attention blocks still to be measured (kernel_tuner.h)
   std::string source;        // "device properties", "SPAR_KERNELS=gpu", "measured ...", "cache ..."
   std::vector<std::string> reasons;  // one line per decision, for --list-kernels
@@ -118,6 +129,9 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning);
 
 // The subgroup MMA size for fp16 A, B and fp32 C (16 x 16 x 16 preferred); m = 0 if none.
 CoopMatSize coopMatF16Size(const DeviceCaps& caps);
+
+// The GPU attention kernel and its blocks, in words ("attention_flash.comp (32 queries ...)").
+std::string attentionText(const KernelPlan& plan);
 
 // Human-readable lines: every op's family and tiles, and the reasons.
 std::vector<std::string> describePlan(const KernelPlan& plan, const DeviceCaps& caps);

@@ -28,7 +28,7 @@ using nlohmann::json;
 // FNV-1a of the measured shaders' words: a changed kernel is measured again.
 std::string shaderHash() {
   uint64_t h = 1469598103934665603ull;
-  for (const char* name : {"gemm_tiled_f32", "attention_tiled_f32", "gemm_coopmat_f32"})
+  for (const char* name : {"gemm_tiled_f32", "attention_tiled_f32", "attention_flash_f32", "attention_flash_sg_f32", "gemm_coopmat_f32"})
     for (uint32_t w : findShader(name)) {
       h ^= w;
       h *= 1099511628211ull;
@@ -101,18 +101,19 @@ std::vector<float> pattern(size_t n) {
 void applyCached(KernelPlan& plan, const json& e, const std::string& file) {
   const auto g = e.at("gemm").value("tiles", std::vector<int>{});
   const auto a = e.at("attention").value("tiles", std::vector<int>{});
-  if (g.size() != 5 || a.size() != 2) throw std::runtime_error("malformed entry");
+  if (g.size() != 6 || a.size() != 3) throw std::runtime_error("malformed entry");
   if (plan.gemmF16 == KernelFamily::CoopMat) {
     const auto c = e.at("coopmat").value("tiles", std::vector<int>{});
     if (c.size() != 5) throw std::runtime_error("malformed entry");
     plan.coop.wm = c[0], plan.coop.wn = c[1], plan.coop.sgM = c[2], plan.coop.sgN = c[3], plan.coop.kSteps = c[4];
   }
-  plan.gemmTiles = {g[0], g[1], g[2], g[3], g[4]};
+  plan.gemmTiles = {g[0], g[1], g[2], g[3], g[4], g[5] != 0};
   plan.attentionQueries = a[0];
   plan.attentionKeys = a[1];
+  plan.attentionLanes = a[2];
   plan.source += ", tiles from " + file + " (measured " + e.value("date", std::string("?")) + ")";
-  plan.reasons.push_back("GEMM tiles " + plan.gemmTiles.text() + ", attention " + std::to_string(a[0]) + " queries / " +
-                         std::to_string(a[1]) + " keys: the fastest measured candidates (" + file + ")");
+  plan.reasons.push_back("GEMM tiles " + plan.gemmTiles.text() + ", " + attentionText(plan) +
+                         ": the fastest measured candidates (" + file + ")");
 }
 
 }  // namespace
@@ -120,8 +121,10 @@ void applyCached(KernelPlan& plan, const json& e, const std::string& file) {
 std::vector<TiledGemmTiles> gemmTileCandidates(const DeviceCaps& caps) {
   // Common GPU shapes: a small tile of 256 invocations, the classic 128 x 128 / 8 x 8 SGEMM
   // tile, and rectangular ones between them.
-  const std::vector<TiledGemmTiles> all = {
-      {64, 64, 16, 4, 4}, {128, 128, 8, 8, 8}, {128, 64, 16, 8, 4}, {64, 128, 16, 4, 8}, {128, 128, 16, 8, 8}};
+  // The first is the kernel as it was before prefetching and interleaving (one k step at a
+  // time), so a device where those do not pay keeps it.
+  const std::vector<TiledGemmTiles> all = {{64, 64, 16, 4, 4, false}, {64, 64, 16, 4, 4},    {128, 128, 8, 8, 8},
+                                           {128, 64, 16, 8, 4},       {64, 128, 16, 4, 8}, {128, 128, 16, 8, 8}};
   std::vector<TiledGemmTiles> out;
   for (const auto& t : all) {
     const uint64_t shared = uint64_t(t.bk) * (t.bm + 4 + t.bn + 4) * 4;  // gemm_tiled.comp's tiles
@@ -130,12 +133,19 @@ std::vector<TiledGemmTiles> gemmTileCandidates(const DeviceCaps& caps) {
   return out;
 }
 
-// attention_tiled.comp: (queries a workgroup, keys a block) for 64-wide heads.
-std::vector<std::array<int, 2>> attentionBlockCandidates(const DeviceCaps& caps) {
-  const std::vector<std::array<int, 2>> all = {{64, 32}, {128, 32}, {64, 64}, {32, 32}, {128, 16}};
-  std::vector<std::array<int, 2>> out;
-  for (const auto& c : all)
-    if (c[0] <= int(caps.maxWorkGroupInvocations) && uint64_t(c[1]) * 64 * 8 <= caps.maxSharedMemory) out.push_back(c);
+// (queries a workgroup, keys a block, lanes) for 64-wide heads: attention_tiled.comp's blocks
+// (lanes 0, one query an invocation) and attention_flash.comp's (lanes invocations sharing 4
+// queries: from 64 to 256 invocations, 2-4 keys and 1-2 output texels a lane), those that fit.
+std::vector<std::array<int, 3>> attentionBlockCandidates(const DeviceCaps& caps) {
+  const std::vector<std::array<int, 3>> all = {{64, 32, 0},  {128, 32, 0}, {64, 64, 0}, {32, 32, 16},
+                                               {64, 32, 16}, {32, 32, 8},  {64, 32, 8}, {16, 64, 16}};
+  std::vector<std::array<int, 3>> out;
+  for (const auto& [queries, keys, lanes] : all) {
+    const int invocations = lanes ? queries / 4 * lanes : queries;
+    const uint64_t shared = lanes ? attentionFlashSharedBytes(queries, keys, lanes, 64) : uint64_t(keys) * 64 * 8;
+    if (invocations <= int(caps.maxWorkGroupInvocations) && shared <= caps.maxSharedMemory)
+      out.push_back({queries, keys, lanes});
+  }
   return out;
 }
 
@@ -191,7 +201,7 @@ void measureKernelChoice(Engine& engine, KernelPlan& plan) {
       [&](size_t i) {
         plan.gemmTiles = plan.gemmSmallTiles = gemms[i];
         const auto& t = gemms[i];
-        return json{t.bm, t.bn, t.bk, t.tm, t.tn};
+        return json{t.bm, t.bn, t.bk, t.tm, t.tn, t.pipelined ? 1 : 0};
       },
       [&](Recorder& rec) {
         for (const Bound& b : block) linear(rec, b.x, b.w, Tensor(), b.y);
@@ -210,11 +220,13 @@ void measureKernelChoice(Engine& engine, KernelPlan& plan) {
       [&](size_t i) {
         plan.attentionQueries = atts[i][0];
         plan.attentionKeys = atts[i][1];
-        return json{atts[i][0], atts[i][1]};
+        plan.attentionLanes = atts[i][2];
+        return json{atts[i][0], atts[i][1], atts[i][2]};
       },
       [&](Recorder& rec) { attention(rec, {qkv, 0}, {qkv, heads * dh}, {qkv, 2 * heads * dh}, {out, 0}, heads, dh); }, 3);
   plan.attentionQueries = atts[a.index][0];
   plan.attentionKeys = atts[a.index][1];
+  plan.attentionLanes = atts[a.index][2];
 
   // fp16 weights on cooperative matrices: the workgroup shape, on an fp16 product.
   Fastest c;
@@ -235,10 +247,11 @@ void measureKernelChoice(Engine& engine, KernelPlan& plan) {
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   char line[200];
   std::snprintf(line, sizeof(line),
-                "GEMM tiles %s (%.3f ms on a transformer block's 4 products, %s), attention %d queries / %d keys "
-                "(%.3f ms, %d heads x %d over %lld tokens): the fastest of %zu and %zu candidates, measured in %.1f s",
+                "GEMM tiles %s (%.3f ms on a transformer block's 4 products, %s), attention %d queries / %d keys / "
+                "%d lanes (%.3f ms, %d heads x %d over %lld tokens): the fastest of %zu and %zu candidates, measured in %.1f s",
                 plan.gemmTiles.text().c_str(), g.ms, caps.isCpu() ? "64 / 256 x 128 tokens" : kWorkload, plan.attentionQueries,
-                plan.attentionKeys, a.ms, heads, dh, static_cast<long long>(tokens), gemms.size(), atts.size(), seconds);
+                plan.attentionKeys, plan.attentionLanes, a.ms, heads, dh, static_cast<long long>(tokens), gemms.size(),
+                atts.size(), seconds);
   plan.reasons.push_back(line);
   if (!coops.empty())
     plan.reasons.push_back("cooperative-matrix GEMM " + plan.coop.text() + ": the fastest of " +

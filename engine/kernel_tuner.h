@@ -25,7 +25,7 @@ void measureKernelChoice(Engine& engine, KernelPlan& plan);
 // The candidates measured (those the device's shared memory and workgroup size allow), for
 // tests that check every one computes correctly.
 std::vector<TiledGemmTiles> gemmTileCandidates(const DeviceCaps& caps);
-std::vector<std::array<int, 2>> attentionBlockCandidates(const DeviceCaps& caps);  // queries, keys
+std::vector<std::array<int, 3>> attentionBlockCandidates(const DeviceCaps& caps);  // queries, keys, lanes
 std::vector<CoopMatTiles> coopMatTileCandidates(const DeviceCaps& caps, const CoopMatTiles& base);
 
 // Where the choice is kept: beside the pipeline cache file, "" when there is none.

@@ -3,9 +3,9 @@
 // (linear layers) and engine/ops/conv2d.cpp (convolution as an implicit GEMM, CONV=1).
 //   y[b][m][n] = act(sum_k A[b][m][k] * W[b][n][k] + bias[n])
 // A workgroup computes a BM x BN tile of y: per step of BK it copies the BM x BK slice of A
-// and the BN x BK slice of W into shared memory (k-major, so the compute loop reads TM
-// consecutive rows and TN consecutive columns), then each of its (BM/TM)*(BN/TN)
-// invocations accumulates a TM x TN register block from them. Tile sizes are
+// and the BN x BK slice of W into shared memory (k-major, so the compute loop reads runs of
+// consecutive rows and columns), then each of its (BM/TM)*(BN/TN) invocations accumulates a
+// TM x TN register block from them (PREFETCH, INTERLEAVE: below). Tile sizes are
 // specialization constants (engine/kernel_plan.cpp chooses them per device). This is the GPU
 // family; the llvmpipe family is gemm.comp (register blocks, no shared memory: shared memory
 // is a lane loop plus a coroutine switch per barrier there).
@@ -60,6 +60,9 @@ layout(constant_id = 12) const int KW = 1;
 layout(constant_id = 13) const int STRIDE = 1;
 layout(constant_id = 14) const int W_BITS = 8;    // W_QUANT: 8 (q8) or 4 (q4)
 layout(constant_id = 15) const bool ACCUMULATE = false;  // y += the result (a fused residual add)
+// (16: gemm_epilogue.glsl's SCALED)
+layout(constant_id = 17) const bool PREFETCH = true;     // the next k step fetched while this one computes
+layout(constant_id = 18) const bool INTERLEAVE = true;   // register blocks in runs of 4 spread over the tile
 
 TEXEL_INPUT(0, X, (CONV == 1 ? 1 : TEXEL_K))     // A (CONV: the image, R texels)
 #if W_QUANT
@@ -123,31 +126,41 @@ float loadA(int img, int m, int k) {
   if (iy < 0 || iy >= p.H || ix < 0 || ix >= p.W) return 0.0;
   return fetch_X(p.inBase + (img * p.Cin + ci) * p.H * p.W + iy * p.W + ix).x;
 #else
-  return 0.0;  // not used: the linear path copies whole texels (copyTiles)
+  return 0.0;  // not used: the linear path fetches whole texels (fetchTiles)
 #endif
 }
 
-// Copies the k0.. k0+BK slices of A (rows m0..) and W (rows n0..) into shared memory.
-void copyTiles(int img, int m0, int n0, int k0) {
+// The tiles' global reads and shared-memory writes are apart, so that with PREFETCH the next k
+// step's texels are fetched into registers (aNext, wNext) while this step is computed (ncnn's
+// technique): a GPU then overlaps global latency with arithmetic instead of waiting at each step.
+// Invocation t takes elements t, t + WG, ... of each tile, consecutive invocations along a row
+// of texels (CONV: consecutive output pixels, neighbouring image columns).
+#if CONV
+const int A_FETCHES = (BM * BK + WG - 1) / WG;  // values of the im2col view
+float aNext[A_FETCHES];
+#else
+const int A_FETCHES = (BM * (BK / TEXEL_K) + WG - 1) / WG;  // texels of TEXEL_K consecutive k
+vec4 aNext[A_FETCHES];
+#endif
+const int W_FETCHES = (BN * (BK / TEXEL_K) + WG - 1) / WG;
+vec4 wNext[W_FETCHES];
+
+// Fetches the k0.. k0+BK slices of A (rows m0..) and W (rows n0..) into aNext and wNext.
+void fetchTiles(int img, int m0, int n0, int k0) {
   const int t = int(gl_LocalInvocationIndex);
 #if CONV
-  // A: consecutive invocations take consecutive rows (output pixels: neighbouring image
-  // columns), so the gather reads adjacent addresses.
-  for (int i = t; i < BM * BK; i += WG) {
-    const int r = i % BM, kk = i / BM;
+  [[unroll]] for (int f = 0; f < A_FETCHES; ++f) {
+    const int i = t + f * WG, r = i % BM, kk = i / BM;
     const int m = m0 + r;
-    tileA[kk * AS + r] = m < rowsM() ? TO_TILE(loadA(img, m, k0 + kk)) : TILE_ZERO;
+    aNext[f] = i < BM * BK && m < rowsM() ? loadA(img, m, k0 + kk) : 0.0;
   }
 #else
-  // A and W: texels of TEXEL_K consecutive k; consecutive invocations read along a row.
   const int texelsPerRow = BK / TEXEL_K;
   const int kt0 = k0 / TEXEL_K;
-  for (int i = t; i < BM * texelsPerRow; i += WG) {
-    const int r = i / texelsPerRow, kt = i - r * texelsPerRow;
+  [[unroll]] for (int f = 0; f < A_FETCHES; ++f) {
+    const int i = t + f * WG, r = i / texelsPerRow, kt = i - r * texelsPerRow;
     const int m = m0 + r;
-    vec4 v = vec4(0.0);
-    if (m < p.M && kt0 + kt < p.K) v = fetch_X(img * p.xBatch + m * p.ldx + kt0 + kt);
-    [[unroll]] for (int c = 0; c < TEXEL_K; ++c) tileA[(kt * TEXEL_K + c) * AS + r] = TO_TILE(v[c]);
+    aNext[f] = i < BM * texelsPerRow && m < p.M && kt0 + kt < p.K ? fetch_X(img * p.xBatch + m * p.ldx + kt0 + kt) : vec4(0.0);
   }
 #endif
 #if CONV && W_QUANT
@@ -161,17 +174,52 @@ void copyTiles(int img, int m0, int n0, int k0) {
 #endif
   const int wTexelsPerRow = BK / TEXEL_K;
   const int wk0 = k0 / TEXEL_K;
-  for (int i = t; i < BN * wTexelsPerRow; i += WG) {
-    const int r = i / wTexelsPerRow, kt = i - r * wTexelsPerRow;
+  [[unroll]] for (int f = 0; f < W_FETCHES; ++f) {
+    const int i = t + f * WG, r = i / wTexelsPerRow, kt = i - r * wTexelsPerRow;
     const int n = n0 + r;
     vec4 v = vec4(0.0);
 #if W_QUANT
-    if (n < colsN() && wk0 + kt < kTexels) v = fetchq_W(wBase + wBatch + n * wLd, wk0 + kt, kTexels);
+    if (i < BN * wTexelsPerRow && n < colsN() && wk0 + kt < kTexels) v = fetchq_W(wBase + wBatch + n * wLd, wk0 + kt, kTexels);
 #else
-    if (n < colsN() && wk0 + kt < kTexels) v = fetch_W(wBase + wBatch + n * wLd + wk0 + kt);
+    if (i < BN * wTexelsPerRow && n < colsN() && wk0 + kt < kTexels) v = fetch_W(wBase + wBatch + n * wLd + wk0 + kt);
 #endif
-    [[unroll]] for (int c = 0; c < TEXEL_K; ++c) tileW[(kt * TEXEL_K + c) * WS + r] = TO_TILE(v[c]);
+    wNext[f] = v;
   }
+}
+
+// Writes aNext and wNext into the shared tiles (k-major).
+void storeTiles() {
+  const int t = int(gl_LocalInvocationIndex);
+#if CONV
+  [[unroll]] for (int f = 0; f < A_FETCHES; ++f) {
+    const int i = t + f * WG;
+    if (i < BM * BK) tileA[(i / BM) * AS + i % BM] = TO_TILE(aNext[f]);
+  }
+#else
+  const int texelsPerRow = BK / TEXEL_K;
+  [[unroll]] for (int f = 0; f < A_FETCHES; ++f) {
+    const int i = t + f * WG, r = i / texelsPerRow, kt = i - r * texelsPerRow;
+    if (i < BM * texelsPerRow)
+      [[unroll]] for (int c = 0; c < TEXEL_K; ++c) tileA[(kt * TEXEL_K + c) * AS + r] = TO_TILE(aNext[f][c]);
+  }
+#endif
+  const int wTexelsPerRow = BK / TEXEL_K;
+  [[unroll]] for (int f = 0; f < W_FETCHES; ++f) {
+    const int i = t + f * WG, r = i / wTexelsPerRow, kt = i - r * wTexelsPerRow;
+    if (i < BN * wTexelsPerRow)
+      [[unroll]] for (int c = 0; c < TEXEL_K; ++c) tileW[(kt * TEXEL_K + c) * WS + r] = TO_TILE(wNext[f][c]);
+  }
+}
+
+// The tile rows and columns of an invocation's register block: with INTERLEAVE (TM, TN multiples
+// of 4) runs of 4 spread over the tile, BM / (TM / 4) rows apart (ggml-vulkan's sub-tiles), so
+// the invocations of a warp read neighbouring 16-byte runs of a shared row and store neighbouring
+// runs of y; else TM (TN) consecutive ones.
+int rowOf(int tRow, int i) {
+  return INTERLEAVE && TM % 4 == 0 ? (i / 4) * (BM / (TM / 4)) + tRow * 4 + i % 4 : tRow * TM + i;
+}
+int colOf(int tCol, int j) {
+  return INTERLEAVE && TN % 4 == 0 ? (j / 4) * (BN / (TN / 4)) + tCol * 4 + j % 4 : tCol * TN + j;
 }
 
 void main() {
@@ -193,18 +241,21 @@ void main() {
   [[unroll]] for (int i = 0; i < TM * TN; ++i) acc[i] = 0.0;
 
   const int K = depthK();
+  fetchTiles(img, m0, n0, 0);
   for (int k0 = 0; k0 < K; k0 += BK) {
-    copyTiles(img, m0, n0, k0);
+    storeTiles();
     barrier();
+    const bool more = k0 + BK < K;
+    if (PREFETCH && more) fetchTiles(img, m0, n0, k0 + BK);
 #if FP16_MATH
     for (int kk = 0; kk < BK; kk += 4) {
       f16vec4 a[TM], b[TN];
       [[unroll]] for (int i = 0; i < TM; ++i) {
-        const int r = tRow * TM + i;
+        const int r = rowOf(tRow, i);
         a[i] = f16vec4(tileA[kk * AS + r], tileA[(kk + 1) * AS + r], tileA[(kk + 2) * AS + r], tileA[(kk + 3) * AS + r]);
       }
       [[unroll]] for (int j = 0; j < TN; ++j) {
-        const int c = tCol * TN + j;
+        const int c = colOf(tCol, j);
         b[j] = f16vec4(tileW[kk * WS + c], tileW[(kk + 1) * WS + c], tileW[(kk + 2) * WS + c], tileW[(kk + 3) * WS + c]);
       }
       [[unroll]] for (int i = 0; i < TM; ++i)
@@ -214,20 +265,21 @@ void main() {
 #else
     for (int kk = 0; kk < BK; ++kk) {
       float a[TM], b[TN];
-      [[unroll]] for (int i = 0; i < TM; ++i) a[i] = tileA[kk * AS + tRow * TM + i];
-      [[unroll]] for (int j = 0; j < TN; ++j) b[j] = tileW[kk * WS + tCol * TN + j];
+      [[unroll]] for (int i = 0; i < TM; ++i) a[i] = tileA[kk * AS + rowOf(tRow, i)];
+      [[unroll]] for (int j = 0; j < TN; ++j) b[j] = tileW[kk * WS + colOf(tCol, j)];
       [[unroll]] for (int i = 0; i < TM; ++i)
         [[unroll]] for (int j = 0; j < TN; ++j) acc[i * TN + j] = fma(a[i], b[j], acc[i * TN + j]);
     }
 #endif
     barrier();
+    if (!PREFETCH && more) fetchTiles(img, m0, n0, k0 + BK);
   }
 
   [[unroll]] for (int i = 0; i < TM; ++i) {
-    const int m = m0 + tRow * TM + i;
+    const int m = m0 + rowOf(tRow, i);
     if (m >= rowsM()) break;
     [[unroll]] for (int j = 0; j < TN; ++j) {
-      const int n = n0 + tCol * TN + j;
+      const int n = n0 + colOf(tCol, j);
       if (n >= colsN()) break;
       float v = acc[i * TN + j];
 #if CONV

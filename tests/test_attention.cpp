@@ -174,6 +174,44 @@ TEST_F(EngineTest, AttentionLanesSplitDimMatchesFloat64) {
     EXPECT_GT(lanesPipelines, 0u) << "no case ran attention_lanes.comp";
 }
 
+// attention_flash.comp (the GPU family's attention with tiles of scores) forced with both ways of
+// combining a group's rows: 8 lanes, within a subgroup (shuffles, SG_ROWS), through texel inputs,
+// and 16 lanes (through shared memory where the subgroup is narrower, as on lavapipe's 8),
+// through storage inputs: odd token counts, causal masks, batches, heads of 16 to 96 (lanes
+// without an output texel, two texels a lane, a key block shrunk to fit), cross attention into a
+// column slice, logits of 1e4 and q / k preparation. Every case must have run that kernel.
+// (256 invocations a workgroup ran as right, but llvmpipe takes 8-13 s to compile each.)
+TEST_F(EngineTest, AttentionFlashMatchesFloat64) {
+  const KernelTuning saved = eng().options().tuning;
+  const DeviceCaps& caps = eng().caps();
+  KernelTuning t = saved;
+  t.kernels = "gpu";
+  t.inputs = "texel";
+  t.gpuAttentionTiles = std::array<int, 3>{32, 32, int(std::min<uint32_t>(8, caps.subgroupSize))};
+  eng().setTuning(t);
+  for (const AttentionCase c : {AttentionCase{2, 61, 2, 32, false}, AttentionCase{1, 70, 1, 64, true},
+                                AttentionCase{1, 37, 1, 96, false}})
+    expectFusedQkvMatches(eng(), c, "flash, 8 lanes, N " + std::to_string(c.N) + ", dh " + std::to_string(c.dh));
+  expectLogitsOfTenThousandMatch(eng(), "flash, 8 lanes, logits 1e4");
+  expectPreparedMatches(eng(), PrepCase{2, 37, 2, 64, true, true, true, 5, 1e-6f}, "flash, 8 lanes, prepared");
+  t.inputs = "storage";
+  t.gpuAttentionTiles = std::array<int, 3>{32, 32, 16};
+  eng().setTuning(t);
+  for (const AttentionCase c : {AttentionCase{2, 9, 3, 16, true}, AttentionCase{1, 1, 1, 16, false}})
+    expectFusedQkvMatches(eng(), c, "flash, 16 lanes, N " + std::to_string(c.N) + ", dh " + std::to_string(c.dh));
+  expectCrossAttentionMatches(eng(), "flash, 16 lanes, cross");
+  expectPreparedMatches(eng(), PrepCase{1, 9, 3, 16, false, true, false, 0, 0.0f}, "flash, 16 lanes, prepared");
+  eng().setTuning(saved);
+  size_t flash = 0, flashSg = 0;
+  for (const Pipeline* p : eng().pipelines().pipelines()) {
+    flash += p->name.rfind("attention_flash", 0) == 0;
+    flashSg += p->name.rfind("attention_flash_sg", 0) == 0;
+  }
+  EXPECT_GE(flash, 9u) << "a case ran another kernel";
+  if (caps.subgroupShuffle && caps.fullSubgroups && caps.subgroupSize >= 16) EXPECT_EQ(flashSg, flash);
+  else if (caps.subgroupShuffle && caps.fullSubgroups && caps.subgroupSize >= 2) EXPECT_GT(flash, flashSg) << "no case combined rows through shared memory";
+}
+
 // One key dominates every row (its logit exceeds the rest by ~60): output ~= that value row.
 TEST_F(EngineTest, AttentionOneKeyDominates) {
   const int64_t N = 50;

@@ -251,11 +251,11 @@ TEST(KernelPlan, ForcedFamilies) {
   t.kernels = "vulkan";
   EXPECT_THROW(t.validate(), Error);
   t.kernels = "gpu";
-  t.gpuGemmTiles = std::array<int, 5>{64, 32, 8, 4, 2};
+  t.gpuGemmTiles = std::array<int, 6>{64, 32, 8, 4, 2, 1};
   const KernelPlan forced = planKernels(gpuCaps(), t);
   EXPECT_EQ(forced.gemmTiles, (TiledGemmTiles{64, 32, 8, 4, 2}));
   EXPECT_FALSE(forced.measureTiles);
-  t.gpuGemmTiles = std::array<int, 5>{64, 32, 6, 4, 2};  // BK not a multiple of 4
+  t.gpuGemmTiles = std::array<int, 6>{64, 32, 6, 4, 2, 1};  // BK not a multiple of 4
   EXPECT_THROW(t.validate(), Error);
 }
 
@@ -294,7 +294,7 @@ TEST(KernelPlan, DescribeSaysWhatAndWhy) {
   for (const auto& l : lines) all += l + "\n";
   EXPECT_NE(all.find("16x16x16 f16*f16+f32"), std::string::npos) << all;
   EXPECT_NE(all.find("linear, fp16 weights: gemm_coopmat.comp"), std::string::npos) << all;
-  EXPECT_NE(all.find("attention: attention_tiled.comp"), std::string::npos) << all;
+  EXPECT_NE(all.find("attention: attention_flash.comp (32 queries a workgroup, 32-key blocks, 16 invocations"), std::string::npos) << all;
   EXPECT_NE(all.find("why: "), std::string::npos) << all;
 }
 
@@ -340,7 +340,7 @@ TEST(KernelTuner, MeasuresOnceThenReadsTheCacheFile) {
     const KernelPlan& p = e.plan();
     EXPECT_NE(p.source.find("kernel-choice.json"), std::string::npos) << p.source;
     EXPECT_EQ(p.gemmTiles.text(), first);
-    EXPECT_EQ(std::vector<int>({p.attentionQueries, p.attentionKeys}), entry["attention"]["tiles"].get<std::vector<int>>());
+    EXPECT_EQ(std::vector<int>({p.attentionQueries, p.attentionKeys, p.attentionLanes}), entry["attention"]["tiles"].get<std::vector<int>>());
   }
 }
 
@@ -357,7 +357,7 @@ TEST_F(EngineTest, EveryMeasuredCandidateComputesTheSame) {
   ASSERT_GE(gemms.size(), 3u);
   for (const TiledGemmTiles& c : gemms) {
     KernelTuning t = saved;
-    t.gpuGemmTiles = std::array<int, 5>{c.bm, c.bn, c.bk, c.tm, c.tn};
+    t.gpuGemmTiles = std::array<int, 6>{c.bm, c.bn, c.bk, c.tm, c.tn, c.pipelined};
     eng().setTuning(t);
     GuardedOutput y(eng(), {M, N});
     Recorder rec(eng());
@@ -381,7 +381,7 @@ TEST_F(EngineTest, EveryMeasuredCandidateComputesTheSame) {
     Recorder rec(eng());
     attention(rec, {tq, 0}, {tq, D}, {tq, 2 * D}, {o.tensor(), 0}, heads, dh);
     rec.run();
-    expectClose(o.read(), aref, 1e-9, 1e-4, "attention " + std::to_string(b[0]) + "/" + std::to_string(b[1]));
+    expectClose(o.read(), aref, 1e-9, 1e-4, "attention " + std::to_string(b[0]) + "/" + std::to_string(b[1]) + "/" + std::to_string(b[2]));
     o.expectAllWritten();
   }
   eng().setTuning(saved);

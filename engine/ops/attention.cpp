@@ -107,6 +107,41 @@ const Kernel* coopMatKernel(Engine& engine, const KernelPlan& plan, int headDim,
   return nullptr;
 }
 
+// shaders/attention_flash.comp (KernelPlan::attentionLanes > 0): the plan's queries a
+// workgroup and lanes a group of 4 queries; keys a block a multiple of the lanes, fewer where the
+// shared memory (q, k and v rows, the probabilities, the row partials) does not fit. Null where
+// nothing fits the device. Subgroup shuffles combine a group's rows (SG_ROWS) where the
+// device's subgroups hold whole groups and the pipeline can require full subgroups.
+struct FlashChoice {
+  const Kernel* kernel = nullptr;
+  int queries = 0;
+};
+FlashChoice flashKernel(Engine& engine, const KernelPlan& plan, int headDim, bool causal, bool f16Out,
+                        const QkPrep& prep) {
+  const DeviceCaps& caps = engine.caps();
+  const int lanes = plan.attentionLanes, queries = plan.attentionQueries;
+  if (lanes <= 0 || queries % 4) return {};
+  const int invocations = queries / 4 * lanes;
+  if (invocations > int(caps.maxWorkGroupInvocations)) return {};
+  const uint32_t fixedSize = caps.requiredSubgroupSize && caps.minSubgroupSize != caps.maxSubgroupSize
+                                 ? caps.maxSubgroupSize
+                                 : (caps.minSubgroupSize ? caps.minSubgroupSize : caps.subgroupSize);
+  const bool sg = caps.subgroupShuffle && caps.fullSubgroups && (lanes & (lanes - 1)) == 0 &&
+                  uint32_t(lanes) <= fixedSize && caps.maxSubgroupSize &&
+                  invocations % int(caps.maxSubgroupSize) == 0;
+  auto sharedBytes = [&](int keys) { return attentionFlashSharedBytes(queries, keys, sg ? 0 : lanes, headDim); };
+  int keys = std::max(lanes, plan.attentionKeys / lanes * lanes);
+  while (keys > lanes && sharedBytes(keys) > caps.maxSharedMemory) keys -= lanes;
+  if (sharedBytes(keys) > caps.maxSharedMemory) return {};
+  std::vector<int32_t> constants = {invocations, 1, 1, headDim, keys, causal ? 1 : 0, queries, lanes};
+  withPrep(constants, prep);
+  const Kernel& kernel = engine.kernel({std::string("attention_flash") + (sg ? "_sg" : "") + (prep.any() ? "_prep" : "") +
+                                            (f16Out ? "_f16out" : "_f32"),
+                                        prep.any() ? prepBinds() : std::vector<Bind>{Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                                        sizeof(AttentionPush), constants, sg ? caps.maxSubgroupSize : 0u});
+  return {&kernel, queries};
+}
+
 // The q / k preparation as its own ops, in place in the fused qkv tensor (the kernels without
 // attention_prep.glsl).
 void prepareInPlace(Recorder& rec, const Tensor& qkv, int heads, int headDim, const QkPrep& prep) {
@@ -118,6 +153,12 @@ void prepareInPlace(Recorder& rec, const Tensor& qkv, int heads, int headDim, co
 }
 
 }  // namespace
+
+uint64_t attentionFlashSharedBytes(int queries, int keys, int partialLanes, int headDim) {
+  const uint64_t row = uint64_t(headDim / 4 + 1) * 16;  // a q, k or v row and its pad texel
+  return (uint64_t(queries) + 2 * uint64_t(keys)) * row + 4 * uint64_t(queries) * (keys + 1) +
+         4 * uint64_t(queries) * partialLanes;
+}
 
 bool preparesInKernel(Engine& engine, int headDim, const QkPrep& prep, bool coopMat) {
   const KernelPlan& plan = engine.plan();
@@ -192,6 +233,12 @@ void attention(Recorder& rec, const HeadsView& q, const HeadsView& k, const Head
     }
   }
   if (plan.attention == KernelFamily::Tiled) {
+    const FlashChoice flash = flashKernel(engine, plan, headDim, causal, f16Out, prep);
+    if (flash.kernel) {
+      rec.dispatch(*flash.kernel, boundArgs, push, static_cast<uint32_t>((gq.rows + flash.queries - 1) / flash.queries),
+                   static_cast<uint32_t>(heads), static_cast<uint32_t>(gq.batch));
+      return;
+    }
     // GPU family (shaders/attention_tiled.comp): a workgroup per block of queries of a head;
     // keys per block bounded by the shared memory their k and v rows take.
     const int queries = std::min<int>(plan.attentionQueries, int(engine.caps().maxWorkGroupInvocations));

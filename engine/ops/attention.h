@@ -31,6 +31,10 @@ struct QkPrep {
 // channels that pair up in the kernel chosen (coopMat: the fp16 layer's cooperative matrices).
 bool preparesInKernel(Engine& engine, int headDim, const QkPrep& prep, bool coopMat = false);
 
+// The shared memory of attention_flash.comp: q rows of a workgroup, k and v rows of a block,
+// the block's probabilities and, combining rows through shared memory, partialLanes floats a query.
+uint64_t attentionFlashSharedBytes(int queries, int keys, int partialLanes, int headDim);
+
 // out = softmax(q k^T * scale) v per head (scale 0 means 1/sqrt(headDim)); causal masks
 // keys after the query's own position. q, k, v may be f32 or f16; out f32 or f16.
 // fp16Layer: the caller's layer computes in fp16 (its weights are fp16): where the device has

@@ -48,6 +48,7 @@ void conv2dAsGemm(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor&
   std::vector<int32_t> constants = {t.invocations(), 1, 1, t.bm, t.bn, t.bk, t.tm, t.tn, texelK,
                                     static_cast<int>(params.act), bias.defined(), int(KH), int(KW), params.stride};
   if (quantized) constants.push_back(w.dtype() == DType::Q8 ? 8 : 4);  // W_BITS
+  t.addConstants(constants);
   const Kernel& kernel = engine.kernel({quantized ? "conv2d_tiled_q_f32" : "conv2d_tiled_f32",
                                         {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
                                         sizeof(ConvGemmPush), constants});

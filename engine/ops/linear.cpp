@@ -106,6 +106,7 @@ GemmLaunch gemmLaunch(Engine& engine, DType xType, DType wType, DType yType, int
                                       e.bias, 1, 1, 1};
     if (quantized) constants.push_back(wType == DType::Q8 ? 8 : 4);  // W_BITS
     withEpilogueFlags(constants, e);
+    t.addConstants(constants);
     const Kernel& k = engine.kernel({name, outputBinds(e.accumulate), sizeof(GemmPush), constants});
     return {&k, t.bm, t.bn};
   }

@@ -30,8 +30,12 @@ struct SPAR_API KernelTuning {
   // (storage buffers where texel buffers are shorter than a storage binding); "texel": texel
   // buffers; "storage": storage buffers of 32-bit words (the *_sx kernels), as on such a device.
   std::string inputs;
-  std::optional<std::array<int, 5>> gpuGemmTiles;       // BM, BN, BK, TM, TN (SPAR_GPU_GEMM_TILES)
-  std::optional<std::array<int, 2>> gpuAttentionTiles;  // queries per workgroup, keys per block
+  // GPU GEMM tiles (SPAR_GPU_GEMM_TILES): BM, BN, BK, TM, TN, and PIPELINED (1: the next k step
+  // fetched while one computes, register blocks interleaved; 0: one step at a time)
+  std::optional<std::array<int, 6>> gpuGemmTiles;
+  // GPU attention: queries a workgroup, keys a block, and LANES, the invocations sharing each 4
+  // queries (attention_flash.comp); LANES 0: one query an invocation (attention_tiled.comp).
+  std::optional<std::array<int, 3>> gpuAttentionTiles;
   // gemm_coopmat.comp: MMAs per subgroup WM x WN, subgroups SG_M x SG_N, K blocks a step
   // (SPAR_COOPMAT_TILES=WM,WN,SGM,SGN,KSTEPS)
   std::optional<std::array<int, 5>> coopMatTiles;
@@ -97,8 +101,8 @@ struct SPAR_API EngineOptions {
   // `base` with what the environment sets: SPAR_DEVICE, SPAR_VALIDATION=1, SPAR_LOG_PIPELINES=1,
   // SPAR_PROFILE=1, SPAR_GEMM_TILES=RM,RN,LX,LY,KU, SPAR_ATTENTION_TILES=QPI,KB,LX,
   // SPAR_CONV_TILES / SPAR_CONVT_TILES=RC,RY,RX,LX,LY, SPAR_LINE_GROUP=SPLIT,LX,LY,
-  // SPAR_KERNELS=cpu|gpu|gpu-fp16|coopmat, SPAR_INPUTS=texel|storage, SPAR_GPU_GEMM_TILES=BM,BN,BK,TM,TN,
-  // SPAR_GPU_ATTENTION_TILES=QUERIES,KEYS, SPAR_COOPMAT_TILES=WM,WN,SGM,SGN,KSTEPS,
+  // SPAR_KERNELS=cpu|gpu|gpu-fp16|coopmat, SPAR_INPUTS=texel|storage, SPAR_GPU_GEMM_TILES=BM,BN,BK,TM,TN,PIPELINED,
+  // SPAR_GPU_ATTENTION_TILES=QUERIES,KEYS,LANES, SPAR_COOPMAT_TILES=WM,WN,SGM,SGN,KSTEPS,
   // SPAR_MEASURE_KERNELS=0|1,
   // SPAR_SUBMIT_TIMEOUT_MS, SPAR_MEMORY_LIMIT_MB, SPAR_DEVICE_LIMITS=PROFILE|FILE.json, SPAR_FAULT_ALLOCATION=N, SPAR_FAULT_SUBMISSION=N. A field
   // already set in `base` (device non-empty) wins over the environment. Throws Error for a

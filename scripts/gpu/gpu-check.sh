@@ -178,6 +178,8 @@ plan=()
 say "device check: $($bin spar-bench --list-devices 2>&1 | tr '\n' ' ')"
 step kernels 120 "${plan[@]}" $bin spar-bench --list-kernels --json
 cp "$out/kernels.log" "$out/kernels.json" 2>/dev/null
+# every candidate the tuner timed (old kernels beside new ones), for the report
+cp "$XDG_CACHE_HOME/spar/kernel-choice.json" "$out/kernel-choice.json" 2>/dev/null
 # spar selftest on the device's own driver and plan (spar-bench --selftest: the same checks as
 # `spar selftest`, in a program of the bundle; the self-test model from the tree carried there):
 # its table is selftest.log, exit 0 = passed.

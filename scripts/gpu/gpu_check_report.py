@@ -89,6 +89,20 @@ def headline_bars(h):
             for bar, v, limit, at_most in rows]
 
 
+def candidate_rows(choice):
+    """Every candidate the GPU tuner timed (kernel-choice.json: one entry per device), as rows
+    {"kind", "tiles", "ms", "chosen"}: the old kernels (the GEMM one k step at a time,
+    attention_tiled.comp with lanes 0) beside the new ones on the same device and workload."""
+    rows = []
+    for entry in (choice or {}).values():
+        for kind in ("gemm", "attention", "coopmat"):
+            part = entry.get(kind) or {}
+            for c in part.get("candidates", []):
+                rows.append({"kind": kind, "tiles": c.get("tiles"), "ms": c.get("ms"),
+                             "chosen": c.get("tiles") == part.get("tiles")})
+    return rows
+
+
 def engine_stages(doc):
     s = {x["name"]: x["gpu_ms"] for x in doc.get("stages", [])}
     s["renderer"] = s.get("renderer", 0.0) + s.pop("render_rays", 0.0)
@@ -113,6 +127,11 @@ def main(argv):
     md.append("Steps: " + ", ".join(f"{k} {'ok' if v == 0 else v if isinstance(v, str) else f'exit {v}'}"
                                     for k, v in steps.items()))
     md += ["", "## Kernel plan", ""] + [f"    {line}" for line in kernels.get("kernels", [])]
+    candidates = candidate_rows(load_json(os.path.join(out, "kernel-choice.json")))
+    if candidates:
+        md += ["", "## Candidates the tuner timed (GEMM: BM,BN,BK,TM,TN,PIPELINED; attention: QUERIES,KEYS,LANES)", "",
+               "| kernel | tiles | ms | chosen |", "|---|---|---|---|"]
+        md += [f"| {c['kind']} | {c['tiles']} | {c['ms']:.3f} | {'yes' if c['chosen'] else ''} |" for c in candidates]
     # spar selftest on the device (spar-bench --selftest): its table as it printed it.
     selftest_log = os.path.join(out, "selftest.log")
     selftest = open(selftest_log, errors="replace").read().splitlines() if os.path.exists(selftest_log) else []
@@ -183,7 +202,8 @@ def main(argv):
     for b in bars:
         md.append(f"| {b['bar']} | {fmt(b['share'])} | {'yes' if b['met'] else 'no'} |")
     verdict = next((l for l in reversed(selftest) if l.startswith("verdict:")), None)
-    doc = {"device": kernels.get("device"), **head, "kernels": kernels.get("kernels"), "selftest": verdict, "steps": steps,
+    doc = {"device": kernels.get("device"), **head, "kernels": kernels.get("kernels"), "kernel_candidates": candidates,
+           "selftest": verdict, "steps": steps,
            "tests": test_rows,
            "ops": rows, "model": {"engine_fp32": models["fp32"],
            "engine_fp16": models["fp16"], "engine_fp32_texel": models["fp32-texel"], "reference": ref_model},

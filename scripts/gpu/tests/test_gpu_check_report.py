@@ -97,3 +97,22 @@ def test_headline_figures_and_their_bars(tmp_path):
     assert b["GEMM fp32 4096^3 >= 0.8 of cuBLAS"]                          # 0.83
     assert b["attention fp32 >= 0.5 of scaled_dot_product_attention"]     # 0.6
     assert "| model_fp32_wall_ms | 90.00 |" in md
+
+
+def test_tuner_candidates_old_beside_new(tmp_path):
+    """The tuner's kernel-choice.json (copied by the check) becomes report.json's
+    kernel_candidates: every GEMM and attention candidate with its time, the chosen one marked, so
+    the old kernels' times stand beside the new ones' from the same run."""
+    os.makedirs(tmp_path / "x")
+    out = tmp_path / "x"
+    write(out / "kernel-choice.json", {"dev": {
+        "gemm": {"tiles": [128, 128, 8, 8, 8, 1], "candidates": [{"tiles": [64, 64, 16, 4, 4, 0], "ms": 3.0},
+                                                                 {"tiles": [128, 128, 8, 8, 8, 1], "ms": 2.0}]},
+        "attention": {"tiles": [32, 32, 16], "candidates": [{"tiles": [64, 32, 0], "ms": 5.0},
+                                                            {"tiles": [32, 32, 16], "ms": 1.5}]}}})
+    doc, md = run_report(out, {}, {}, ({}, {}), {})
+    rows = {(c["kind"], tuple(c["tiles"])): (c["ms"], c["chosen"]) for c in doc["kernel_candidates"]}
+    assert rows[("gemm", (64, 64, 16, 4, 4, 0))] == (3.0, False)
+    assert rows[("gemm", (128, 128, 8, 8, 8, 1))] == (2.0, True)
+    assert rows[("attention", (64, 32, 0))] == (5.0, False) and rows[("attention", (32, 32, 16))] == (1.5, True)
+    assert "| attention | [32, 32, 16] | 1.500 | yes |" in md
