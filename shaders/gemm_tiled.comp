@@ -63,8 +63,12 @@ layout(constant_id = 15) const bool ACCUMULATE = false;  // y += the result (a f
 // (16: gemm_epilogue.glsl's SCALED)
 layout(constant_id = 17) const bool PREFETCH = true;     // the next k step fetched while this one computes
 layout(constant_id = 18) const bool INTERLEAVE = true;   // register blocks in runs of 4 spread over the tile
+// CONV of a 1x1 kernel, stride 1, no padding, a multiple of 4 pixels an image: a plain GEMM of
+// the weight and the image's [Cin, H*W] matrix, whose tile rows are read as RGBA texels of 4
+// pixels (x bound so) instead of one value each through the im2col arithmetic.
+layout(constant_id = 19) const bool POINTWISE = false;
 
-TEXEL_INPUT(0, X, (CONV == 1 ? 1 : TEXEL_K))     // A (CONV: the image, R texels)
+TEXEL_INPUT(0, X, (CONV == 1 ? (POINTWISE ? 4 : 1) : TEXEL_K))  // A (CONV: the image, R texels; POINTWISE RGBA)
 #if W_QUANT
 QUANT_INPUT(1, W)
 #else
@@ -136,8 +140,9 @@ float loadA(int img, int m, int k) {
 // Invocation t takes elements t, t + WG, ... of each tile, consecutive invocations along a row
 // of texels (CONV: consecutive output pixels, neighbouring image columns).
 #if CONV
-const int A_FETCHES = (BM * BK + WG - 1) / WG;  // values of the im2col view
-float aNext[A_FETCHES];
+// values of the im2col view (POINTWISE: texels of 4 pixels of a channel)
+const int A_FETCHES = POINTWISE ? (BM / 4 * BK + WG - 1) / WG : (BM * BK + WG - 1) / WG;
+vec4 aNext[A_FETCHES];
 #else
 const int A_FETCHES = (BM * (BK / TEXEL_K) + WG - 1) / WG;  // texels of TEXEL_K consecutive k
 vec4 aNext[A_FETCHES];
@@ -150,9 +155,17 @@ void fetchTiles(int img, int m0, int n0, int k0) {
   const int t = int(gl_LocalInvocationIndex);
 #if CONV
   [[unroll]] for (int f = 0; f < A_FETCHES; ++f) {
-    const int i = t + f * WG, r = i % BM, kk = i / BM;
-    const int m = m0 + r;
-    aNext[f] = i < BM * BK && m < rowsM() ? loadA(img, m, k0 + kk) : 0.0;
+    const int i = t + f * WG;
+    if (POINTWISE) {  // a whole texel is inside the image or outside it (H*W a multiple of 4)
+      const int r = (i % (BM / 4)) * 4, kk = i / (BM / 4);
+      const int m = m0 + r, k = k0 + kk;
+      aNext[f] = i < BM / 4 * BK && m < rowsM() && k < p.Cin ? fetch_X((p.inBase + (img * p.Cin + k) * rowsM() + m) / 4)
+                                                              : vec4(0.0);
+    } else {
+      const int r = i % BM, kk = i / BM;
+      const int m = m0 + r;
+      aNext[f].x = i < BM * BK && m < rowsM() ? loadA(img, m, k0 + kk) : 0.0;
+    }
   }
 #else
   const int texelsPerRow = BK / TEXEL_K;
@@ -193,7 +206,13 @@ void storeTiles() {
 #if CONV
   [[unroll]] for (int f = 0; f < A_FETCHES; ++f) {
     const int i = t + f * WG;
-    if (i < BM * BK) tileA[(i / BM) * AS + i % BM] = TO_TILE(aNext[f]);
+    if (POINTWISE) {
+      const int r = (i % (BM / 4)) * 4, kk = i / (BM / 4);
+      if (i < BM / 4 * BK)
+        [[unroll]] for (int c = 0; c < 4; ++c) tileA[kk * AS + r + c] = TO_TILE(aNext[f][c]);
+    } else if (i < BM * BK) {
+      tileA[(i / BM) * AS + i % BM] = TO_TILE(aNext[f].x);
+    }
   }
 #else
   const int texelsPerRow = BK / TEXEL_K;
@@ -235,7 +254,13 @@ void main() {
 #endif
   const int m0 = int(gl_WorkGroupID.x) * BM;
   const int t = int(gl_LocalInvocationIndex);
+#if CONV
+  // y is NCHW (a column of the GEMM is a plane): neighbouring invocations take neighbouring
+  // output pixels, so their stores are neighbouring addresses.
+  const int tCol = t / (BM / TM), tRow = t - tCol * (BM / TM);
+#else
   const int tRow = t / (BN / TN), tCol = t - tRow * (BN / TN);
+#endif
 
   float acc[TM * TN];
   [[unroll]] for (int i = 0; i < TM * TN; ++i) acc[i] = 0.0;

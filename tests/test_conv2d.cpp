@@ -94,6 +94,7 @@ INSTANTIATE_TEST_SUITE_P(
         ConvCase{2, 16, 20, 24, 33, 3, 3, 2, 1, 1, true, Activation::None},       // RGBA, stride 2
         ConvCase{1, 3, 61, 61, 16, 3, 3, 2, 0, 0, true, Activation::Silu},        // RGB input, pad 0
         ConvCase{1, 64, 16, 16, 61, 1, 1, 1, 0, 0, true, Activation::None},       // 1x1, RGBA
+        ConvCase{2, 9, 7, 9, 13, 1, 1, 1, 0, 0, true, Activation::None},          // 1x1, 63 pixels: not whole texels
         ConvCase{2, 13, 61, 17, 5, 1, 1, 2, 0, 0, false, Activation::Gelu},       // 1x1 stride 2
         ConvCase{1, 12, 8, 12, 7, 1, 1, 1, 1, 1, true, Activation::None},         // 1x1 with padding
         ConvCase{1, 8, 12, 32, 20, 3, 3, 1, 1, 1, true, Activation::QuickGelu},   // RGBA, shift 3
@@ -212,30 +213,35 @@ TEST_F(EngineTest, Conv2dTensorsAtUnalignedOffsets) {
 }
 
 // Outputs beyond one storage binding are written in chunks of (image, channel block)
-// units; the binding limit is lowered so the split happens at a small size.
+// units; the binding limit is lowered so the split happens at a small size. A 3x3 and a 1x1
+// over whole texels of pixels (the GPU family's POINTWISE GEMM, each chunk's image read as
+// RGBA texels from its own start).
 TEST_F(EngineTest, Conv2dOutputSplitIntoChunks) {
-  const ConvCase c{3, 5, 11, 13, 37, 3, 3, 1, 1, 1, true, Activation::None};
-  auto x = randomUniform(c.N * c.Cin * c.H * c.W, -1, 1, 14), w = randomUniform(c.Cout * c.Cin * 9, -1, 1, 15);
-  auto b = randomUniform(c.Cout, -1, 1, 16);
-  Tensor tx = eng().fromFloats({c.N, c.Cin, c.H, c.W}, x), tw = eng().fromFloats({c.Cout, c.Cin, 3, 3}, w);
-  Tensor tb = eng().fromFloats({c.Cout}, b);
-  GuardedOutput y(eng(), outShape(c));
-  const int64_t block = chooseConvTiles(eng().caps(), eng().options().tuning, 3, 3).channels;
-  const int64_t units = c.N * ((c.Cout + block - 1) / block);
-  // Room for two units (plus alignment slack) per binding; where inputs are storage buffers
-  // (plan().storageInputs) the weight is bound within the same range, so room for it too.
-  const bool inputsInRange = eng().plan().storageInputs;
-  uint64_t room = uint64_t(2 * block * c.H * c.W + 64);
-  if (inputsInRange) room = std::max<uint64_t>(room, uint64_t(c.Cout * c.Cin * 9 + 64));
-  ScopedBindingRange lowered(eng(), room * 4);
-  Recorder rec(eng());
-  conv2d(rec, tx, tw, tb, y.tensor(), paramsOf(c));
-  if (eng().plan().conv == KernelFamily::CpuBlocks && !inputsInRange) EXPECT_EQ(rec.pending(), size_t((units + 1) / 2));
-  else EXPECT_GT(rec.pending(), size_t(1));  // the GPU family's units are blocks of its own size
-  rec.run();
-  lowered.restore();
-  expectClose(y.read(), conv2dRef(c, x, w, b), 1e-8, 1e-4, "chunked");
-  y.expectAllWritten();
+  for (const ConvCase c : {ConvCase{3, 5, 11, 13, 37, 3, 3, 1, 1, 1, true, Activation::None},
+                           ConvCase{3, 5, 12, 12, 37, 1, 1, 1, 0, 0, true, Activation::None}}) {
+    const int64_t taps = c.KH * c.KW;
+    auto x = randomUniform(c.N * c.Cin * c.H * c.W, -1, 1, 14), w = randomUniform(c.Cout * c.Cin * taps, -1, 1, 15);
+    auto b = randomUniform(c.Cout, -1, 1, 16);
+    Tensor tx = eng().fromFloats({c.N, c.Cin, c.H, c.W}, x), tw = eng().fromFloats({c.Cout, c.Cin, c.KH, c.KW}, w);
+    Tensor tb = eng().fromFloats({c.Cout}, b);
+    GuardedOutput y(eng(), outShape(c));
+    const int64_t block = chooseConvTiles(eng().caps(), eng().options().tuning, c.KH, c.KW).channels;
+    const int64_t units = c.N * ((c.Cout + block - 1) / block);
+    // Room for two units (plus alignment slack) per binding; where inputs are storage buffers
+    // (plan().storageInputs) the weight is bound within the same range, so room for it too.
+    const bool inputsInRange = eng().plan().storageInputs;
+    uint64_t room = uint64_t(2 * block * c.H * c.W + 64);
+    if (inputsInRange) room = std::max<uint64_t>(room, uint64_t(c.Cout * c.Cin * taps + 64));
+    ScopedBindingRange lowered(eng(), room * 4);
+    Recorder rec(eng());
+    conv2d(rec, tx, tw, tb, y.tensor(), paramsOf(c));
+    if (eng().plan().conv == KernelFamily::CpuBlocks && !inputsInRange) EXPECT_EQ(rec.pending(), size_t((units + 1) / 2));
+    else EXPECT_GT(rec.pending(), size_t(1));  // the GPU family's units are blocks of its own size
+    rec.run();
+    lowered.restore();
+    expectClose(y.read(), conv2dRef(c, x, w, b), 1e-8, 1e-4, "chunked " + std::to_string(c.KH) + "x" + std::to_string(c.KW));
+    y.expectAllWritten();
+  }
 }
 
 // ---- Quantized kernels (engine/tensor.h DType::Q8 / Q4: the matrix [Cout, Cin*kh*kw]),
@@ -278,6 +284,8 @@ TEST_F(EngineTest, Conv2dQuantizedMatchesFloat64OfDequantized) {
   expectQuantizedConv(eng(), c3, randomUniform(13 * 32 * 9, -1, 1, 33), 8, "q8 3x3");
   const ConvCase c1{2, 64, 10, 16, 7, 1, 1, 2, 0, 0, false, Activation::None};  // Wo 8: vec4 stores
   expectQuantizedConv(eng(), c1, randomUniform(7 * 64, -1, 1, 34), 4, "q4 1x1 stride 2");
+  const ConvCase pointwise{2, 64, 10, 16, 7, 1, 1, 1, 0, 0, true, Activation::None};  // the GPU family's POINTWISE
+  expectQuantizedConv(eng(), pointwise, randomUniform(7 * 64, -1, 1, 36), 8, "q8 1x1");
   // the stiff blocks: one row of 9 blocks per output channel, the first three stiff
   expectQuantizedConv(eng(), c3, stiffQuantizedRows(13, 32 * 9, 35), 4, "q4 3x3 stiff");
 }

@@ -52,6 +52,21 @@ void conv2dAsGemm(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor&
   const Kernel& kernel = engine.kernel({quantized ? "conv2d_tiled_q_f32" : "conv2d_tiled_f32",
                                         {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
                                         sizeof(ConvGemmPush), constants});
+  // A 1x1 convolution, stride 1, no padding, over whole texels of pixels: a plain GEMM reading
+  // the image as RGBA texels (gemm_tiled.comp's POINTWISE), in every chunk whose binding starts
+  // on a texel of the image (the views below start 16-byte aligned, so all do).
+  const bool pointwise = KH == 1 && KW == 1 && params.stride == 1 && params.padY == 0 && params.padX == 0 &&
+                         (H * W) % 4 == 0 && t.bm % 4 == 0 && x.byteOffset() % 16 == 0;
+  const Kernel* pointwiseKernel = nullptr;
+  if (pointwise) {
+    std::vector<int32_t> c = constants;
+    constexpr size_t kPrefetchId = 17, kInterleaveId = 18, kPointwiseId = 19;
+    c.resize(kPointwiseId + 1, 0);
+    c[kPrefetchId] = c[kInterleaveId] = t.pipelined;
+    c[kPointwiseId] = 1;
+    pointwiseKernel = &engine.kernel({quantized ? "conv2d_tiled_q_f32" : "conv2d_tiled_f32",
+                                      {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write}, sizeof(ConvGemmPush), c});
+  }
   // Output channels per unit: all of them, unless an image's output is over a binding.
   const int64_t plane = Ho * Wo;
   const int64_t room = bindingElements(engine, false) - alignmentSlack(caps, false);
@@ -70,8 +85,9 @@ void conv2dAsGemm(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor&
                             int32_t(-wr.base / texelK), int32_t(-br.base), int32_t(-c.out.base), int32_t(blocks),
                             int32_t(blockChannels), int32_t(c.u0)};
     // without a bias a placeholder never read: the weight, or for a quantized one one element of x
-    rec.dispatch(kernel,
-                 {Arg::texel(c.in.view, 1), Arg::texel(wr.view, wComponents),
+    const bool texels = pointwiseKernel && c.in.base % 4 == 0 && c.in.view.numel() % 4 == 0;
+    rec.dispatch(texels ? *pointwiseKernel : kernel,
+                 {Arg::texel(c.in.view, texels ? 4 : 1), Arg::texel(wr.view, wComponents),
                   Arg::texel(bias.defined() || !quantized ? br.view : c.in.view.view(0, {1}), 1), Arg::out(c.out.view)},
                  push, gx, gy, static_cast<uint32_t>(c.u1 - c.u0));
   });
