@@ -84,7 +84,12 @@ void KernelTuning::validate() const {
       throw Error("GPU attention tiles (SPAR_GPU_ATTENTION_TILES: QUERIES,KEYS,LANES): at most 1024 queries, keys a multiple "
                   "of 4; with LANES > 0 queries a multiple of 4, keys of LANES, at most 1024 invocations");
   }
-  positive(coopMatTiles, "cooperative-matrix GEMM tiles (SPAR_COOPMAT_TILES: WM,WN,SGM,SGN,KSTEPS)");
+  if (coopMatTiles) {
+    const auto [wm, wn, sgm, sgn, ksteps, pipelined] = *coopMatTiles;
+    if (wm <= 0 || wn <= 0 || sgm <= 0 || sgn <= 0 || ksteps <= 0 || (pipelined != 0 && pipelined != 1))
+      throw Error("cooperative-matrix GEMM tiles (SPAR_COOPMAT_TILES: WM,WN,SGM,SGN,KSTEPS,PIPELINED) must be 5 positive "
+                  "integers and 0 or 1");
+  }
   if (!kernels.empty() && kernels != "cpu" && kernels != "gpu" && kernels != "gpu-fp16" && kernels != "coopmat")
     throw Error("kernel family (SPAR_KERNELS) must be cpu, gpu, gpu-fp16 or coopmat, got '" + kernels + "'");
   if (!inputs.empty() && inputs != "texel" && inputs != "storage")
@@ -123,7 +128,7 @@ EngineOptions EngineOptions::fromEnvironment(EngineOptions base) {
     if (const char* i = env("SPAR_INPUTS")) t.inputs = i;
   if (!t.gpuGemmTiles) t.gpuGemmTiles = ints<6>("SPAR_GPU_GEMM_TILES", "BM,BN,BK,TM,TN,PIPELINED");
   if (!t.gpuAttentionTiles) t.gpuAttentionTiles = ints<3>("SPAR_GPU_ATTENTION_TILES", "QUERIES,KEYS,LANES");
-  if (!t.coopMatTiles) t.coopMatTiles = ints<5>("SPAR_COOPMAT_TILES", "WM,WN,SGM,SGN,KSTEPS");
+  if (!t.coopMatTiles) t.coopMatTiles = ints<6>("SPAR_COOPMAT_TILES", "WM,WN,SGM,SGN,KSTEPS,PIPELINED");
   if (!t.measureKernels)
     if (const char* m = env("SPAR_MEASURE_KERNELS")) t.measureKernels = std::string(m) != "0";
   if (!t.gemmLanesSplitK)

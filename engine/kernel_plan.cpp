@@ -36,8 +36,8 @@ bool CoopMatTiles::fits(const DeviceCaps& caps) const {
 
 std::string CoopMatTiles::text() const {
   char b[96];
-  std::snprintf(b, sizeof(b), "%dx%dx%d MMA, %dx%d per subgroup, %dx%d subgroups, k step %d", m, n, k, wm, wn,
-                sgM, sgN, k * kSteps);
+  std::snprintf(b, sizeof(b), "%dx%dx%d MMA, %dx%d per subgroup, %dx%d subgroups, k step %d%s", m, n, k, wm, wn,
+                sgM, sgN, k * kSteps, pipelined ? "" : ", one step at a time");
   return b;
 }
 
@@ -222,6 +222,7 @@ KernelPlan planKernels(const DeviceCaps& caps, const KernelTuning& tuning) {
     if (const auto& t = tuning.coopMatTiles) {
       plan.coop.wm = (*t)[0], plan.coop.wn = (*t)[1], plan.coop.sgM = (*t)[2], plan.coop.sgN = (*t)[3];
       plan.coop.kSteps = (*t)[4];
+      plan.coop.pipelined = (*t)[5] != 0;
       if (!plan.coop.fits(caps))
         throw Error("SPAR_COOPMAT_TILES " + plan.coop.text() + ": needs " + std::to_string(plan.coop.sharedBytes()) +
                     " bytes of shared memory and " + std::to_string(caps.maxSubgroupSize * plan.coop.sgM * plan.coop.sgN) +

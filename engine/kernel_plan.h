@@ -38,6 +38,7 @@ struct CoopMatTiles {
   int wm = 2, wn = 2;        // MMAs per subgroup along rows / columns
   int sgM = 2, sgN = 2;      // subgroups per workgroup along rows / columns
   int kSteps = 2;            // K blocks per shared-memory step
+  bool pipelined = true;     // the next step's texels fetched while one multiplies (PREFETCH)
   int rows() const { return m * wm * sgM; }
   int cols() const { return n * wn * sgN; }
   // gemm_coopmat.comp's shared memory: the fp16 x and w slices of a step (rows padded by 8)

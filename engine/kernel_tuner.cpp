@@ -104,8 +104,9 @@ void applyCached(KernelPlan& plan, const json& e, const std::string& file) {
   if (g.size() != 6 || a.size() != 3) throw std::runtime_error("malformed entry");
   if (plan.gemmF16 == KernelFamily::CoopMat) {
     const auto c = e.at("coopmat").value("tiles", std::vector<int>{});
-    if (c.size() != 5) throw std::runtime_error("malformed entry");
+    if (c.size() != 6) throw std::runtime_error("malformed entry");
     plan.coop.wm = c[0], plan.coop.wn = c[1], plan.coop.sgM = c[2], plan.coop.sgN = c[3], plan.coop.kSteps = c[4];
+    plan.coop.pipelined = c[5] != 0;
   }
   plan.gemmTiles = {g[0], g[1], g[2], g[3], g[4], g[5] != 0};
   plan.attentionQueries = a[0];
@@ -152,12 +153,14 @@ std::vector<std::array<int, 3>> attentionBlockCandidates(const DeviceCaps& caps)
 // gemm_coopmat.comp's workgroup shapes (MMAs per subgroup WM x WN, subgroups SG_M x SG_N, K
 // blocks a step) that fit the device.
 std::vector<CoopMatTiles> coopMatTileCandidates(const DeviceCaps& caps, const CoopMatTiles& base) {
-  const std::vector<std::array<int, 5>> all = {{2, 2, 2, 2, 2}, {4, 2, 2, 2, 2}, {2, 4, 2, 2, 2}, {4, 4, 2, 2, 1},
-                                               {2, 2, 4, 2, 2}};
+  // The first: the kernel as it was before prefetching (PIPELINED 0), kept as a candidate.
+  const std::vector<std::array<int, 6>> all = {{2, 2, 2, 2, 2, 0}, {2, 2, 2, 2, 2, 1}, {4, 2, 2, 2, 2, 1},
+                                               {2, 4, 2, 2, 2, 1}, {4, 4, 2, 2, 1, 1}, {4, 4, 2, 2, 2, 1},
+                                               {2, 2, 4, 2, 2, 1}};
   std::vector<CoopMatTiles> out;
   for (const auto& a : all) {
     CoopMatTiles t = base;
-    t.wm = a[0], t.wn = a[1], t.sgM = a[2], t.sgN = a[3], t.kSteps = a[4];
+    t.wm = a[0], t.wn = a[1], t.sgM = a[2], t.sgN = a[3], t.kSteps = a[4], t.pipelined = a[5] != 0;
     if (t.fits(caps)) out.push_back(t);
   }
   return out;
@@ -238,7 +241,7 @@ void measureKernelChoice(Engine& engine, KernelPlan& plan) {
         engine, coops.size(),
         [&](size_t i) {
           plan.coop = coops[i];
-          return json{coops[i].wm, coops[i].wn, coops[i].sgM, coops[i].sgN, coops[i].kSteps};
+          return json{coops[i].wm, coops[i].wn, coops[i].sgM, coops[i].sgN, coops[i].kSteps, coops[i].pipelined ? 1 : 0};
         },
         [&](Recorder& rec) { linear(rec, x16, w16, Tensor(), y); }, 3);
     plan.coop = coops[c.index];

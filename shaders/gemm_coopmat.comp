@@ -42,6 +42,9 @@ layout(constant_id = 9) const int ACT = ACT_NONE;
 layout(constant_id = 10) const bool HAS_BIAS = false;
 layout(constant_id = 11) const int W_BITS = 8;   // W_QUANT: 8 (q8) or 4 (q4)
 layout(constant_id = 15) const bool ACCUMULATE = false;  // y += the result (a fused residual add)
+// (16: gemm_epilogue.glsl's SCALED.) The next k step's texels fetched into registers while this
+// one is multiplied (as gemm_tiled.comp): global latency overlaps the multiply-adds.
+layout(constant_id = 17) const bool PREFETCH = true;
 // The device's multiply-add shape (ids fixed: the SPIR-V rewrite recognises them).
 layout(constant_id = 20) const uint CM_M = 16;
 layout(constant_id = 21) const uint CM_N = 16;
@@ -70,28 +73,49 @@ shared float16_t tileX[BM * LD];
 shared float16_t tileW[BN * LD];
 shared float staging[SG_M * SG_N * CM_M * CM_N];
 
-void copySlice(bool isX, int img, int row0, int k0) {
-  const int rows = isX ? int(BM) : int(BN);
-  const int texelsPerRow = int(BK) / TEXEL_K;
-  const int kt0 = k0 / TEXEL_K;
-  for (int i = int(gl_LocalInvocationIndex); i < rows * texelsPerRow; i += int(gl_WorkGroupSize.x)) {
-    const int r = i / texelsPerRow, kt = i - r * texelsPerRow;
-    const int row = row0 + r;
+// Invocation t fetches texels t, t + WG, ... of each slice (consecutive invocations along a
+// row) into xNext / wNext; storeSlices writes them as fp16 into the shared slices.
+const int WG = int(gl_WorkGroupSize.x);
+const int X_FETCHES = (int(BM) * (int(BK) / TEXEL_K) + WG - 1) / WG;
+const int W_FETCHES = (int(BN) * (int(BK) / TEXEL_K) + WG - 1) / WG;
+vec4 xNext[X_FETCHES], wNext[W_FETCHES];
+
+void fetchSlices(int img, int m0, int n0, int k0) {
+  const int texelsPerRow = int(BK) / TEXEL_K, kt0 = k0 / TEXEL_K, t = int(gl_LocalInvocationIndex);
+  [[unroll]] for (int f = 0; f < X_FETCHES; ++f) {
+    const int i = t + f * WG, r = i / texelsPerRow, kt = i - r * texelsPerRow;
+    const int row = m0 + r;
+    xNext[f] = i < int(BM) * texelsPerRow && row < p.M && kt0 + kt < p.K
+                   ? fetch_X(img * p.xBatch + row * p.ldx + kt0 + kt) : vec4(0.0);
+  }
+  [[unroll]] for (int f = 0; f < W_FETCHES; ++f) {
+    const int i = t + f * WG, r = i / texelsPerRow, kt = i - r * texelsPerRow;
+    const int row = n0 + r;
     vec4 v = vec4(0.0);
-    if (isX) {
-      if (row < p.M && kt0 + kt < p.K) v = fetch_X(img * p.xBatch + row * p.ldx + kt0 + kt);
-    } else {
 #if W_QUANT
-      if (row < p.N && kt0 + kt < p.K) v = fetchq_W(img * p.wBatch + row * p.ldw, kt0 + kt, p.K);
+    if (i < int(BN) * texelsPerRow && row < p.N && kt0 + kt < p.K) v = fetchq_W(img * p.wBatch + row * p.ldw, kt0 + kt, p.K);
 #else
-      if (row < p.N && kt0 + kt < p.K) v = fetch_W(img * p.wBatch + row * p.ldw + kt0 + kt);
+    if (i < int(BN) * texelsPerRow && row < p.N && kt0 + kt < p.K) v = fetch_W(img * p.wBatch + row * p.ldw + kt0 + kt);
 #endif
+    wNext[f] = v;
+  }
+}
+
+// Values beyond fp16's range saturate at +-65504.
+void storeSlices() {
+  const int texelsPerRow = int(BK) / TEXEL_K, t = int(gl_LocalInvocationIndex);
+  [[unroll]] for (int f = 0; f < X_FETCHES; ++f) {
+    const int i = t + f * WG, r = i / texelsPerRow, kt = i - r * texelsPerRow;
+    if (i < int(BM) * texelsPerRow) {
+      const vec4 v = clamp(xNext[f], vec4(-65504.0), vec4(65504.0));
+      [[unroll]] for (int c = 0; c < TEXEL_K; ++c) tileX[uint(r) * LD + uint(kt * TEXEL_K + c)] = float16_t(v[c]);
     }
-    v = clamp(v, vec4(-65504.0), vec4(65504.0));
-    [[unroll]] for (int c = 0; c < TEXEL_K; ++c) {
-      const uint at = uint(r) * LD + uint(kt * TEXEL_K + c);
-      if (isX) tileX[at] = float16_t(v[c]);
-      else tileW[at] = float16_t(v[c]);
+  }
+  [[unroll]] for (int f = 0; f < W_FETCHES; ++f) {
+    const int i = t + f * WG, r = i / texelsPerRow, kt = i - r * texelsPerRow;
+    if (i < int(BN) * texelsPerRow) {
+      const vec4 v = clamp(wNext[f], vec4(-65504.0), vec4(65504.0));
+      [[unroll]] for (int c = 0; c < TEXEL_K; ++c) tileW[uint(r) * LD + uint(kt * TEXEL_K + c)] = float16_t(v[c]);
     }
   }
 }
@@ -106,10 +130,12 @@ void main() {
   [[unroll]] for (uint i = 0; i < WM * WN; ++i) acc[i] = fcoopmatNV<32, gl_ScopeSubgroup, CM_M, CM_N>(0.0);
 
   const int K = p.K * TEXEL_K;
+  fetchSlices(img, m0, n0, 0);
   for (int k0 = 0; k0 < K; k0 += int(BK)) {
-    copySlice(true, img, m0, k0);
-    copySlice(false, img, n0, k0);
+    storeSlices();
     barrier();
+    const bool more = k0 + int(BK) < K;
+    if (PREFETCH && more) fetchSlices(img, m0, n0, k0 + int(BK));
     [[unroll]] for (uint ks = 0; ks < KSTEPS; ++ks) {
       fcoopmatNV<16, gl_ScopeSubgroup, CM_M, CM_K> a[WM];
       fcoopmatNV<16, gl_ScopeSubgroup, CM_K, CM_N> b[WN];
@@ -121,14 +147,18 @@ void main() {
         [[unroll]] for (uint j = 0; j < WN; ++j) acc[i * WN + j] = coopMatMulAddNV(a[i], b[j], acc[i * WN + j]);
     }
     barrier();
+    if (!PREFETCH && more) fetchSlices(img, m0, n0, k0 + int(BK));
   }
 
-  // Epilogue: each accumulator through this subgroup's staging area, one element per lane.
+  // Epilogue: each accumulator through this subgroup's staging area, one element per lane. The
+  // area is the subgroup's own, so its lanes wait for one another only (a subgroup barrier with
+  // a shared-memory barrier), not for the whole workgroup.
   const uint stage = sg * CM_M * CM_N;
   [[unroll]] for (uint i = 0; i < WM; ++i)
     [[unroll]] for (uint j = 0; j < WN; ++j) {
       coopMatStoreNV(acc[i * WN + j], staging, stage, CM_N, false);
-      barrier();
+      subgroupMemoryBarrierShared();
+      subgroupBarrier();
       for (uint e = gl_SubgroupInvocationID; e < CM_M * CM_N; e += gl_SubgroupSize) {
         const int m = m0 + int((sgRow * WM + i) * CM_M + e / CM_N);
         const int n = n0 + int((sgCol * WN + j) * CM_N + e % CM_N);
@@ -136,6 +166,7 @@ void main() {
         float v = staging[stage + e];
         STORE_OUT(img * p.yBatch + m * p.ldy + n, gemm_epilogue(v, n));
       }
-      barrier();
+      subgroupMemoryBarrierShared();
+      subgroupBarrier();
     }
 }

@@ -223,12 +223,12 @@ TEST(KernelPlan, Fp16WeightsUseCoopMatThenFp16Arithmetic) {
   // left to fail in the driver; it also turns measuring off.
   c.coopMatSizes = {{16, 16, 16, 0, 0, 1, 1}};
   KernelTuning t;
-  t.coopMatTiles = std::array<int, 5>{4, 2, 2, 2, 2};
+  t.coopMatTiles = std::array<int, 6>{4, 2, 2, 2, 2, 1};
   p = planKernels(c, t);
   EXPECT_EQ(p.coop.wm, 4);
   EXPECT_FALSE(p.measureTiles);
   EXPECT_LE(p.coop.sharedBytes(), c.maxSharedMemory);
-  t.coopMatTiles = std::array<int, 5>{8, 8, 4, 4, 8};  // 512x512 outputs, k step 128: far past 48 KiB
+  t.coopMatTiles = std::array<int, 6>{8, 8, 4, 4, 8, 1};  // 512x512 outputs, k step 128: far past 48 KiB
   EXPECT_THROW(planKernels(c, t), Error);
 }
 

@@ -164,7 +164,7 @@ TEST(spar_bench_model, ListKernelsSaysWhatAndWhy) {
   std::string all;
   for (const auto& line : doc["kernels"]) all += line.get<std::string>() + "\n";
   EXPECT_NE(all.find("linear, fp32 weights: gemm_tiled.comp"), std::string::npos) << all;
-  EXPECT_NE(all.find("attention: attention_tiled.comp"), std::string::npos) << all;
+  EXPECT_NE(all.find("attention: attention_flash.comp"), std::string::npos) << all;
   EXPECT_NE(all.find("SPAR_KERNELS=gpu"), std::string::npos) << all;
   r = runValidated({SPAR_BENCH, "--list-kernels"}, scratch(), "SPAR_PIPELINE_CACHE=0 SPAR_KERNELS=coopmat");
   EXPECT_EQ(r.code, 1);

@@ -37,8 +37,9 @@ struct SPAR_API KernelTuning {
   // queries (attention_flash.comp); LANES 0: one query an invocation (attention_tiled.comp).
   std::optional<std::array<int, 3>> gpuAttentionTiles;
   // gemm_coopmat.comp: MMAs per subgroup WM x WN, subgroups SG_M x SG_N, K blocks a step
-  // (SPAR_COOPMAT_TILES=WM,WN,SGM,SGN,KSTEPS)
-  std::optional<std::array<int, 5>> coopMatTiles;
+  // (SPAR_COOPMAT_TILES=WM,WN,SGM,SGN,KSTEPS,PIPELINED,PIPELINED; PIPELINED 1: the next step fetched while
+  // one multiplies)
+  std::optional<std::array<int, 6>> coopMatTiles;
   // Measure the GPU tile candidates (GEMM, attention, cooperative matrices) at first use
   // (SPAR_MEASURE_KERNELS=1 / 0); unset: on GPUs only; off when any tile above is forced. The choice is kept in kernel-choice.json beside the pipeline cache file.
   std::optional<bool> measureKernels;

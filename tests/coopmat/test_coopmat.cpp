@@ -196,9 +196,9 @@ TEST_F(CoopMatTest, EveryWorkgroupShapeMatchesFloat64) {
   Tensor tx = eng().fromFloats({M, K}, x), tw = eng().fromFloats({N, K}, w, DType::F16), tb = eng().fromFloats({N}, b);
   const auto ref = linearRef(roundToHalf(x), roundToHalf(w), b, 1, M, N, K, false, Activation::Gelu);
   const KernelTuning saved = eng().options().tuning;
-  std::vector<std::array<int, 5>> shapes = {{1, 1, 1, 1, 1}};
+  std::vector<std::array<int, 6>> shapes = {{1, 1, 1, 1, 1, 1}, {1, 1, 1, 1, 1, 0}};
   for (const CoopMatTiles& c : coopMatTileCandidates(eng().caps(), eng().plan().coop))
-    shapes.push_back({c.wm, c.wn, c.sgM, c.sgN, c.kSteps});
+    shapes.push_back({c.wm, c.wn, c.sgM, c.sgN, c.kSteps, c.pipelined ? 1 : 0});
   ASSERT_GE(shapes.size(), 4u);
   for (const auto& shape : shapes) {
     KernelTuning t = saved;
