@@ -108,10 +108,12 @@ const Kernel* coopMatKernel(Engine& engine, const KernelPlan& plan, int headDim,
 }
 
 // shaders/attention_flash.comp (KernelPlan::attentionLanes > 0): the plan's queries a
-// workgroup and lanes a group of 4 queries; keys a block a multiple of the lanes, fewer where the
-// shared memory (q, k and v rows, the probabilities, the row partials) does not fit. Null where
-// nothing fits the device. Subgroup shuffles combine a group's rows (SG_ROWS) where the
-// device's subgroups hold whole groups and the pipeline can require full subgroups.
+// workgroup, lanes a group of 4 queries and keys a block (a multiple of the lanes). Where the
+// shared memory (q, k and v rows, the probabilities, the row partials) does not hold that, the
+// key block shrinks, then the lanes halve (down to 4), so a device with little shared memory
+// (16 KiB on a Raspberry Pi 5) still gets the kernel. Null where nothing fits. Subgroup shuffles
+// combine a group's rows (SG_ROWS) where the device's subgroups hold whole groups and the
+// pipeline can require full subgroups.
 struct FlashChoice {
   const Kernel* kernel = nullptr;
   int queries = 0;
@@ -119,27 +121,31 @@ struct FlashChoice {
 FlashChoice flashKernel(Engine& engine, const KernelPlan& plan, int headDim, bool causal, bool f16Out,
                         const QkPrep& prep) {
   const DeviceCaps& caps = engine.caps();
-  const int lanes = plan.attentionLanes, queries = plan.attentionQueries;
-  if (lanes <= 0 || queries % 4) return {};
-  const int invocations = queries / 4 * lanes;
-  if (invocations > int(caps.maxWorkGroupInvocations)) return {};
+  const int queries = plan.attentionQueries;
+  if (plan.attentionLanes <= 0 || queries % 4) return {};
   const uint32_t fixedSize = caps.requiredSubgroupSize && caps.minSubgroupSize != caps.maxSubgroupSize
                                  ? caps.maxSubgroupSize
                                  : (caps.minSubgroupSize ? caps.minSubgroupSize : caps.subgroupSize);
-  const bool sg = caps.subgroupShuffle && caps.fullSubgroups && (lanes & (lanes - 1)) == 0 &&
-                  uint32_t(lanes) <= fixedSize && caps.maxSubgroupSize &&
-                  invocations % int(caps.maxSubgroupSize) == 0;
-  auto sharedBytes = [&](int keys) { return attentionFlashSharedBytes(queries, keys, sg ? 0 : lanes, headDim); };
-  int keys = std::max(lanes, plan.attentionKeys / lanes * lanes);
-  while (keys > lanes && sharedBytes(keys) > caps.maxSharedMemory) keys -= lanes;
-  if (sharedBytes(keys) > caps.maxSharedMemory) return {};
-  std::vector<int32_t> constants = {invocations, 1, 1, headDim, keys, causal ? 1 : 0, queries, lanes};
-  withPrep(constants, prep);
-  const Kernel& kernel = engine.kernel({std::string("attention_flash") + (sg ? "_sg" : "") + (prep.any() ? "_prep" : "") +
-                                            (f16Out ? "_f16out" : "_f32"),
-                                        prep.any() ? prepBinds() : std::vector<Bind>{Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                                        sizeof(AttentionPush), constants, sg ? caps.maxSubgroupSize : 0u});
-  return {&kernel, queries};
+  for (int lanes = plan.attentionLanes; lanes >= 1; lanes = lanes >= 8 ? lanes / 2 : 0) {
+    const int invocations = queries / 4 * lanes;
+    if (invocations > int(caps.maxWorkGroupInvocations)) continue;
+    const bool sg = caps.subgroupShuffle && caps.fullSubgroups && (lanes & (lanes - 1)) == 0 &&
+                    uint32_t(lanes) <= fixedSize && caps.maxSubgroupSize &&
+                    invocations % int(caps.maxSubgroupSize) == 0;
+    auto sharedBytes = [&](int keys) { return attentionFlashSharedBytes(queries, keys, sg ? 0 : lanes, headDim); };
+    int keys = std::max(lanes, plan.attentionKeys / lanes * lanes);
+    while (keys > lanes && sharedBytes(keys) > caps.maxSharedMemory) keys -= lanes;
+    if (sharedBytes(keys) > caps.maxSharedMemory) continue;
+    std::vector<int32_t> constants = {invocations, 1, 1, headDim, keys, causal ? 1 : 0, queries, lanes};
+    withPrep(constants, prep);
+    const Kernel& kernel =
+        engine.kernel({std::string("attention_flash") + (sg ? "_sg" : "") + (prep.any() ? "_prep" : "") +
+                           (f16Out ? "_f16out" : "_f32"),
+                       prep.any() ? prepBinds() : std::vector<Bind>{Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
+                       sizeof(AttentionPush), constants, sg ? caps.maxSubgroupSize : 0u});
+    return {&kernel, queries};
+  }
+  return {};
 }
 
 // The q / k preparation as its own ops, in place in the fused qkv tensor (the kernels without
