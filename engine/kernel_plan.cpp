@@ -22,11 +22,13 @@ std::string TiledGemmTiles::text() const {
   return b;
 }
 
-void TiledGemmTiles::addConstants(std::vector<int32_t>& constants) const {
-  constexpr size_t kPrefetchId = 17, kInterleaveId = 18;
-  if (pipelined) return;
-  if (constants.size() <= kInterleaveId) constants.resize(kInterleaveId + 1, 0);
-  constants[kPrefetchId] = constants[kInterleaveId] = 0;
+void TiledGemmTiles::addConstants(std::vector<int32_t>& constants, bool pointwise) const {
+  constexpr size_t kPrefetchId = 17, kInterleaveId = 18, kPointwiseId = 19;
+  if (pipelined && !pointwise) return;  // all at their defaults
+  const size_t last = pointwise ? kPointwiseId : kInterleaveId;
+  if (constants.size() <= last) constants.resize(last + 1, 0);  // ids before 17 default to 0 / false
+  constants[kPrefetchId] = constants[kInterleaveId] = pipelined;
+  if (pointwise) constants[kPointwiseId] = 1;
 }
 
 bool CoopMatTiles::fits(const DeviceCaps& caps) const {

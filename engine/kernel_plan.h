@@ -26,8 +26,10 @@ struct TiledGemmTiles {
   bool pipelined = true;
   int invocations() const { return (bm / tm) * (bn / tn); }
   std::string text() const;  // "64x64x16 / 4x4" (", one step at a time" when not pipelined)
-  // gemm_tiled.comp's PREFETCH and INTERLEAVE (constants 17, 18), set only when off.
-  void addConstants(std::vector<int32_t>& constants) const;
+  // gemm_tiled.comp's PREFETCH and INTERLEAVE (constants 17, 18) and, for a convolution that is a
+  // plain GEMM, POINTWISE (19): written only where one differs from the shader's default, so the
+  // other kernels keep their constants (and their pipelines) as they were.
+  void addConstants(std::vector<int32_t>& constants, bool pointwise = false) const;
   bool operator==(const TiledGemmTiles&) const = default;
 };
 

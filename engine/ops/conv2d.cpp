@@ -48,25 +48,19 @@ void conv2dAsGemm(Recorder& rec, const Tensor& x, const Tensor& w, const Tensor&
   std::vector<int32_t> constants = {t.invocations(), 1, 1, t.bm, t.bn, t.bk, t.tm, t.tn, texelK,
                                     static_cast<int>(params.act), bias.defined(), int(KH), int(KW), params.stride};
   if (quantized) constants.push_back(w.dtype() == DType::Q8 ? 8 : 4);  // W_BITS
-  t.addConstants(constants);
-  const Kernel& kernel = engine.kernel({quantized ? "conv2d_tiled_q_f32" : "conv2d_tiled_f32",
-                                        {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write},
-                                        sizeof(ConvGemmPush), constants});
+  auto tiledKernel = [&](bool pointwise) {
+    std::vector<int32_t> c = constants;
+    t.addConstants(c, pointwise);
+    return &engine.kernel({quantized ? "conv2d_tiled_q_f32" : "conv2d_tiled_f32",
+                           {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write}, sizeof(ConvGemmPush), c});
+  };
+  const Kernel& kernel = *tiledKernel(false);
   // A 1x1 convolution, stride 1, no padding, over whole texels of pixels: a plain GEMM reading
   // the image as RGBA texels (gemm_tiled.comp's POINTWISE), in every chunk whose binding starts
   // on a texel of the image (the views below start 16-byte aligned, so all do).
   const bool pointwise = KH == 1 && KW == 1 && params.stride == 1 && params.padY == 0 && params.padX == 0 &&
                          (H * W) % 4 == 0 && t.bm % 4 == 0 && x.byteOffset() % 16 == 0;
-  const Kernel* pointwiseKernel = nullptr;
-  if (pointwise) {
-    std::vector<int32_t> c = constants;
-    constexpr size_t kPrefetchId = 17, kInterleaveId = 18, kPointwiseId = 19;
-    c.resize(kPointwiseId + 1, 0);
-    c[kPrefetchId] = c[kInterleaveId] = t.pipelined;
-    c[kPointwiseId] = 1;
-    pointwiseKernel = &engine.kernel({quantized ? "conv2d_tiled_q_f32" : "conv2d_tiled_f32",
-                                      {Bind::Texel, Bind::Texel, Bind::Texel, Bind::Write}, sizeof(ConvGemmPush), c});
-  }
+  const Kernel* pointwiseKernel = pointwise ? tiledKernel(true) : nullptr;
   // Output channels per unit: all of them, unless an image's output is over a binding.
   const int64_t plane = Ho * Wo;
   const int64_t room = bindingElements(engine, false) - alignmentSlack(caps, false);

@@ -91,7 +91,8 @@ GemmLaunch gemmLaunch(Engine& engine, DType xType, DType wType, DType yType, int
     if (isQuantized(wType)) constants.push_back(wType == DType::Q8 ? 8 : 4);  // W_BITS
     constants.resize(20, 0);  // ids 12-19 unused but ACCUMULATE (15), SCALED (16), PREFETCH (17); 20-22 the multiply-add shape
     withEpilogueFlags(constants, e);
-    constants[17] = c.pipelined;
+    constexpr size_t kCoopPrefetchId = 17;
+    constants[kCoopPrefetchId] = c.pipelined;
     constants.insert(constants.end(), {c.m, c.n, c.k});
     const std::string name = std::string(isQuantized(wType) ? "gemm_coopmat_q" : "gemm_coopmat") +
                              (f16Out ? "_f16out" : "_f32");
