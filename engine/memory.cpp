@@ -174,30 +174,7 @@ Buffer::Buffer(Device& device, MemoryAllocator& allocator, VkDeviceSize bytes, M
   }
 }
 
-VkBufferView Buffer::texelView(VkFormat format, VkDeviceSize offset, VkDeviceSize range) const {
-  std::lock_guard<std::mutex> lock(viewsMutex_);
-  auto [it, inserted] = views_.try_emplace({format, offset, range}, VK_NULL_HANDLE);
-  if (!inserted) return it->second;
-  VkBufferViewCreateInfo info{VK_STRUCTURE_TYPE_BUFFER_VIEW_CREATE_INFO};
-  info.buffer = buffer_;
-  info.format = format;
-  info.offset = offset;
-  info.range = range;
-  const VkResult r = vkCreateBufferView(device_.handle(), &info, nullptr, &it->second);
-  if (r != VK_SUCCESS) {
-    views_.erase(it);
-    vkCheck(r, "vkCreateBufferView");
-  }
-  return it->second;
-}
-
-size_t Buffer::texelViewCount() const {
-  std::lock_guard<std::mutex> lock(viewsMutex_);
-  return views_.size();
-}
-
 Buffer::~Buffer() {
-  for (const auto& [key, view] : views_) vkDestroyBufferView(device_.handle(), view, nullptr);
   vkDestroyBuffer(device_.handle(), buffer_, nullptr);
   allocator_.release(allocation_);
 }

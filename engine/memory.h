@@ -6,9 +6,7 @@
 #include <cstdint>
 #include <map>
 #include <memory>
-#include <mutex>
 #include <string>
-#include <tuple>
 #include <vector>
 
 #include "engine/device.h"
@@ -95,20 +93,12 @@ class Buffer {
   VkDeviceSize size() const { return size_; }
   void* mapped() const { return allocator_.mapped(allocation_); }
 
-  // A texel view of [offset, offset + range) in this format, made at its first use and kept
-  // until the buffer goes: a request that binds the same tensors again (every request of a
-  // session, every chunk of a render) creates no view. Views of one buffer: texelViewCount().
-  VkBufferView texelView(VkFormat format, VkDeviceSize offset, VkDeviceSize range) const;
-  size_t texelViewCount() const;
-
  private:
   Device& device_;
   MemoryAllocator& allocator_;
   VkBuffer buffer_ = VK_NULL_HANDLE;
   VkDeviceSize size_ = 0;
   Allocation allocation_;
-  mutable std::mutex viewsMutex_;  // recorders of one engine may record from several threads
-  mutable std::map<std::tuple<VkFormat, VkDeviceSize, VkDeviceSize>, VkBufferView> views_;
 };
 
 }  // namespace spar

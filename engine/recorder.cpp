@@ -169,7 +169,7 @@ void Recorder::dispatch(const Kernel& kernel, const std::vector<Arg>& args, cons
   d.kernel = &kernel;
   std::vector<VkDescriptorBufferInfo> bufferInfos(args.size());
   std::vector<VkWriteDescriptorSet> writes(args.size());
-  std::vector<VkBufferView> views(args.size(), VK_NULL_HANDLE);
+  std::vector<VkBufferView> newViews(args.size(), VK_NULL_HANDLE);
   for (size_t i = 0; i < args.size(); ++i) {
     // A texel input of a kernel's storage-input twin (*_sx, engine/kernel_plan.h storageInputs)
     // is bound as a storage buffer of words, fp32 or fp16 (its format joins the signature: the
@@ -203,15 +203,18 @@ void Recorder::dispatch(const Kernel& kernel, const std::vector<Arg>& args, cons
         throw Error(name + ": tensor " + a.tensor.describe() + " is not aligned for a texel binding");
       if (a.tensor.bytes() / texelBytes > caps.maxTexelBufferElements)
         throw Error(name + ": tensor " + a.tensor.describe() + " exceeds the device's texel-buffer size; the op must split it");
-      const VkDeviceSize range = stableTexelRange(offset, a.tensor.bytes(), a.tensor.buffer().size(), texelBytes,
-                                                  caps.maxTexelBufferElements);
-      // made once per buffer, format and range, and kept with the buffer (keepAlive_ below holds
-      // it until this recording is released)
-      views[i] = a.tensor.buffer().texelView(texelFormat(a.tensor.dtype(), a.components), offset, range);
+      VkBufferViewCreateInfo vi{VK_STRUCTURE_TYPE_BUFFER_VIEW_CREATE_INFO};
+      vi.buffer = a.tensor.buffer().handle();
+      vi.format = texelFormat(a.tensor.dtype(), a.components);
+      vi.offset = offset;
+      vi.range = stableTexelRange(offset, a.tensor.bytes(), a.tensor.buffer().size(), texelBytes,
+                                  caps.maxTexelBufferElements);
+      SPAR_VK(vkCreateBufferView(dev, &vi, nullptr, &newViews[i]));
+      views_.push_back(newViews[i]);
       w.descriptorType = VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER;
-      w.pTexelBufferView = &views[i];
+      w.pTexelBufferView = &newViews[i];
       d.signature += (d.signature.empty() ? "" : ",") + texelTypeName(a.tensor.dtype(), a.components);
-      d.texelState += texelStateOf(a.tensor.buffer().size(), range);
+      d.texelState += texelStateOf(a.tensor.buffer().size(), vi.range);
     } else {
       if ((a.kind == Bind::Write || a.kind == Bind::ReadWrite) && a.tensor.dtype() == DType::F16 &&
           !caps.storageBuffer16BitAccess)
@@ -396,6 +399,8 @@ double Recorder::totalBuildMs() const {
 
 void Recorder::releaseTransient() {
   VkDevice dev = engine_.device().handle();
+  for (auto v : views_) vkDestroyBufferView(dev, v, nullptr);
+  views_.clear();
   for (auto p : descriptorPools_) vkResetDescriptorPool(dev, p, 0);
   currentPool_ = 0;
   keepAlive_.clear();

@@ -133,6 +133,7 @@ class Recorder {
 
   std::vector<VkDescriptorPool> descriptorPools_;
   size_t currentPool_ = 0;
+  std::vector<VkBufferView> views_;
   // Buffers pending in the command buffer, kept alive until it completes.
   std::vector<std::shared_ptr<Buffer>> keepAlive_;
 

@@ -183,40 +183,6 @@ TEST_F(EngineTest, RecorderIsReusableAfterRun) {
   EXPECT_NEAR(y[0], s, 1e-6);
 }
 
-// Texel views are made once per buffer, format and range and kept with the buffer: a second
-// recording of the same work (a session's next request, a render's next chunk) creates none, a
-// tensor at another offset gets its own, and the results stay right. (w has two: the GEMM reads
-// it as RGBA texels, and its bias binding, unused without a bias, holds it as R texels.)
-TEST_F(EngineTest, TexelViewsAreMadeOncePerBufferAndRange) {
-  auto x = randomUniform(8 * 16, -1, 1, 47), w = randomUniform(16 * 16, -1, 1, 48);
-  Tensor tx = eng().fromFloats({8, 16}, x), tw = eng().fromFloats({16, 16}, w), ty = eng().tensor({8, 16});
-  const auto viewsOf = [](const Tensor& t) { return t.buffer().texelViewCount(); };
-  const bool texels = !eng().plan().storageInputs;  // storage-buffer inputs make no views
-  size_t xViews = 0, wViews = 0;
-  for (int round = 0; round < 3; ++round) {
-    Recorder rec(eng());
-    linear(rec, tx, tw, Tensor(), ty);
-    rec.run();
-    if (round == 0) {
-      xViews = viewsOf(tx), wViews = viewsOf(tw);
-      EXPECT_EQ(xViews > 0, texels);
-      EXPECT_EQ(wViews > 0, texels);
-    }
-    EXPECT_EQ(viewsOf(tx), xViews) << "round " << round;
-    EXPECT_EQ(viewsOf(tw), wViews) << "round " << round;
-  }
-  // the lower half of x's rows: a view at another offset of the same buffer
-  Tensor half = tx.view(4 * 16, {4, 16}), y2 = eng().tensor({4, 16});
-  Recorder rec(eng());
-  linear(rec, half, tw, Tensor(), y2);
-  rec.run();
-  EXPECT_EQ(viewsOf(tx), texels ? xViews + 1 : 0u);
-  EXPECT_EQ(viewsOf(tw), wViews);
-  const auto got = eng().download(y2);
-  const auto ref = linearRef(std::vector<float>(x.begin() + 64, x.end()), w, {}, 1, 4, 16, 16, false, Activation::None);
-  expectClose(got, ref, 1e-12, 1e-5, "the second view");
-}
-
 TEST_F(EngineTest, UploadChecksSizes) {
   Tensor t = eng().tensor({10});
   std::vector<float> wrong(9);
